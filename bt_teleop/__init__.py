@@ -1,0 +1,1 @@
+"""bt_teleop: the browser teleoperation app (viser + MuJoCo + mink). Filled by issue 4."""
