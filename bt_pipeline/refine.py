@@ -1,0 +1,514 @@
+"""Stage 2 of the cleaner: LSTM refinement with adaptive β (paper Sec. III-C, Algorithm 1).
+
+Data flow, one task, all refined demos in one batch per epoch::
+
+    x_i, x_i^aligned ──► features: standardised x_i, (x_i^aligned - x_i), cos/sin of 2πk/N
+        ──► shared 2-layer bidirectional LSTM ─┬─► zero-initialised linear head ──► Δ_i
+            linear skip (zero-initialised) ────┘
+        ──► x̂_i = x_i + Δ_i  (x̂ = x before the first step: docs/algorithms.md §7 row 15)
+        ──► L1..L4 and I_KL (bt_pipeline.torch_losses) ──► frozen raw-set min-max (Eq. 7)
+        ──► Ũ_i = (1 - β_i) Ĩ_i + β_i Σ_j w_j (1 - L̃_j)  (Eq. 8) ──► loss -mean_i Ũ_i ──► Adam
+        ──► R̄_i = reward_fn(x̂) (mean V_E, Eq. 11) ──► β_i ← clip(β_i + η tanh(γ ΔR̄_i), 0, 1)
+
+Two variants share this loop: ``"paper"`` is the
+paper's configuration as written (MI stand-in in the loss, unclamped scores, γ = 5 at full rate,
+lr 1e-3, 300 epochs, every demo refined, the LSTM sees the demo only); ``"default"`` keeps that
+structure but is built to make demos measurably closer to their true shape, fast
+(docs/algorithms.md §8 lists the traps it avoids).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, fields
+from typing import Literal, get_args
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+from torch import nn
+
+from bt_pipeline import torch_losses as tl
+from bt_pipeline.exceptions import ConfigError, DemoError
+from bt_pipeline.scoring import Normaliser
+
+FloatArray = NDArray[np.float64]
+RewardFn = Callable[[FloatArray], ArrayLike]
+"""R̄ of each demo: positions (M, N, 2) [m] -> mean value-map reward, shape (M,), in [0, 1]."""
+
+REFINE_METRICS: tuple[str, ...] = ("symmetry", "closure", "smoothness", "shape")
+"""Loss columns a refinement normaliser must hold (L1..L4, in the order of the weights)."""
+
+Variant = Literal["default", "paper"]
+"""``"paper"``: the paper's configuration as written; ``"default"``: the tuned design."""
+MiTerm = Literal["loss", "floor", "off"]
+"""How I(S; A) enters the loss: the KL stand-in as is (paper), capped at the demo's own raw
+value so only a loss of information is penalised, or not at all."""
+
+_PRESETS: dict[str, dict[str, object]] = {
+    "default": {
+        "epochs": 150,
+        "lr": 1e-2,
+        "hidden": 32,
+        "beta_rate": 0.1,
+        "mi_term": "floor",
+        "clamp_scores": True,
+        "refine_best": False,
+        "condition_on_reference": True,
+        "patience": 15,
+        "skip_lr_scale": 5.0,
+    },
+    "paper": {
+        "epochs": 300,
+        "lr": 1e-3,
+        "hidden": 64,
+        "beta_rate": 1.0,
+        "mi_term": "loss",
+        "clamp_scores": False,
+        "refine_best": True,
+        "condition_on_reference": False,
+        "patience": 0,
+        "skip_lr_scale": 1.0,
+    },
+}
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """Every refinement setting, concrete (see :class:`RefineConfig` for their meaning)."""
+
+    variant: Variant
+    epochs: int
+    lr: float
+    hidden: int
+    layers: int
+    bidirectional: bool
+    seed: int
+    gamma: float
+    beta0: float
+    beta_rate: float
+    weights: tuple[float, float, float, float]
+    mi_term: MiTerm
+    clamp_scores: bool
+    refine_best: bool
+    condition_on_reference: bool
+    delta_penalty: float
+    skip_lr_scale: float
+    patience: int
+    tolerance: float
+    min_epochs: int
+    threads: int
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """Refinement settings; None takes the variant's value (``_PRESETS``)."""
+
+    variant: Variant = "default"
+    """Which configuration: ``"default"`` (tuned) or ``"paper"`` (as written)."""
+    epochs: int | None = None
+    """K, most epochs (default 150 with early stopping; paper 300)."""
+    lr: float | None = None
+    """Adam learning rate η (default 1e-2; paper 1e-3)."""
+    hidden: int | None = None
+    """LSTM hidden size per direction (default 32; paper 64)."""
+    layers: int = 2
+    """LSTM layers."""
+    bidirectional: bool = True
+    """Bidirectional LSTM (cleaning is offline, the whole demo is known)."""
+    seed: int = 0
+    """Seed of the network initialisation."""
+    gamma: float = 5.0
+    """γ of the β update (Sec. III-C)."""
+    beta0: float = 0.5
+    """β_i^(0) for every demo (docs/algorithms.md §7 row 9)."""
+    beta_rate: float | None = None
+    """η_β ∈ (0, 1], step of the β update (default 0.1; paper 1)."""
+    weights: tuple[float, float, float, float] = (0.2, 0.2, 0.2, 0.4)
+    """w_1..w_4 of L1 symmetry, L2 closure, L3 smoothness, L4 shape; each in [0, 1], sum 1."""
+    mi_term: MiTerm | None = None
+    """How the MI stand-in enters the loss (default "floor"; paper "loss")."""
+    clamp_scores: bool | None = None
+    """Clamp normalised scores to [0, 1] in the loss (default True; paper False)."""
+    refine_best: bool | None = None
+    """Refine x_best too (default False: passed through; paper True)."""
+    condition_on_reference: bool | None = None
+    """Feed x_i^aligned - x_i to the network (default True; paper False: the demo only)."""
+    delta_penalty: float = 0.0
+    """λ of an optional λ·mean(Δ/scale)² term keeping the output near the demo."""
+    skip_lr_scale: float | None = None
+    """Learning rate of the linear skip relative to `lr` (default 5; paper 1)."""
+    patience: int | None = None
+    """Stop after this many epochs without a loss improvement > `tolerance`; 0 never stops
+    early (default 15; paper 0)."""
+    tolerance: float = 1e-4
+    """Smallest loss decrease that counts as progress."""
+    min_epochs: int = 20
+    """Never stop early before this epoch."""
+    threads: int = 1
+    """Torch CPU threads while refining (1 is fastest for these small batches)."""
+
+    def __post_init__(self) -> None:
+        if self.variant not in _PRESETS:
+            raise ConfigError(f"variant must be one of {sorted(_PRESETS)}; got {self.variant!r}")
+        for name in ("epochs", "hidden", "layers", "threads", "min_epochs"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or int(value) != value or value < 1):
+                raise ConfigError(f"{name} must be an integer ≥ 1; got {value!r}")
+        if self.patience is not None and (int(self.patience) != self.patience or self.patience < 0):
+            raise ConfigError(f"patience must be an integer ≥ 0; got {self.patience!r}")
+        if self.seed < 0 or int(self.seed) != self.seed:
+            raise ConfigError(f"seed must be an integer ≥ 0; got {self.seed!r}")
+        for name, low, high in (
+            ("lr", 0.0, math.inf),
+            ("gamma", 0.0, math.inf),
+            ("beta_rate", 0.0, 1.0),
+        ):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and low < value <= high):
+                raise ConfigError(f"{name} must lie in ({low}, {high}]; got {value!r}")
+        if not (math.isfinite(self.beta0) and 0.0 <= self.beta0 <= 1.0):
+            raise ConfigError(f"beta0 must lie in [0, 1]; got {self.beta0!r}")
+        w = tuple(float(v) for v in self.weights)
+        if len(w) != 4 or not all(0.0 <= v <= 1.0 for v in w) or abs(sum(w) - 1.0) > 1e-9:
+            raise ConfigError(
+                f"weights must be 4 values (L1..L4) in [0, 1] summing to 1; got {self.weights!r}"
+            )
+        if self.mi_term is not None and self.mi_term not in get_args(MiTerm):
+            raise ConfigError(f"mi_term must be one of {get_args(MiTerm)}; got {self.mi_term!r}")
+        for name in ("delta_penalty", "tolerance"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
+                raise ConfigError(f"{name} must be finite and ≥ 0; got {getattr(self, name)!r}")
+
+    def resolve(self) -> RefineSettings:
+        """Concrete settings: this config with every None replaced by the variant's value."""
+        preset = _PRESETS[self.variant]
+        values = {
+            f.name: preset[f.name] if getattr(self, f.name) is None else getattr(self, f.name)
+            for f in fields(self)
+        }
+        values["weights"] = tuple(float(v) for v in self.weights)
+        return RefineSettings(**values)  # type: ignore[arg-type]  # preset values are typed above
+
+
+@dataclass(frozen=True)
+class EpochStats:
+    """What one epoch of refinement did (passed to ``on_epoch``)."""
+
+    epoch: int
+    """1-based epoch number."""
+    loss: float
+    """Training loss -mean_i Ũ_i of the refined demos at this epoch (before the step)."""
+    rewards: FloatArray
+    """R̄_i of every demo's output at this epoch, shape (M,), in [0, 1]."""
+    betas: FloatArray
+    """β_i after this epoch's update, shape (M,), in [0, 1]."""
+
+
+@dataclass(frozen=True)
+class RefineResult:
+    """Output of :func:`refine_demos`."""
+
+    refined: FloatArray
+    """Refined demos x̂_i, shape (M, N, 2), in [m]; the best demo is passed through unchanged
+    unless the settings refine it."""
+    betas: FloatArray
+    """Final β_i, shape (M,)."""
+    beta_history: FloatArray
+    """β_i after each epoch, shape (K, M)."""
+    loss_history: FloatArray
+    """Training loss per epoch, shape (K,)."""
+    reward_history: FloatArray
+    """R̄_i per epoch, shape (K, M)."""
+    variant: Variant
+    """The variant that ran."""
+    epochs: int
+    """K, epochs run (fewer than the maximum when the loss reached a plateau)."""
+    settings: RefineSettings
+    """Every setting used, variant defaults filled in."""
+
+
+def update_beta(
+    betas: ArrayLike, rewards: ArrayLike, previous: ArrayLike, gamma: float, rate: float = 1.0
+) -> FloatArray:
+    """Adaptive demonstrator ability: β ← clip(β + η tanh(γ (R̄^(k) - R̄^(k-1))), 0, 1).
+
+    With η = 1 this is Algorithm 1 line 18 (and Sec. III-C): a rising reward raises β (more weight
+    on the task losses), a falling one lowers it (more weight on I(S; A)).
+
+    Args:
+        betas: β_i^(k), shape (M,), in [0, 1].
+        rewards: R̄_i^(k), shape (M,).
+        previous: R̄_i^(k-1), shape (M,).
+        gamma: γ, sensitivity to the reward change.
+        rate: η_β ∈ (0, 1], step size of the update (1 in the paper).
+
+    Returns:
+        β_i^(k+1), a new array of shape (M,).
+    """
+    delta = gamma * (np.asarray(rewards, np.float64) - np.asarray(previous, np.float64))
+    return np.clip(np.asarray(betas, np.float64) + rate * np.tanh(delta), 0.0, 1.0)
+
+
+class _Refiner(nn.Module):
+    """Shared residual seq2seq LSTM: features (B, N, F) -> Δ (B, N, 2) in standardised units."""
+
+    def __init__(self, features: int, hidden: int, layers: int, bidirectional: bool) -> None:
+        super().__init__()
+        self.lstm = nn.LSTM(
+            features, hidden, num_layers=layers, batch_first=True, bidirectional=bidirectional
+        )
+        self.head = nn.Linear(hidden * (2 if bidirectional else 1), 2)
+        self.skip = nn.Linear(features, 2, bias=False)
+        for layer in (self.head, self.skip):  # x̂ = x at initialisation (§7 row 15)
+            nn.init.zeros_(layer.weight)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        hidden, _ = self.lstm(features)
+        return self.head(hidden) + self.skip(features)
+
+
+def refine_demos(
+    positions: ArrayLike,
+    references: ArrayLike,
+    *,
+    thetas_deg: ArrayLike,
+    best_index: int,
+    reward_fn: RewardFn,
+    normaliser: Normaliser,
+    config: RefineConfig | None = None,
+    on_epoch: Callable[[EpochStats], None] | None = None,
+) -> RefineResult:
+    """Refine the demos of one task with a shared LSTM trained on the normalised utility Ũ.
+
+    Args:
+        positions: Raw demos x_i, shape (M, N, 2), in task coordinates [m].
+        references: Phase-aligned references x_i^aligned, shape (M, N, 2), in [m]:
+            ``references[i, k]`` is the target of ``positions[i, k]`` (Stage 1).
+        thetas_deg: Demonstrator rotations θ_i, shape (M,), in [deg] (L1 de-rotation; 0 for none).
+        best_index: Index of x_best (passed through unless the settings refine it).
+        reward_fn: R̄ of each demo's positions in its own frame, (M, N, 2) -> (M,) in [0, 1].
+        normaliser: Frozen raw-set (min, max) holding at least the columns
+            :data:`REFINE_METRICS` (see :func:`refine_normaliser`). The loss normalises the MI
+            stand-in I_KL by its own raw-set range, computed here.
+        config: Settings; ``RefineConfig()`` (the default variant) when None.
+        on_epoch: Called after every epoch with that epoch's statistics.
+
+    Returns:
+        The refined demos and the history of β, loss and reward.
+
+    Raises:
+        DemoError: Shapes disagree, fewer than 4 samples, or values not finite.
+        ConfigError: `best_index` out of range, or the normaliser lacks a column.
+    """
+    settings = (config or RefineConfig()).resolve()
+    x, ref, thetas = _validate(positions, references, thetas_deg, best_index)
+    m = x.shape[0]
+    spans = [normaliser.affine(name) for name in REFINE_METRICS]
+    refine_mask = np.ones(m, dtype=bool)
+    if not settings.refine_best:
+        refine_mask[best_index] = False
+    betas = np.full(m, settings.beta0)
+    previous_reward = _rewards(reward_fn, x)
+    loss_log: list[float] = []
+    beta_log: list[FloatArray] = []
+    reward_log: list[FloatArray] = []
+    if not refine_mask.any():  # a single demo, the best: nothing to refine
+        return _result(x.copy(), betas, beta_log, loss_log, reward_log, settings)
+
+    with _torch_session(settings.seed, settings.threads):
+        dtype = torch.float32
+        centre = x.reshape(-1, 2).mean(axis=0)
+        scale = float(x.std()) or 1.0
+        x_t = torch.as_tensor(x[refine_mask], dtype=dtype)
+        ref_t = torch.as_tensor(ref[refine_mask], dtype=dtype)
+        theta_t = torch.as_tensor(thetas[refine_mask], dtype=dtype)
+        features = _features(x, ref, centre, scale, settings.condition_on_reference)
+        features_t = torch.as_tensor(features[refine_mask], dtype=dtype)
+        model = _Refiner(
+            features_t.shape[-1], settings.hidden, settings.layers, settings.bidirectional
+        )
+        optimiser = torch.optim.Adam(
+            [
+                {"params": [*model.lstm.parameters(), *model.head.parameters()]},
+                {"params": model.skip.parameters(), "lr": settings.lr * settings.skip_lr_scale},
+            ],
+            lr=settings.lr,
+        )
+        with torch.no_grad():
+            mi_raw = tl.mi_kl(torch.as_tensor(x, dtype=dtype)).numpy().astype(np.float64)
+        mi_span = _span(mi_raw, normaliser.delta)
+        mi_raw_t = torch.as_tensor(mi_raw[refine_mask], dtype=dtype)
+        weights = torch.as_tensor(settings.weights, dtype=dtype)
+        stall = 0
+        best_loss = math.inf
+        for epoch in range(1, settings.epochs + 1):
+            beta_t = torch.as_tensor(betas[refine_mask], dtype=dtype)
+            delta = model(features_t) * scale
+            out = x_t + delta
+            losses = torch.stack(
+                (
+                    tl.symmetry_loss(out, theta_t),
+                    tl.closure_loss(out),
+                    tl.smoothness_loss(out),
+                    tl.shape_loss(out, ref_t),
+                ),
+                dim=-1,
+            )
+            lo = torch.as_tensor([s[0] for s in spans], dtype=dtype)
+            sc = torch.as_tensor([s[1] for s in spans], dtype=dtype)
+            norm = (losses - lo) * sc  # Eq. (7) with the frozen raw-set (min, max)
+            if settings.clamp_scores:  # no reward for beating the best raw demo on L1-L3
+                norm = torch.cat((norm[:, :3].clamp_min(0.0), norm[:, 3:]), dim=-1)
+            task_score = ((1.0 - norm) * weights).sum(dim=-1)  # Eq. (10)
+            mi_score = _mi_score(out, mi_raw_t, mi_span, settings.mi_term, settings.clamp_scores)
+            utility = (1.0 - beta_t) * mi_score + beta_t * task_score  # Eq. (8)
+            loss = -utility.mean()
+            if settings.delta_penalty > 0.0:
+                loss = loss + settings.delta_penalty * (delta / scale).pow(2).mean()
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+
+            output = x.copy()
+            output[refine_mask] += delta.detach().numpy().astype(np.float64)
+            reward = _rewards(reward_fn, output)
+            betas = update_beta(betas, reward, previous_reward, settings.gamma, settings.beta_rate)
+            previous_reward = reward
+            loss_value = float(loss.detach())
+            loss_log.append(loss_value)
+            beta_log.append(betas.copy())
+            reward_log.append(reward)
+            if on_epoch is not None:
+                on_epoch(EpochStats(epoch, loss_value, reward.copy(), betas.copy()))
+            if settings.patience > 0:
+                stall = 0 if loss_value < best_loss - settings.tolerance else stall + 1
+                best_loss = min(best_loss, loss_value)
+                if stall >= settings.patience and epoch >= settings.min_epochs:
+                    break
+        with torch.no_grad():
+            final = model(features_t).numpy().astype(np.float64) * scale
+    refined = x.copy()
+    refined[refine_mask] += final
+    return _result(refined, betas, beta_log, loss_log, reward_log, settings)
+
+
+def refine_normaliser(normaliser: Normaliser, shape_losses: ArrayLike) -> Normaliser:
+    """The selection stage's raw-set normaliser plus the shape loss L4 of the same raw demos.
+
+    Args:
+        normaliser: Raw-set normaliser of :mod:`bt_pipeline.scoring` (MI, L1, L2, L3).
+        shape_losses: L4 of each raw demo against its aligned reference, shape (M,), in [m].
+
+    Returns:
+        A normaliser with the extra column ``"shape"``.
+    """
+    values = np.asarray(shape_losses, dtype=np.float64)
+    if values.ndim != 1 or values.size == 0 or not np.all(np.isfinite(values)):
+        raise DemoError(f"shape_losses must be finite with shape (M,); got {values.shape}")
+    return Normaliser(
+        names=(*normaliser.names, "shape"),
+        min=np.append(normaliser.min, values.min()),
+        max=np.append(normaliser.max, values.max()),
+        delta=normaliser.delta,
+    )
+
+
+def _mi_score(
+    out: torch.Tensor, mi_raw: torch.Tensor, span: tuple[float, float], mode: str, clamp: bool
+) -> torch.Tensor:
+    """Normalised MI term Ĩ_i of Eq. (8) for the loss, per the settings' `mi_term`."""
+    if mode == "off":
+        return out.new_zeros(out.shape[0])
+    lo, sc = span
+    current = (tl.mi_kl(out) - lo) * sc
+    if mode == "floor":  # no reward above the demo's own raw MI: only a loss of MI is penalised
+        current = torch.minimum(current, (mi_raw - lo) * sc)
+    return current.clamp_max(1.0) if clamp else current
+
+
+def _span(values: FloatArray, delta: float) -> tuple[float, float]:
+    """(min, 1 / (max - min)) of raw values, scale 0 when the range is ≤ δ (Eq. 7)."""
+    lo, hi = float(values.min()), float(values.max())
+    return lo, (1.0 / (hi - lo) if hi - lo > delta else 0.0)
+
+
+def _features(
+    x: FloatArray, ref: FloatArray, centre: FloatArray, scale: float, with_reference: bool
+) -> FloatArray:
+    """Network input, shape (M, N, F): standardised x, optionally (ref - x), phase cos/sin."""
+    m, n, _ = x.shape
+    phase = 2.0 * np.pi * np.arange(n) / n
+    cos_sin = np.broadcast_to(np.stack((np.cos(phase), np.sin(phase)), -1), (m, n, 2))
+    parts = [(x - centre) / scale]
+    if with_reference:
+        parts.append((ref - x) / scale)
+    parts.append(cos_sin)
+    return np.concatenate(parts, axis=-1)
+
+
+def _rewards(reward_fn: RewardFn, positions: FloatArray) -> FloatArray:
+    """reward_fn on a copy of `positions`, checked to be M finite values."""
+    rewards = np.asarray(reward_fn(positions.copy()), dtype=np.float64)
+    if rewards.shape != (positions.shape[0],) or not np.all(np.isfinite(rewards)):
+        raise DemoError(
+            f"reward_fn must return {positions.shape[0]} finite values; got shape {rewards.shape}"
+        )
+    return rewards
+
+
+def _validate(
+    positions: ArrayLike, references: ArrayLike, thetas_deg: ArrayLike, best_index: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    x = np.array(positions, dtype=np.float64)
+    ref = np.array(references, dtype=np.float64)
+    thetas = np.array(thetas_deg, dtype=np.float64).reshape(-1)
+    if x.ndim != 3 or x.shape[2] != 2 or x.shape[0] == 0 or x.shape[1] < 4:
+        raise DemoError(f"positions must have shape (M, N, 2) with M ≥ 1, N ≥ 4; got {x.shape}")
+    if ref.shape != x.shape:
+        raise DemoError(f"references must have the shape of positions {x.shape}; got {ref.shape}")
+    if thetas.shape != (x.shape[0],):
+        raise DemoError(f"thetas_deg must have shape ({x.shape[0]},); got {thetas.shape}")
+    for name, values in (("positions", x), ("references", ref), ("thetas_deg", thetas)):
+        if not np.all(np.isfinite(values)):
+            raise DemoError(f"{name} contain NaN or infinite values")
+    if isinstance(best_index, bool) or not 0 <= int(best_index) < x.shape[0]:
+        raise ConfigError(f"best_index must be in [0, {x.shape[0] - 1}]; got {best_index!r}")
+    return x, ref, thetas
+
+
+def _result(
+    refined: FloatArray,
+    betas: FloatArray,
+    beta_log: list[FloatArray],
+    loss_log: list[float],
+    reward_log: list[FloatArray],
+    settings: RefineSettings,
+) -> RefineResult:
+    m = refined.shape[0]
+    return RefineResult(
+        refined=refined,
+        betas=betas.copy(),
+        beta_history=np.array(beta_log, dtype=np.float64).reshape(-1, m),
+        loss_history=np.array(loss_log, dtype=np.float64),
+        reward_history=np.array(reward_log, dtype=np.float64).reshape(-1, m),
+        variant=settings.variant,
+        epochs=len(loss_log),
+        settings=settings,
+    )
+
+
+@contextlib.contextmanager
+def _torch_session(seed: int, threads: int) -> Iterator[None]:
+    """Seed torch's RNG and set its thread count for the block, restoring both afterwards."""
+    saved_threads = torch.get_num_threads()
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        torch.set_num_threads(threads)
+        try:
+            yield
+        finally:
+            torch.set_num_threads(saved_threads)

@@ -1,0 +1,480 @@
+"""One teleoperation session: its own simulated FR3, target, IK, recorder and control loop.
+
+Callbacks (a browser tab, a script) only store the latest command under a lock; one fixed-rate
+loop per session consumes it::
+
+    set_target / set_gripper / set_stay_on_plane   (any thread, under _input_lock)
+        |  latest target (p, q), gripper open?, stay on plane?
+        v
+    tick, every 1 / control_hz of simulation time  (under _state_lock)
+        project onto the task plane (optional) -> clamp to the workspace box
+        -> IkController.solve -> position actuators (ctrl) -> mj_step x substeps
+        -> every 1 / record_hz: DemoRecorder.add(ee pose, joints, gripper, mj_getState)
+
+The loop runs in a background thread at real time (:meth:`Session.start`) or synchronously as
+fast as possible (:meth:`Session.step_for`), with the same tick. Saving writes outside the state
+lock, so disk I/O never stalls the loop. :meth:`Session.close` (a closed tab) saves a recording
+in progress flagged ``incomplete`` in ``ep_meta``, or discards it; never half-written.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import secrets
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike
+
+from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.records import MIN_SAMPLES, FloatArray
+from bt_teleop.ik import IkController, IkSettings
+from bt_teleop.recorder import STATE_SIGNATURE, DemoInfo, DemoRecorder, env_args, save_demo
+from bt_teleop.scene import HOME_KEY, SceneModel, load_scene
+from bt_teleop.workspace import project_onto_plane, validate_position, validate_quat
+
+LOGGER = logging.getLogger("bt.teleop")
+_UNSTABLE = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+)
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """Rates and policies of a session."""
+
+    control_hz: float = 100.0
+    """IK and actuator command rate [Hz]; a whole number of physics steps per tick."""
+    record_hz: float = 50.0
+    """Sampling rate of recordings on simulation time [Hz]; divides control_hz."""
+    max_lag_s: float = 0.25
+    """Real-time loop: when it falls further behind than this [s] it skips ahead."""
+    save_incomplete: bool = True
+    """What :meth:`Session.close` does with a recording in progress: save it flagged
+    incomplete (True) or discard it (False)."""
+    ik: IkSettings = field(default_factory=IkSettings)
+    """IK weights and limits."""
+
+
+@dataclass(frozen=True)
+class SessionStatus:
+    """A snapshot of a session for a UI (all arrays are copies)."""
+
+    sim_time_s: float
+    """Simulation time [s]."""
+    qpos: FloatArray
+    """Full MuJoCo qpos, shape (nq,) (to draw the scene)."""
+    ee_pos: FloatArray
+    """End-effector (attachment_site) position, shape (3,), in [m]."""
+    ee_quat: FloatArray
+    """End-effector orientation wxyz, shape (4,)."""
+    joint_pos: FloatArray
+    """Arm joint positions, shape (7,), in [rad]."""
+    target_pos: FloatArray
+    """The target the IK tracks (projected and clamped), shape (3,), in [m]."""
+    target_quat: FloatArray
+    """Target orientation wxyz, shape (4,)."""
+    target_clamped: bool
+    """Whether the latest target was moved into the workspace box."""
+    gripper_open: bool | None
+    """Gripper command (None without a gripper)."""
+    ik_ok: bool
+    """Whether the latest IK tick succeeded."""
+    warning: str | None
+    """The latest IK or simulation warning, None when all is well."""
+    ik_failures: int
+    """IK ticks that failed since the session started."""
+    recording: bool
+    """Whether a demo is being recorded."""
+    n_samples: int
+    """Samples of the demo in progress (0 when not recording)."""
+    duration_s: float
+    """Duration of the demo in progress [s]."""
+    running: bool
+    """Whether the real-time background loop runs."""
+
+
+class Session:
+    """A simulated FR3 in one task scene, driven by the latest target, with a demo recorder."""
+
+    def __init__(
+        self,
+        scene: SceneModel | str,
+        recordings_dir: str | Path = "recordings",
+        *,
+        robot: str = "light",
+        config: SessionConfig | None = None,
+        session_id: str | None = None,
+    ) -> None:
+        """Create the session at the scene's ready pose (plane origin, default orientation).
+
+        Args:
+            scene: A loaded scene, or a task name to load with `robot`.
+            recordings_dir: Root folder; demos go to ``<recordings_dir>/<task>/``.
+            robot: ``light`` or ``menagerie`` (only when `scene` is a task name).
+            config: Rates and policies; defaults when None.
+            session_id: Stored in each demo's ep_meta; random when None.
+
+        Raises:
+            ConfigError: Rates that do not divide into physics steps and samples.
+        """
+        self.scene = scene if isinstance(scene, SceneModel) else load_scene(scene, robot)
+        self.config = config or SessionConfig()
+        self.recordings_dir = Path(recordings_dir)
+        self.session_id = session_id or secrets.token_hex(4)
+        model = self.scene.model
+        self._substeps = _whole(1.0 / (self.config.control_hz * model.opt.timestep), "physics")
+        self._ticks_per_sample = _whole(self.config.control_hz / self.config.record_hz, "record")
+        self.dt_s = self._substeps * float(model.opt.timestep)
+        """Control period [s]."""
+        self.data = mujoco.MjData(model)
+        self._ik = IkController(self.scene, self.dt_s, self.config.ik)
+        self._arm_act = np.array(self.scene.arm_actuator_ids)
+        self._arm_adr = np.array(self.scene.arm_qpos_adr)
+        self._grip_adr = np.array(self.scene.gripper_qpos_adr, dtype=int)
+        self._state_buf = np.empty(mujoco.mj_stateSize(model, STATE_SIGNATURE))
+        self._input_lock = threading.Lock()
+        self._state_lock = threading.RLock()
+        self._stop_event = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._closed = False
+        self._recorder: DemoRecorder | None = None
+        self._record_tick0 = 0
+        self._ticks = 0
+        self._ik_failures = 0
+        self._warning: str | None = None
+        self._ik_ok = True
+        self._clamped = False
+        self._stay_on_plane = False
+        self._gripper_open = True
+        self._target_pos = self.scene.ready_pos
+        self._target_quat = self.scene.ee_quat.copy()
+        self._effective_pos = self._target_pos.copy()
+        self.reset()
+
+    # -- commands (any thread) ----------------------------------------------------------------
+
+    def set_target(self, pos: ArrayLike, quat: ArrayLike | None = None) -> None:
+        """Set the end-effector target: position (3,) [m], orientation wxyz (4,) or None (keep).
+
+        Raises:
+            ConfigError: Not finite or of the wrong shape (the previous target stays).
+        """
+        p = validate_position(pos)
+        q = None if quat is None else validate_quat(quat)
+        with self._input_lock:
+            self._target_pos = p
+            if q is not None:
+                self._target_quat = q
+
+    def set_target_uv(self, uv: ArrayLike) -> None:
+        """Set the target position in task-plane coordinates (2,) [m]; orientation kept."""
+        uv_arr = np.array(uv, dtype=np.float64)
+        if uv_arr.shape != (2,):
+            raise ConfigError(f"task-plane target must be 2 numbers (u, v) [m]; got {uv!r}")
+        self.set_target(self.scene.plane.to_world(uv_arr))
+
+    def set_gripper(self, open: bool) -> None:
+        """Open (True) or close (False) the gripper; ignored by scenes without one."""
+        with self._input_lock:
+            self._gripper_open = bool(open)
+
+    def set_stay_on_plane(self, on: bool) -> None:
+        """Project every target onto the task plane (True) or not (False)."""
+        with self._input_lock:
+            self._stay_on_plane = bool(on)
+
+    def start_recording(
+        self, demonstrator: str = "anonymous", theta_deg: float = math.nan, rho: float = math.nan
+    ) -> None:
+        """Start a demo now; the first sample is the current state (timestamp 0).
+
+        Raises:
+            ConfigError: A demo is already being recorded, the session is closed, or θ/ρ are
+                not valid numbers.
+        """
+        info = DemoInfo(demonstrator, theta_deg, rho, created=datetime.now(UTC))
+        with self._state_lock:
+            self._check_open()
+            if self._recorder is not None:
+                raise ConfigError("a recording is already in progress; stop or discard it first")
+            self._recorder = DemoRecorder(
+                info, self.data.time, has_gripper=self.scene.has_gripper
+            )
+            self._record_tick0 = self._ticks
+            self._sample(self._recorder)
+
+    def stop_and_save(self) -> Path:
+        """Stop the demo in progress and write it to a new file; returns its path.
+
+        Raises:
+            ConfigError: Nothing is being recorded.
+            RecordingError: The demo is too short (it is discarded) or cannot be written.
+        """
+        with self._state_lock:
+            recorder = self._take_recorder()
+            if recorder is None:
+                raise ConfigError("nothing to save: no recording in progress")
+        return self._save(recorder, incomplete=False)
+
+    def discard(self) -> bool:
+        """Drop the demo in progress without writing anything; whether there was one."""
+        with self._state_lock:
+            return self._take_recorder() is not None
+
+    # -- running the loop ---------------------------------------------------------------------
+
+    def step(self, n_ticks: int = 1) -> None:
+        """Run `n_ticks` control ticks synchronously, as fast as possible."""
+        if self._thread is not None and self._thread.is_alive():
+            raise ConfigError("the session runs in real time; stop() it before stepping by hand")
+        self._check_open()
+        for _ in range(int(n_ticks)):
+            self._tick()
+
+    def step_for(self, seconds: float) -> None:
+        """Advance the simulation by `seconds` [s] of simulation time, synchronously."""
+        if not (math.isfinite(seconds) and seconds >= 0.0):
+            raise ConfigError(f"step_for needs a non-negative duration [s]; got {seconds}")
+        self.step(round(seconds / self.dt_s))
+
+    def start(self) -> None:
+        """Run the loop in a background thread, paced to real time."""
+        self._check_open()
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._stop_event.clear()
+        self._thread = threading.Thread(
+            target=self._run, name=f"bt-session-{self.session_id}", daemon=True
+        )
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop the background loop (no-op when it is not running)."""
+        self._stop_event.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            self._thread = None
+
+    def close(self, save_incomplete: bool | None = None) -> Path | None:
+        """End the session (e.g. its tab closed): stop the loop and settle a demo in progress.
+
+        Args:
+            save_incomplete: Save a demo in progress flagged ``incomplete`` in ep_meta (True)
+                or discard it (False); ``config.save_incomplete`` when None. A demo shorter
+                than the minimum is always discarded.
+
+        Returns:
+            The file saved, or None.
+        """
+        self.stop()
+        with self._state_lock:
+            if self._closed:
+                return None
+            self._closed = True
+            recorder = self._take_recorder()
+        keep = self.config.save_incomplete if save_incomplete is None else save_incomplete
+        if recorder is None or not keep or recorder.n_samples < MIN_SAMPLES:
+            return None
+        return self._save(recorder, incomplete=True)
+
+    def __enter__(self) -> Session:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def reset(self) -> None:
+        """Put the robot at the ready pose with the gripper open and the target on it."""
+        with self._state_lock:
+            model, data = self.scene.model, self.data
+            key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY)
+            mujoco.mj_resetDataKeyframe(model, data, key)
+            self._ik.reset(self.scene.seed_q_arm)
+            result = self._ik.converge(self.scene.ready_pos, self.scene.ee_quat)
+            self._ik.hold_posture()
+            self._warning = result.warning
+            data.qpos[self._arm_adr] = result.q_arm
+            data.ctrl[self._arm_act] = result.q_arm
+            if self.scene.gripper_actuator_id is not None:
+                opened = self.scene.gripper_ctrl_range[1]
+                data.qpos[self._grip_adr] = opened
+                data.ctrl[self.scene.gripper_actuator_id] = opened
+            mujoco.mj_forward(model, data)
+        with self._input_lock:
+            self._target_pos = self.scene.ready_pos
+            self._target_quat = self.scene.ee_quat.copy()
+            self._gripper_open = True
+
+    # -- reading ------------------------------------------------------------------------------
+
+    @property
+    def recording(self) -> bool:
+        """Whether a demo is being recorded."""
+        return self._recorder is not None
+
+    @property
+    def ik(self) -> IkController:
+        """The session's IK controller."""
+        return self._ik
+
+    def status(self) -> SessionStatus:
+        """A consistent snapshot of the session."""
+        with self._input_lock:
+            target_quat = self._target_quat.copy()
+            gripper_open = self._gripper_open if self.scene.has_gripper else None
+        with self._state_lock:
+            data = self.data
+            recorder = self._recorder
+            return SessionStatus(
+                sim_time_s=float(data.time),
+                qpos=data.qpos.copy(),
+                ee_pos=data.site_xpos[self.scene.site_id].copy(),
+                ee_quat=self._ee_quat(),
+                joint_pos=data.qpos[self._arm_adr].copy(),
+                target_pos=self._effective_pos.copy(),
+                target_quat=target_quat,
+                target_clamped=self._clamped,
+                gripper_open=gripper_open,
+                ik_ok=self._ik_ok,
+                warning=self._warning,
+                ik_failures=self._ik_failures,
+                recording=recorder is not None,
+                n_samples=0 if recorder is None else recorder.n_samples,
+                duration_s=0.0 if recorder is None else recorder.duration_s,
+                running=self._thread is not None and self._thread.is_alive(),
+            )
+
+    def trail(self) -> FloatArray:
+        """End-effector positions of the demo in progress, shape (T, 3) [m] (empty if none)."""
+        with self._state_lock:
+            if self._recorder is None:
+                return np.zeros((0, 3))
+            return self._recorder.ee_positions()
+
+    # -- internals ----------------------------------------------------------------------------
+
+    def _tick(self) -> None:
+        with self._input_lock:
+            pos, quat = self._target_pos, self._target_quat
+            gripper_open, stay = self._gripper_open, self._stay_on_plane
+        if stay:
+            pos = project_onto_plane(self.scene.plane, pos)
+        pos, clamped = self.scene.workspace.clamp(pos)
+        model, data = self.scene.model, self.data
+        with self._state_lock:
+            result = self._ik.solve(pos, quat)
+            self._ik_ok, self._clamped, self._effective_pos = result.ok, clamped, pos
+            if not result.ok:
+                self._ik_failures += 1
+                self._warning = result.warning
+                if self._recorder is not None:
+                    self._recorder.ik_failures += 1
+            elif self._warning is not None and self._warning.startswith("IK"):
+                self._warning = None
+            data.ctrl[self._arm_act] = result.q_arm
+            if self.scene.gripper_actuator_id is not None:
+                closed, opened = self.scene.gripper_ctrl_range
+                data.ctrl[self.scene.gripper_actuator_id] = opened if gripper_open else closed
+            unstable = sum(int(data.warning[w].number) for w in _UNSTABLE)
+            for _ in range(self._substeps):
+                mujoco.mj_step(model, data)
+            if sum(int(data.warning[w].number) for w in _UNSTABLE) != unstable:
+                self._recover()
+            mujoco.mj_kinematics(model, data)  # poses of the state just integrated
+            self._ticks += 1
+            recorder = self._recorder
+            if recorder is not None and (self._ticks - self._record_tick0) % (
+                self._ticks_per_sample
+            ) == 0:
+                self._sample(recorder, clamped=clamped)
+
+    def _sample(self, recorder: DemoRecorder, *, clamped: bool = False) -> None:
+        data = self.data
+        mujoco.mj_getState(self.scene.model, data, self._state_buf, STATE_SIGNATURE)
+        gripper = float(data.qpos[self._grip_adr].sum()) if self._grip_adr.size else 0.0
+        recorder.add(
+            data.time,
+            data.site_xpos[self.scene.site_id],
+            self._ee_quat(),
+            data.qpos[self._arm_adr],
+            gripper,
+            self._state_buf,
+            clamped=clamped,
+        )
+
+    def _ee_quat(self) -> FloatArray:
+        quat = np.empty(4)
+        mujoco.mju_mat2Quat(quat, self.data.site_xmat[self.scene.site_id])
+        return quat
+
+    def _recover(self) -> None:
+        """The simulation went unstable (MuJoCo reset it): start again from the ready pose."""
+        time_s = self.data.time
+        LOGGER.warning("session %s: simulation unstable; resetting the robot", self.session_id)
+        self.reset()
+        self.data.time = time_s
+        self._warning = "simulation became unstable; the robot was reset"
+
+    def _take_recorder(self) -> DemoRecorder | None:
+        recorder, self._recorder = self._recorder, None
+        return recorder
+
+    def _save(self, recorder: DemoRecorder, *, incomplete: bool) -> Path:
+        ep_meta: dict[str, Any] = {
+            "incomplete": incomplete,
+            "session": self.session_id,
+            "robot": self.scene.robot,
+            "clamped_samples": recorder.clamped_samples,
+            "ik_failures": recorder.ik_failures,
+        }
+        demo = recorder.to_demo(ep_meta)
+        env = env_args(
+            self.scene, control_hz=self.config.control_hz, record_hz=self.config.record_hz
+        )
+        path = save_demo(demo, self.scene, self.recordings_dir, env)
+        LOGGER.info("session %s saved %s", self.session_id, path)
+        return path
+
+    def _run(self) -> None:
+        period = self.dt_s
+        next_t = time.perf_counter()
+        while not self._stop_event.is_set():
+            try:
+                self._tick()
+            except Exception as exc:  # keep the server alive; the status shows what happened
+                LOGGER.exception("session %s: control loop stopped", self.session_id)
+                self._warning = f"control loop stopped: {type(exc).__name__}: {exc}"
+                return
+            next_t += period
+            delay = next_t - time.perf_counter()
+            if delay > 0.0:
+                self._stop_event.wait(delay)
+            elif -delay > self.config.max_lag_s:
+                next_t = time.perf_counter()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ConfigError(f"session {self.session_id} is closed")
+
+
+def _whole(ratio: float, what: str) -> int:
+    """`ratio` as a positive integer, or an error naming the rates to fix."""
+    n = round(ratio)
+    if n < 1 or abs(ratio - n) > 1e-6:
+        hint = (
+            "control_hz must be timestep⁻¹ divided by a whole number"
+            if what == "physics"
+            else "record_hz must divide control_hz"
+        )
+        raise ConfigError(f"rates do not fit: {ratio:.6g} {what} steps per tick; {hint}")
+    return n

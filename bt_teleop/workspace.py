@@ -1,0 +1,90 @@
+"""Where end-effector targets may go: the workspace box and the task-plane projection.
+
+Targets arrive from a browser gizmo or a script and may be anywhere (or garbage). Before the IK
+sees one it is optionally projected onto the task plane, then clamped into the scene's workspace
+box, so the control loop only ever tracks finite, reachable-looking targets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.plane import TaskPlane
+from bt_pipeline.records import FloatArray
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """An axis-aligned box in the world frame."""
+
+    lo: FloatArray
+    """Lower corner, shape (3,), in [m]."""
+    hi: FloatArray
+    """Upper corner, shape (3,), in [m]."""
+
+    def __post_init__(self) -> None:
+        lo = np.asarray(self.lo, dtype=np.float64)
+        hi = np.asarray(self.hi, dtype=np.float64)
+        if lo.shape != (3,) or hi.shape != (3,):
+            raise ConfigError(f"workspace corners must have shape (3,); got {lo.shape}, {hi.shape}")
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
+            raise ConfigError(
+                f"workspace needs finite corners with lo <= hi; got lo {lo.tolist()}, "
+                f"hi {hi.tolist()}"
+            )
+        object.__setattr__(self, "lo", lo)
+        object.__setattr__(self, "hi", hi)
+
+    def clamp(self, p_world: ArrayLike) -> tuple[FloatArray, bool]:
+        """The nearest point of the box to `p_world` (3,) [m], and whether it moved."""
+        p = np.asarray(p_world, dtype=np.float64)
+        clamped = np.clip(p, self.lo, self.hi)
+        return clamped, bool(np.any(clamped != p))
+
+    def contains(self, p_world: ArrayLike, tol: float = 1e-9) -> bool:
+        """Whether `p_world` (3,) [m] lies in the box (up to `tol` [m])."""
+        p = np.asarray(p_world, dtype=np.float64)
+        return bool(np.all(p >= self.lo - tol) and np.all(p <= self.hi + tol))
+
+
+def project_onto_plane(plane: TaskPlane, p_world: ArrayLike) -> FloatArray:
+    """The orthogonal projection of `p_world` (3,) [m] onto `plane`, shape (3,) [m]."""
+    p = np.asarray(p_world, dtype=np.float64)
+    return plane.to_world(plane.to_plane(p))
+
+
+def validate_position(p_world: ArrayLike, what: str = "target position") -> FloatArray:
+    """`p_world` as a finite float array of shape (3,) [m] (a copy).
+
+    Raises:
+        ConfigError: Wrong shape or not finite.
+    """
+    try:
+        p = np.array(p_world, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{what} must be 3 numbers [m]; got {p_world!r}") from None
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise ConfigError(f"{what} must be 3 finite numbers [m]; got {p.tolist()}")
+    return p
+
+
+def validate_quat(quat: ArrayLike, what: str = "target orientation") -> FloatArray:
+    """`quat` (wxyz) as a unit quaternion, shape (4,) (a normalised copy).
+
+    Raises:
+        ConfigError: Wrong shape, not finite, or (near) zero norm.
+    """
+    try:
+        q = np.array(quat, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{what} must be a quaternion (w, x, y, z); got {quat!r}") from None
+    if q.shape != (4,) or not np.all(np.isfinite(q)):
+        raise ConfigError(f"{what} must be 4 finite numbers (w, x, y, z); got {q.tolist()}")
+    norm = float(np.linalg.norm(q))
+    if norm < 1e-6:
+        raise ConfigError(f"{what} has zero norm; a rotation quaternion has norm 1")
+    return q / norm
