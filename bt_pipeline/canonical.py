@@ -14,7 +14,9 @@ unlike the DMP anchor g (x^d's mean over one period in time) it does not move wi
 demo's speed profile, and on an asymmetric loop (the pick-and-place arch) rotating and scaling
 about g instead misplaces the other demonstrators' references by several millimetres. On the
 synthetic D1 sets (3 tasks × 4 seeds, references vs naive demos' truth, mean Chamfer ratio) box
-gives 0.090, the arc-length centroid 0.155 and g 0.231; the true centre gives 0.089. θ_i/ρ_i come from each demo's metadata; missing ones are
+gives 0.090, the arc-length centroid 0.155 and g 0.231; the true centre gives 0.089.
+
+θ_i/ρ_i come from each demo's metadata; missing ones are
 estimated by a similarity fit to x^g (§7 row 19). When the best demo's own θ/ρ are unknown,
 θ_best = 0 and ρ_best = 1 are assumed, so x^g keeps the best demonstrator's bias, and every other
 demo's θ/ρ is then estimated relative to x^g (given values would be relative to a frame we do
@@ -38,7 +40,7 @@ from bt_pipeline.alignment import (
     rotation_matrix,
 )
 from bt_pipeline.demo import Demo
-from bt_pipeline.dmp import DmpConfig, PeriodicDmp, canonical_reference, fit_periodic_dmp
+from bt_pipeline.dmp import DmpConfig, PeriodicDmp, fit_periodic_dmp
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.records import FloatArray
 from bt_pipeline.value_map import ValueMap, ValueMapConfig, build_value_map
@@ -80,9 +82,23 @@ class Stage1Config:
             )
 
 
+_RESULT_ARRAYS = (
+    "reference",
+    "global_shape",
+    "centre",
+    "aligned",
+    "shifts",
+    "reversed",
+    "thetas",
+    "rhos",
+    "estimated",
+    "shape_losses",
+)
+
+
 @dataclass(frozen=True, eq=False)
 class Stage1Result:
-    """Everything Stage 1 hands to the refinement (Step 2) and to the evaluation."""
+    """Everything Stage 1 hands to the refinement (Step 2) and to the evaluation (read-only)."""
 
     best_index: int
     """Index of x^best in the demo set."""
@@ -111,6 +127,12 @@ class Stage1Result:
     """V_E, in the best demo's frame, frozen."""
     dmp: PeriodicDmp
     """The DMP fitted to the best demo."""
+
+    def __post_init__(self) -> None:
+        for name in _RESULT_ARRAYS:
+            array = np.array(getattr(self, name))  # A copy: the caller's arrays stay writable.
+            array.setflags(write=False)
+            object.__setattr__(self, name, array)
 
     @property
     def n_demos(self) -> int:
@@ -148,6 +170,43 @@ class Stage1Result:
             )
         mapped = np.stack([self.to_best_frame(i, p[i]) for i in range(self.n_demos)])
         return self.value_map.mean_rewards(mapped)
+
+
+def canonical_reference(
+    dmp: PeriodicDmp, best_positions: ArrayLike, n: int | None = None, oversample: int = 16
+) -> FloatArray:
+    """The canonical reference x^d: the DMP's last of 3 periods, as a closed loop of n samples.
+
+    The rollout starts at the best demo's first sample and velocity at phase 0. The last period
+    is sampled `oversample` times finer than needed; its sample nearest the best demo's first one
+    (searched within ±10% of a period of phase 0) is taken as x^d(t_1), and the loop is
+    resampled from there to n points over one period at t_k = k/(n − 1), so x^d[n − 1] = x^d[0]
+    (docs/algorithms.md §7 row 11).
+
+    Args:
+        dmp: The DMP fitted to the best demo.
+        best_positions: The best demo, shape (N, 2), in [m].
+        n: Samples of x^d; defaults to N.
+        oversample: Phase resolution of the alignment, in samples of x^d.
+
+    Returns:
+        x^d, shape (n, 2), in [m], closed (last sample equal to the first).
+    """
+    best = np.asarray(best_positions, dtype=np.float64)
+    if best.ndim != 2 or best.shape[1] != 2 or best.shape[0] < 2:
+        raise ConfigError(f"best_positions must have shape (N, 2); got {best.shape}")
+    n_out = best.shape[0] if n is None else n
+    if n_out < 3:
+        raise ConfigError(f"n must be at least 3; got {n_out}")
+    spp = (n_out - 1) * oversample
+    z0 = dmp.tau * (best[1] - best[0]) * (best.shape[0] - 1)  # z = τ ẏ, forward difference.
+    last = dmp.rollout(best[0], z0, n_periods=3, samples_per_period=spp)[-spp:]
+    # Phase 0 is the best demo's first sample by construction; look for the nearest point within
+    # ±10% of a period of it, so a loop that passes its start twice (a figure-eight) stays put.
+    window = np.arange(-(spp // 10), spp // 10 + 1)
+    start = int(window[np.argmin(np.sum((last[window] - best[0]) ** 2, axis=1))])
+    loop = np.roll(last, -start, axis=0)[::oversample]
+    return np.concatenate([loop, loop[:1]], axis=0)
 
 
 def loop_centre(
@@ -215,11 +274,10 @@ def run_stage1(
             )
     dmp = fit_periodic_dmp(best.positions, config=config.dmp, name=best.label)
     x_d = canonical_reference(dmp, best.positions, n)
-    given = config.preferences == "given"
-    theta_best, rho_best = best.theta_deg, best.rho
-    best_known = given and theta_best is not None and rho_best is not None
-    if not (best_known and theta_best is not None and rho_best is not None):
-        theta_best, rho_best = 0.0, 1.0
+    if config.preferences == "given" and best.theta_deg is not None and best.rho is not None:
+        theta_best, rho_best, best_known = best.theta_deg, best.rho, True
+    else:
+        theta_best, rho_best, best_known = 0.0, 1.0, False
     centre = loop_centre(x_d, theta_best, config.centre, dmp.anchor)
     x_g = remove_preference(x_d, theta_best, rho_best, centre)
 
@@ -239,29 +297,25 @@ def run_stage1(
             estimated[i] = True
         thetas[i], rhos[i] = theta, rho
 
-    aligned, shifts, reverse, losses = np.empty((m, n, 2)), np.empty(m), np.empty(m), np.empty(m)
-    for i, demo in enumerate(demos):
-        reference_i = apply_preference(x_g, thetas[i], rhos[i], centre)
-        alignment = phase_align(reference_i, demo.positions, config.allow_reversal)
-        aligned[i], shifts[i], reverse[i], losses[i] = (
-            alignment.aligned,
-            alignment.shift,
-            alignment.reversed,
-            alignment.loss,
+    alignments = [
+        phase_align(
+            apply_preference(x_g, thetas[i], rhos[i], centre), demo.positions, config.allow_reversal
         )
+        for i, demo in enumerate(demos)
+    ]
     value_map = build_value_map(dmp, x_d, config.value_map, seed)
     return Stage1Result(
         best_index=best_index,
         reference=x_d,
         global_shape=x_g,
         centre=centre,
-        aligned=aligned,
-        shifts=shifts.astype(np.int64),
-        reversed=reverse.astype(bool),
+        aligned=np.stack([a.aligned for a in alignments]),
+        shifts=np.array([a.shift for a in alignments], dtype=np.int64),
+        reversed=np.array([a.reversed for a in alignments], dtype=bool),
         thetas=thetas,
         rhos=rhos,
         estimated=estimated,
-        shape_losses=losses,
+        shape_losses=np.array([a.loss for a in alignments]),
         value_map=value_map,
         dmp=dmp,
     )

@@ -262,7 +262,9 @@ def estimate_period(positions: ArrayLike) -> float:
     Zero-padded (×16) Hann-window rFFT of the mean-removed coordinates, power summed over the
     axes, with parabolic interpolation of the log-magnitude peak. A peak whose half, third or
     quarter frequency also carries a clear peak (≥ 20% of its magnitude) is taken as a harmonic
-    of that lower frequency, so a figure-eight is not read at twice its rate.
+    of that lower frequency, so a figure-eight is not read at twice its rate. T is then refined
+    within ±20% by minimising Σ_k ‖x(t_k) − x(t_k + T)‖² over the overlap (docs/algorithms.md
+    §2.4), which removes the window's bias at few cycles.
 
     Args:
         positions: Samples uniform in normalised time t ∈ [0, 1], shape (N, 2), in [m].
@@ -296,7 +298,32 @@ def estimate_period(positions: ArrayLike) -> float:
         if denom < 0:
             bin_f += 0.5 * (a - c) / denom
     cycles_per_unit = bin_f * (n - 1) / n_fft  # Sample spacing is 1 / (N − 1).
-    return 1.0 / cycles_per_unit
+    return _refine_period(x, 1.0 / cycles_per_unit)
+
+
+def _refine_period(x: FloatArray, period: float) -> float:
+    """Refine T within ±20% by minimising the mean of ‖x(t) − x(t + T)‖² over the overlap.
+
+    Left as it is when the overlap would be under 20% of the demo (fewer than 1.25 cycles).
+    """
+    n = x.shape[0]
+    t = np.linspace(0.0, 1.0, n)
+    candidates = period * np.linspace(0.8, 1.2, 161)
+    candidates = candidates[candidates <= 0.8]
+    if candidates.size < 3:
+        return period
+    cost = np.empty(candidates.size)
+    for j, shift in enumerate(candidates):
+        inside = t + shift <= 1.0
+        moved = np.stack([np.interp(t[inside] + shift, t, x[:, d]) for d in range(2)], axis=1)
+        cost[j] = np.mean(np.sum((x[inside] - moved) ** 2, axis=1))
+    j = int(np.argmin(cost))
+    if not 0 < j < candidates.size - 1:
+        return period  # No interior minimum: keep the spectral estimate.
+    a, b, c = cost[j - 1 : j + 2]
+    denom = a - 2 * b + c
+    offset = 0.5 * (a - c) / denom if denom > 0 else 0.0
+    return float(candidates[j] + offset * (candidates[1] - candidates[0]))
 
 
 def fit_periodic_dmp(
@@ -378,41 +405,6 @@ def fit_periodic_dmp(
     psi = _basis(phases, centres, h)  # (K, N_b)
     weights = (psi.T @ f_target) / (psi.sum(axis=0)[:, None] + 1e-12)
     return PeriodicDmp(weights, anchor, tau, centres, h, alpha_z=a, beta_z=b)
-
-
-def canonical_reference(
-    dmp: PeriodicDmp, best_positions: ArrayLike, n: int | None = None, oversample: int = 16
-) -> FloatArray:
-    """The canonical reference x^d: the DMP's last of 3 periods, as a closed loop of n samples.
-
-    The rollout starts at the best demo's first sample and velocity at phase 0. The last period
-    is sampled `oversample` times finer than needed; its sample nearest the best demo's first one
-    (searched within ±10% of a period of phase 0) is taken as x^d(t_1), and the loop is
-    resampled from there to n points over one period at t_k = k/(n − 1), so x^d[n − 1] = x^d[0]
-    (docs/algorithms.md §7 row 11).
-
-    Args:
-        dmp: The DMP fitted to the best demo.
-        best_positions: The best demo, shape (N, 2), in [m].
-        n: Samples of x^d; defaults to N.
-        oversample: Phase resolution of the alignment, in samples of x^d.
-
-    Returns:
-        x^d, shape (n, 2), in [m], closed (last sample equal to the first).
-    """
-    best = _validated_positions(best_positions, "best demo")
-    n_out = best.shape[0] if n is None else n
-    if n_out < 3:
-        raise ConfigError(f"n must be at least 3; got {n_out}")
-    spp = (n_out - 1) * oversample
-    z0 = dmp.tau * (best[1] - best[0]) * (best.shape[0] - 1)  # z = τ ẏ, forward difference.
-    last = dmp.rollout(best[0], z0, n_periods=3, samples_per_period=spp)[-spp:]
-    # Phase 0 is the best demo's first sample by construction; look for the nearest point within
-    # ±10% of a period of it, so a loop that passes its start twice (a figure-eight) stays put.
-    window = np.arange(-(spp // 10), spp // 10 + 1)
-    start = int(window[np.argmin(np.sum((last[window] - best[0]) ** 2, axis=1))])
-    loop = np.roll(last, -start, axis=0)[::oversample]
-    return np.concatenate([loop, loop[:1]], axis=0)
 
 
 def _validated_positions(positions: ArrayLike, name: str) -> FloatArray:

@@ -59,6 +59,7 @@ _PRESETS: dict[str, dict[str, object]] = {
         "condition_on_reference": True,
         "patience": 15,
         "skip_lr_scale": 5.0,
+        "cosine_lr": True,
     },
     "paper": {
         "epochs": 300,
@@ -71,6 +72,7 @@ _PRESETS: dict[str, dict[str, object]] = {
         "condition_on_reference": False,
         "patience": 0,
         "skip_lr_scale": 1.0,
+        "cosine_lr": False,
     },
 }
 
@@ -96,6 +98,7 @@ class RefineSettings:
     condition_on_reference: bool
     delta_penalty: float
     skip_lr_scale: float
+    cosine_lr: bool
     patience: int
     tolerance: float
     min_epochs: int
@@ -140,6 +143,8 @@ class RefineConfig:
     """λ of an optional λ·mean(Δ/scale)² term keeping the output near the demo."""
     skip_lr_scale: float | None = None
     """Learning rate of the linear skip relative to `lr` (default 5; paper 1)."""
+    cosine_lr: bool | None = None
+    """Anneal the learning rate to 0 over `epochs` on a cosine (default True; paper False)."""
     patience: int | None = None
     """Stop after this many epochs without a loss improvement > `tolerance`; 0 never stops
     early (default 15; paper 0)."""
@@ -338,6 +343,11 @@ def refine_demos(
             ],
             lr=settings.lr,
         )
+        scheduler = (
+            torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, settings.epochs)
+            if settings.cosine_lr
+            else None
+        )
         with torch.no_grad():
             mi_raw = tl.mi_kl(torch.as_tensor(x, dtype=dtype)).numpy().astype(np.float64)
         mi_span = _span(mi_raw, normaliser.delta)
@@ -372,6 +382,8 @@ def refine_demos(
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
+            if scheduler is not None:
+                scheduler.step()
 
             output = x.copy()
             output[refine_mask] += delta.detach().numpy().astype(np.float64)
@@ -445,7 +457,9 @@ def _features(
     cos_sin = np.broadcast_to(np.stack((np.cos(phase), np.sin(phase)), -1), (m, n, 2))
     parts = [(x - centre) / scale]
     if with_reference:
-        parts.append((ref - x) / scale)
+        # Unit RMS, so Adam's ~lr-sized first steps already move a sizeable part of the way.
+        pull = ref - x
+        parts.append(pull / max(float(np.sqrt(np.mean(pull**2))), 1e-12))
     parts.append(cos_sin)
     return np.concatenate(parts, axis=-1)
 

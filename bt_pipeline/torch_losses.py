@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from scipy.special import digamma
 
 SMOOTHNESS_ALPHAS = (0.2, 0.3, 0.5)
@@ -67,8 +69,11 @@ def symmetry_loss(positions: torch.Tensor, thetas_deg: torch.Tensor) -> torch.Te
     # Centre first: the loss is translation invariant and float32 keeps more digits near 0.
     upright = upright - upright.mean(dim=1, keepdim=True)
     mirrored = torch.stack((-upright[..., 0], upright[..., 1]), dim=-1)
-    dist = torch.cdist(mirrored, upright, compute_mode="donot_use_mm_for_euclid_dist")
-    return dist.min(dim=-1).values.mean(dim=-1)
+    # The nearest sample is a discrete choice: find it without autograd (a k-d tree, as the
+    # numpy loss), then take the distance to it differentiably (the gradient of the hard min).
+    nearest = _neighbours(mirrored, upright, rank=1, p=2.0)
+    diff = mirrored - _gather(upright, nearest)
+    return torch.sqrt((diff * diff).sum(dim=-1) + _TINY).mean(dim=-1)
 
 
 def closure_loss(positions: torch.Tensor) -> torch.Tensor:
@@ -131,17 +136,31 @@ def _standardise(values: torch.Tensor) -> torch.Tensor:
     return centred / std
 
 
-def _kth_neighbour(dist: torch.Tensor, k: int) -> torch.Tensor:
-    """Index of each sample's k-th nearest neighbour, self excluded, shape (B, N)."""
-    n = dist.shape[-1]
-    eye = torch.eye(n, dtype=torch.bool, device=dist.device)
-    return dist.masked_fill(eye, math.inf).topk(k, dim=-1, largest=False).indices[..., -1]
+def _neighbours(queries: torch.Tensor, points: torch.Tensor, rank: int, p: float) -> torch.Tensor:
+    """Index into `points` of each query's `rank`-th nearest neighbour, shape (B, Q) (int64).
+
+    A k-d tree per demo on detached float64 copies (scipy): far cheaper than an (N, N) distance
+    matrix, and the same choice as the numpy metrics make.
+    """
+    q = queries.detach().to(torch.float64).numpy()
+    x = points.detach().to(torch.float64).numpy()
+    index = np.empty(q.shape[:2], dtype=np.int64)
+    for b in range(q.shape[0]):
+        _, found = cKDTree(x[b]).query(q[b], k=[rank], p=p)
+        index[b] = found[:, 0]
+    return torch.from_numpy(index)
 
 
-def _mean_log_radius(points: torch.Tensor, neighbour: torch.Tensor) -> torch.Tensor:
-    """Mean over samples of log ‖z_i - z_nb(i)‖_∞, shape (B,), differentiable in `points`."""
-    index = neighbour[..., None].expand(-1, -1, points.shape[-1])
-    radius = (points - points.gather(1, index)).abs().amax(dim=-1)
+def _gather(points: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """points[b, index[b, i]], shape (B, Q, d)."""
+    return points.gather(1, index[..., None].expand(-1, -1, points.shape[-1]))
+
+
+def _mean_log_radius(points: torch.Tensor, k: int) -> torch.Tensor:
+    """Mean over samples of log ‖z_i - z_nb(i)‖_∞ to the k-th neighbour (self excluded), (B,)."""
+    # Rank k + 1 counts the sample itself (distance 0) as the first neighbour.
+    neighbour = _neighbours(points, points, rank=k + 1, p=math.inf)
+    radius = (points - _gather(points, neighbour)).abs().amax(dim=-1)
     return torch.log(radius.clamp_min(_LOG_FLOOR)).mean(dim=-1)
 
 
@@ -171,19 +190,11 @@ def mi_kl(positions: torch.Tensor, k: int = KL_NEIGHBOURS) -> torch.Tensor:
     states = _standardise(positions)
     actions = _standardise(actions)
     joint = torch.cat((states, actions), dim=-1)
-    # The neighbour search is a discrete choice: run it without autograd (cheap), then take the
-    # radii to the chosen neighbours differentiably (the same gradient as through a top-k).
-    with torch.no_grad():
-        dist_s = torch.cdist(states, states, p=math.inf)
-        dist_a = torch.cdist(actions, actions, p=math.inf)
-        nb_s = _kth_neighbour(dist_s, k)
-        nb_a = _kth_neighbour(dist_a, k)
-        nb_sa = _kth_neighbour(torch.maximum(dist_s, dist_a), k)
     d_s = d_a = 2
     const = float(digamma(n) - digamma(k))
     return (
         const
-        + d_s * _mean_log_radius(states, nb_s)
-        + d_a * _mean_log_radius(actions, nb_a)
-        - (d_s + d_a) * _mean_log_radius(joint, nb_sa)
+        + d_s * _mean_log_radius(states, k)
+        + d_a * _mean_log_radius(actions, k)
+        - (d_s + d_a) * _mean_log_radius(joint, k)
     )

@@ -12,6 +12,10 @@ follows it through its position actuators. When the QP has no solution or return
 command stays at the last good one and :class:`IkResult` carries a warning.
 """
 
+# mujoco ships compiled bindings without type stubs, so pyright cannot see MjModel, mj_step,
+# mjtObj, ...: attribute checks on the mujoco module are off in this file.
+# pyright: reportAttributeAccessIssue=false
+
 from __future__ import annotations
 
 import math
@@ -27,6 +31,21 @@ from bt_teleop.scene import ARM_JOINTS, EE_SITE, HOME_KEY, TABLE_GEOM, SceneMode
 
 FR3_MAX_JOINT_VELOCITY: tuple[float, ...] = (2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26)
 """Joint velocity limits of the FR3 [rad/s] (Franka's FR3 datasheet)."""
+
+
+class _TableAvoidanceLimit(mink.CollisionAvoidanceLimit):
+    """mink's collision avoidance with its bound in the units of the QP variable.
+
+    The QP of ``mink.solve_ik`` is in the displacement Δq = v·dt, and the configuration and
+    velocity limits bound Δq; mink 1.3's collision limit bounds the approach by
+    gain·(d - d_min)/dt, a velocity. At dt = 0.01 s that lets a geom close 100 times the gap
+    in one tick, so a tool could cross the table top in a tick or two. Evaluating it with dt = 1
+    bounds the approach per tick by gain·(d - d_min), as the limit intends.
+    """
+
+    def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float):
+        del dt  # the bound is a displacement; see the class docstring
+        return super().compute_qp_inequalities(configuration, 1.0)
 
 
 @dataclass(frozen=True)
@@ -58,12 +77,14 @@ class IkSettings:
                 raise ConfigError(f"{name} must be >= 0; got {getattr(self, name)}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly
 class IkResult:
     """The outcome of one IK tick."""
 
     q_arm: FloatArray
     """Arm joint command fr3_joint1..7, shape (7,), in [rad] (the last good one on failure)."""
+    v_arm: FloatArray
+    """Arm joint velocity of this step, shape (7,), in [rad/s] (0 on failure)."""
     ok: bool
     """Whether this tick's QP was solved."""
     warning: str | None = None
@@ -88,6 +109,9 @@ class IkController:
         model = scene.ik_model
         self._model = model
         self._arm_adr = np.array(scene.ik_arm_qpos_adr)
+        self._arm_dof = np.array(
+            [model.jnt_dofadr[model.joint(name).id] for name in ARM_JOINTS], dtype=int
+        )
         self.configuration = mink.Configuration(model)
         self.configuration.update_from_keyframe(HOME_KEY)  # qpos0 breaks the FR3's joint limits
         s = self.settings
@@ -108,7 +132,7 @@ class IkController:
         self._limits: list[mink.Limit] = [
             mink.ConfigurationLimit(model),
             mink.VelocityLimit(model, velocities),
-            mink.CollisionAvoidanceLimit(
+            _TableAvoidanceLimit(
                 model,
                 geom_pairs=[(list(scene.avoid_geoms), [TABLE_GEOM])],
                 minimum_distance_from_collisions=s.table_distance_m,
@@ -166,11 +190,14 @@ class IkController:
                 limits=self._limits,
             )
         except (mink.NoSolutionFound, ValueError, np.linalg.LinAlgError) as exc:
-            return IkResult(self.q_arm, ok=False, warning=f"IK failed ({exc}); holding the pose")
+            return self._failed(f"IK failed ({exc}); holding the pose")
         if not np.all(np.isfinite(velocity)):
-            return IkResult(self.q_arm, ok=False, warning="IK returned NaN; holding the pose")
+            return self._failed("IK returned NaN; holding the pose")
         self.configuration.integrate_inplace(velocity, dt)
-        return IkResult(self.q_arm, ok=True)
+        return IkResult(self.q_arm, velocity[self._arm_dof].copy(), ok=True)
+
+    def _failed(self, warning: str) -> IkResult:
+        return IkResult(self.q_arm, np.zeros(len(self._arm_dof)), ok=False, warning=warning)
 
     def converge(
         self,
@@ -186,7 +213,7 @@ class IkController:
         Returns:
             The converged command; ``ok`` is False with a warning when the tolerance was not met.
         """
-        result = IkResult(self.q_arm, ok=True)
+        result = IkResult(self.q_arm, np.zeros(len(self._arm_dof)), ok=True)
         posture_target = self._posture_task.target_q
         for _ in range(max_iterations):
             # Posture as pure regularisation (target = current q), so it does not bias the result.
@@ -196,10 +223,8 @@ class IkController:
             if np.linalg.norm(error[:3]) < tol_m and np.linalg.norm(error[3:]) < tol_rad:
                 break
         else:
-            result = IkResult(
-                self.q_arm,
-                ok=False,
-                warning=f"IK did not reach {np.round(pos, 3).tolist()} in {max_iterations} steps",
+            result = self._failed(
+                f"IK did not reach {np.round(pos, 3).tolist()} in {max_iterations} steps"
             )
         if posture_target is not None:
             self._posture_task.set_target(posture_target)

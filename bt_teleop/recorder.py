@@ -8,6 +8,10 @@ scene's task plane and model, and writes it atomically with
 never share a file.
 """
 
+# mujoco ships compiled bindings without type stubs, so pyright cannot see MjModel, mj_step,
+# mjtObj, ...: attribute checks on the mujoco module are off in this file.
+# pyright: reportAttributeAccessIssue=false
+
 from __future__ import annotations
 
 import math
@@ -190,3 +194,55 @@ def save_demo(
     created = datetime.fromisoformat(demo.created) if demo.created else datetime.now().astimezone()
     path = demo_path(recordings_dir, scene.task, demo.demonstrator, created)
     return write_recording(path, recording)
+
+
+def site_quat(data: mujoco.MjData, site_id: int) -> FloatArray:
+    """Orientation wxyz (4,) of site `site_id` in `data` (kinematics must be up to date)."""
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, data.site_xmat[site_id])
+    return quat
+
+
+def take_sample(
+    recorder: DemoRecorder, scene: SceneModel, data: mujoco.MjData, *, clamped: bool = False
+) -> None:
+    """Add the state of `data` (kinematics up to date) to `recorder` as its next sample."""
+    state = np.empty(mujoco.mj_stateSize(scene.model, STATE_SIGNATURE))
+    mujoco.mj_getState(scene.model, data, state, STATE_SIGNATURE)
+    fingers = list(scene.gripper_qpos_adr)
+    recorder.add(
+        data.time,
+        data.site_xpos[scene.site_id],
+        site_quat(data, scene.site_id),
+        data.qpos[list(scene.arm_qpos_adr)],
+        float(data.qpos[fingers].sum()) if fingers else 0.0,
+        state,
+        clamped=clamped,
+    )
+
+
+def finish_demo(
+    recorder: DemoRecorder,
+    scene: SceneModel,
+    recordings_dir: str | Path,
+    *,
+    incomplete: bool,
+    session_id: str,
+    control_hz: float,
+    record_hz: float,
+) -> Path:
+    """Turn a recorder's samples into a demo file; returns the file written.
+
+    Raises:
+        RecordingError: Too few samples, or the demo cannot be written (nothing is written).
+    """
+    ep_meta: dict[str, Any] = {
+        "incomplete": incomplete,
+        "session": session_id,
+        "robot": scene.robot,
+        "clamped_samples": recorder.clamped_samples,
+        "ik_failures": recorder.ik_failures,
+    }
+    demo = recorder.to_demo(ep_meta)
+    env = env_args(scene, control_hz=control_hz, record_hz=record_hz)
+    return save_demo(demo, scene, recordings_dir, env)

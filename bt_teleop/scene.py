@@ -12,6 +12,10 @@ the same names (fr3_joint1..7, attachment_site, keyframe home), so nothing downs
 robot it drives.
 """
 
+# mujoco ships compiled bindings without type stubs, so pyright cannot see MjModel, mj_step,
+# mjtObj, ...: attribute checks on the mujoco module are off in this file.
+# pyright: reportAttributeAccessIssue=false
+
 from __future__ import annotations
 
 import contextlib
@@ -47,12 +51,17 @@ HOME_KEY = "home"
 TABLE_GEOM = "table"
 GRIPPER_ACTUATOR = "gripper"
 AVOIDING_LINKS: tuple[str, ...] = tuple(f"fr3_link{k}_collision" for k in range(3, 8))
-"""Robot collision geoms the IK keeps off the table (the tool's geoms are added)."""
+"""Robot collision geoms the IK keeps off the table (the tool's guards are added)."""
+GUARD_SUFFIX = "_guard"
+"""Tool geoms named ``*_guard`` are the IK's table-avoidance proxies: spheres without physical
+contact in the simulation, enabled in the IK model only. Small spheres give one well-defined
+witness point each, where a box or cylinder lying flat above the table has a whole face and
+mink's linearised distance constraint lets the face tilt through the table."""
 
 _ATTACH_LOCK = threading.Lock()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly
 class SceneModel:
     """A compiled task scene with the robot and its tool, and what the controller needs of it."""
 
@@ -112,7 +121,9 @@ class SceneModel:
         return self.workspace.clamp(self.plane.origin)[0]
 
 
-def load_scene(task: str, robot: str = "light", *, scene_file: str | Path | None = None) -> SceneModel:
+def load_scene(
+    task: str, robot: str = "light", *, scene_file: str | Path | None = None
+) -> SceneModel:
     """Compose and compile the scene of `task` with the chosen robot.
 
     Args:
@@ -127,7 +138,7 @@ def load_scene(task: str, robot: str = "light", *, scene_file: str | Path | None
             the Menagerie model cannot be found.
     """
     task_name = parse_task(task)
-    robot_name = _parse_robot(robot)
+    robot_name = parse_robot(robot)
     path = Path(scene_file) if scene_file is not None else SCENES_DIR / f"{task_name}.xml"
     if not path.is_file():
         raise ConfigError(f"scene file {path} does not exist")
@@ -173,6 +184,9 @@ def load_scene(task: str, robot: str = "light", *, scene_file: str | Path | None
         for body in list(ik_spec.worldbody.bodies):
             if any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in body.joints):
                 ik_spec.delete(body)
+        for geom in ik_spec.geoms:
+            if geom.name.endswith(GUARD_SUFFIX):
+                geom.contype, geom.conaffinity = 1, 1
         ik_model = ik_spec.compile()
 
     gripper_id = _id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, GRIPPER_ACTUATOR)
@@ -187,8 +201,7 @@ def load_scene(task: str, robot: str = "light", *, scene_file: str | Path | None
     avoid += [
         model.geom(g).name
         for g in range(model.ngeom)
-        if model.geom(g).name
-        and (model.geom_contype[g] or model.geom_conaffinity[g])
+        if model.geom(g).name.endswith(GUARD_SUFFIX)
         and _in_subtree(model, int(model.geom_bodyid[g]), tool_root)
     ]
     if _id(model, mujoco.mjtObj.mjOBJ_GEOM, TABLE_GEOM) is None:
@@ -208,7 +221,9 @@ def load_scene(task: str, robot: str = "light", *, scene_file: str | Path | None
         site_id=_require(model, mujoco.mjtObj.mjOBJ_SITE, EE_SITE),
         arm_qpos_adr=_qpos_adr(model, ARM_JOINTS),
         ik_arm_qpos_adr=_qpos_adr(ik_model, ARM_JOINTS),
-        arm_actuator_ids=tuple(_require(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in ARM_JOINTS),
+        arm_actuator_ids=tuple(
+            _require(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in ARM_JOINTS
+        ),
         gripper_actuator_id=gripper_id,
         gripper_qpos_adr=gripper_qpos,
         avoid_geoms=tuple(avoid),
@@ -217,13 +232,14 @@ def load_scene(task: str, robot: str = "light", *, scene_file: str | Path | None
 
 def robot_model(robot: str) -> mujoco.MjModel:
     """The bare FR3 of `robot` (no table, no tool), e.g. to compare the two models' kinematics."""
-    spec, _, meshdir = _robot_spec(_parse_robot(robot))
+    spec, _, meshdir = _robot_spec(parse_robot(robot))
     if meshdir is not None:
         spec.meshdir = meshdir
     return spec.compile()
 
 
-def _parse_robot(robot: str) -> Robot:
+def parse_robot(robot: str) -> Robot:
+    """Return `robot` as a :data:`Robot`, or raise a ConfigError that lists the valid names."""
     for name in ROBOTS:
         if robot == name:
             return name

@@ -8,7 +8,8 @@ loop per session consumes it::
         v
     tick, every 1 / control_hz of simulation time  (under _state_lock)
         project onto the task plane (optional) -> clamp to the workspace box
-        -> IkController.solve -> position actuators (ctrl) -> mj_step x substeps
+        -> step the command towards it at bounded speed -> IkController.solve
+        -> position actuators (ctrl, with velocity feed-forward) -> mj_step x substeps
         -> every 1 / record_hz: DemoRecorder.add(ee pose, joints, gripper, mj_getState)
 
 The loop runs in a background thread at real time (:meth:`Session.start`) or synchronously as
@@ -17,6 +18,10 @@ lock, so disk I/O never stalls the loop. :meth:`Session.close` (a closed tab) sa
 in progress flagged ``incomplete`` in ``ep_meta``, or discards it; never half-written.
 """
 
+# mujoco ships compiled bindings without type stubs, so pyright cannot see MjModel, mj_step,
+# mjtObj, ...: attribute checks on the mujoco module are off in this file.
+# pyright: reportAttributeAccessIssue=false
+
 from __future__ import annotations
 
 import logging
@@ -24,10 +29,8 @@ import math
 import secrets
 import threading
 import time
-from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
 
 import mujoco
 import numpy as np
@@ -35,10 +38,18 @@ from numpy.typing import ArrayLike
 
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.records import MIN_SAMPLES, FloatArray
-from bt_teleop.ik import IkController, IkSettings
-from bt_teleop.recorder import STATE_SIGNATURE, DemoInfo, DemoRecorder, env_args, save_demo
+from bt_teleop.ik import IkController
+from bt_teleop.recorder import DemoInfo, DemoRecorder, finish_demo, site_quat, take_sample
 from bt_teleop.scene import HOME_KEY, SceneModel, load_scene
-from bt_teleop.workspace import project_onto_plane, validate_position, validate_quat
+from bt_teleop.session_config import SessionConfig, SessionStatus, whole_steps
+from bt_teleop.workspace import (
+    project_onto_plane,
+    slew_toward,
+    validate_position,
+    validate_quat,
+)
+
+__all__ = ["Session", "SessionConfig", "SessionStatus"]
 
 LOGGER = logging.getLogger("bt.teleop")
 _UNSTABLE = (
@@ -46,61 +57,6 @@ _UNSTABLE = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
 )
-
-
-@dataclass(frozen=True)
-class SessionConfig:
-    """Rates and policies of a session."""
-
-    control_hz: float = 100.0
-    """IK and actuator command rate [Hz]; a whole number of physics steps per tick."""
-    record_hz: float = 50.0
-    """Sampling rate of recordings on simulation time [Hz]; divides control_hz."""
-    max_lag_s: float = 0.25
-    """Real-time loop: when it falls further behind than this [s] it skips ahead."""
-    save_incomplete: bool = True
-    """What :meth:`Session.close` does with a recording in progress: save it flagged
-    incomplete (True) or discard it (False)."""
-    ik: IkSettings = field(default_factory=IkSettings)
-    """IK weights and limits."""
-
-
-@dataclass(frozen=True)
-class SessionStatus:
-    """A snapshot of a session for a UI (all arrays are copies)."""
-
-    sim_time_s: float
-    """Simulation time [s]."""
-    qpos: FloatArray
-    """Full MuJoCo qpos, shape (nq,) (to draw the scene)."""
-    ee_pos: FloatArray
-    """End-effector (attachment_site) position, shape (3,), in [m]."""
-    ee_quat: FloatArray
-    """End-effector orientation wxyz, shape (4,)."""
-    joint_pos: FloatArray
-    """Arm joint positions, shape (7,), in [rad]."""
-    target_pos: FloatArray
-    """The target the IK tracks (projected and clamped), shape (3,), in [m]."""
-    target_quat: FloatArray
-    """Target orientation wxyz, shape (4,)."""
-    target_clamped: bool
-    """Whether the latest target was moved into the workspace box."""
-    gripper_open: bool | None
-    """Gripper command (None without a gripper)."""
-    ik_ok: bool
-    """Whether the latest IK tick succeeded."""
-    warning: str | None
-    """The latest IK or simulation warning, None when all is well."""
-    ik_failures: int
-    """IK ticks that failed since the session started."""
-    recording: bool
-    """Whether a demo is being recorded."""
-    n_samples: int
-    """Samples of the demo in progress (0 when not recording)."""
-    duration_s: float
-    """Duration of the demo in progress [s]."""
-    running: bool
-    """Whether the real-time background loop runs."""
 
 
 class Session:
@@ -132,16 +88,22 @@ class Session:
         self.recordings_dir = Path(recordings_dir)
         self.session_id = session_id or secrets.token_hex(4)
         model = self.scene.model
-        self._substeps = _whole(1.0 / (self.config.control_hz * model.opt.timestep), "physics")
-        self._ticks_per_sample = _whole(self.config.control_hz / self.config.record_hz, "record")
+        self._substeps = whole_steps(1.0 / (self.config.control_hz * model.opt.timestep), "physics")
+        self._ticks_per_sample = whole_steps(
+            self.config.control_hz / self.config.record_hz, "record"
+        )
         self.dt_s = self._substeps * float(model.opt.timestep)
         """Control period [s]."""
         self.data = mujoco.MjData(model)
         self._ik = IkController(self.scene, self.dt_s, self.config.ik)
         self._arm_act = np.array(self.scene.arm_actuator_ids)
+        # Velocity feed-forward for the position servos: a position actuator with damping kv
+        # pushes kp (ctrl - q) - kv q̇, which lags a moving command by kv/kp seconds. Commanding
+        # ctrl = q_cmd + (kv/kp) v_cmd turns it into kp (q_cmd - q) + kv (v_cmd - q̇).
+        kp = model.actuator_gainprm[self._arm_act, 0]
+        self._lead_s = np.where(kp > 0.0, -model.actuator_biasprm[self._arm_act, 2] / kp, 0.0)
         self._arm_adr = np.array(self.scene.arm_qpos_adr)
         self._grip_adr = np.array(self.scene.gripper_qpos_adr, dtype=int)
-        self._state_buf = np.empty(mujoco.mj_stateSize(model, STATE_SIGNATURE))
         self._input_lock = threading.Lock()
         self._state_lock = threading.RLock()
         self._stop_event = threading.Event()
@@ -159,6 +121,8 @@ class Session:
         self._target_pos = self.scene.ready_pos
         self._target_quat = self.scene.ee_quat.copy()
         self._effective_pos = self._target_pos.copy()
+        self._command_pos = self._target_pos.copy()
+        self._command_quat = self._target_quat.copy()
         self.reset()
 
     # -- commands (any thread) ----------------------------------------------------------------
@@ -207,11 +171,9 @@ class Session:
             self._check_open()
             if self._recorder is not None:
                 raise ConfigError("a recording is already in progress; stop or discard it first")
-            self._recorder = DemoRecorder(
-                info, self.data.time, has_gripper=self.scene.has_gripper
-            )
+            self._recorder = DemoRecorder(info, self.data.time, has_gripper=self.scene.has_gripper)
             self._record_tick0 = self._ticks
-            self._sample(self._recorder)
+            take_sample(self._recorder, self.scene, self.data)
 
     def stop_and_save(self) -> Path:
         """Stop the demo in progress and write it to a new file; returns its path.
@@ -310,6 +272,9 @@ class Session:
                 data.qpos[self._grip_adr] = opened
                 data.ctrl[self.scene.gripper_actuator_id] = opened
             mujoco.mj_forward(model, data)
+            self._command_pos = self.scene.ready_pos
+            self._command_quat = self.scene.ee_quat.copy()
+            self._effective_pos = self.scene.ready_pos
         with self._input_lock:
             self._target_pos = self.scene.ready_pos
             self._target_quat = self.scene.ee_quat.copy()
@@ -339,10 +304,12 @@ class Session:
                 sim_time_s=float(data.time),
                 qpos=data.qpos.copy(),
                 ee_pos=data.site_xpos[self.scene.site_id].copy(),
-                ee_quat=self._ee_quat(),
+                ee_quat=site_quat(data, self.scene.site_id),
                 joint_pos=data.qpos[self._arm_adr].copy(),
                 target_pos=self._effective_pos.copy(),
                 target_quat=target_quat,
+                command_pos=self._command_pos.copy(),
+                command_quat=self._command_quat.copy(),
                 target_clamped=self._clamped,
                 gripper_open=gripper_open,
                 ik_ok=self._ik_ok,
@@ -372,7 +339,15 @@ class Session:
         pos, clamped = self.scene.workspace.clamp(pos)
         model, data = self.scene.model, self.data
         with self._state_lock:
-            result = self._ik.solve(pos, quat)
+            self._command_pos, self._command_quat = slew_toward(
+                self._command_pos,
+                self._command_quat,
+                pos,
+                quat,
+                self.config.max_speed_m_s * self.dt_s,
+                self.config.max_turn_rad_s * self.dt_s,
+            )
+            result = self._ik.solve(self._command_pos, self._command_quat)
             self._ik_ok, self._clamped, self._effective_pos = result.ok, clamped, pos
             if not result.ok:
                 self._ik_failures += 1
@@ -381,7 +356,7 @@ class Session:
                     self._recorder.ik_failures += 1
             elif self._warning is not None and self._warning.startswith("IK"):
                 self._warning = None
-            data.ctrl[self._arm_act] = result.q_arm
+            data.ctrl[self._arm_act] = result.q_arm + self._lead_s * result.v_arm
             if self.scene.gripper_actuator_id is not None:
                 closed, opened = self.scene.gripper_ctrl_range
                 data.ctrl[self.scene.gripper_actuator_id] = opened if gripper_open else closed
@@ -393,29 +368,11 @@ class Session:
             mujoco.mj_kinematics(model, data)  # poses of the state just integrated
             self._ticks += 1
             recorder = self._recorder
-            if recorder is not None and (self._ticks - self._record_tick0) % (
-                self._ticks_per_sample
-            ) == 0:
-                self._sample(recorder, clamped=clamped)
-
-    def _sample(self, recorder: DemoRecorder, *, clamped: bool = False) -> None:
-        data = self.data
-        mujoco.mj_getState(self.scene.model, data, self._state_buf, STATE_SIGNATURE)
-        gripper = float(data.qpos[self._grip_adr].sum()) if self._grip_adr.size else 0.0
-        recorder.add(
-            data.time,
-            data.site_xpos[self.scene.site_id],
-            self._ee_quat(),
-            data.qpos[self._arm_adr],
-            gripper,
-            self._state_buf,
-            clamped=clamped,
-        )
-
-    def _ee_quat(self) -> FloatArray:
-        quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, self.data.site_xmat[self.scene.site_id])
-        return quat
+            if (
+                recorder is not None
+                and (self._ticks - self._record_tick0) % (self._ticks_per_sample) == 0
+            ):
+                take_sample(recorder, self.scene, self.data, clamped=clamped)
 
     def _recover(self) -> None:
         """The simulation went unstable (MuJoCo reset it): start again from the ready pose."""
@@ -430,18 +387,15 @@ class Session:
         return recorder
 
     def _save(self, recorder: DemoRecorder, *, incomplete: bool) -> Path:
-        ep_meta: dict[str, Any] = {
-            "incomplete": incomplete,
-            "session": self.session_id,
-            "robot": self.scene.robot,
-            "clamped_samples": recorder.clamped_samples,
-            "ik_failures": recorder.ik_failures,
-        }
-        demo = recorder.to_demo(ep_meta)
-        env = env_args(
-            self.scene, control_hz=self.config.control_hz, record_hz=self.config.record_hz
+        path = finish_demo(
+            recorder,
+            self.scene,
+            self.recordings_dir,
+            incomplete=incomplete,
+            session_id=self.session_id,
+            control_hz=self.config.control_hz,
+            record_hz=self.config.record_hz,
         )
-        path = save_demo(demo, self.scene, self.recordings_dir, env)
         LOGGER.info("session %s saved %s", self.session_id, path)
         return path
 
@@ -465,16 +419,3 @@ class Session:
     def _check_open(self) -> None:
         if self._closed:
             raise ConfigError(f"session {self.session_id} is closed")
-
-
-def _whole(ratio: float, what: str) -> int:
-    """`ratio` as a positive integer, or an error naming the rates to fix."""
-    n = round(ratio)
-    if n < 1 or abs(ratio - n) > 1e-6:
-        hint = (
-            "control_hz must be timestep⁻¹ divided by a whole number"
-            if what == "physics"
-            else "record_hz must divide control_hz"
-        )
-        raise ConfigError(f"rates do not fit: {ratio:.6g} {what} steps per tick; {hint}")
-    return n

@@ -1,12 +1,14 @@
-"""Where end-effector targets may go: the workspace box and the task-plane projection.
+"""Where end-effector targets may go: the workspace box, the task-plane projection, the slew.
 
-Targets arrive from a browser gizmo or a script and may be anywhere (or garbage). Before the IK
-sees one it is optionally projected onto the task plane, then clamped into the scene's workspace
-box, so the control loop only ever tracks finite, reachable-looking targets.
+Targets arrive from a browser gizmo or a script and may be anywhere (or garbage), and may jump.
+Before the IK sees one it is optionally projected onto the task plane, clamped into the scene's
+workspace box, and approached at a bounded speed (:func:`slew_toward`), so the control loop only
+ever tracks finite targets a small step away from the current command.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +19,7 @@ from bt_pipeline.plane import TaskPlane
 from bt_pipeline.records import FloatArray
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly
 class Workspace:
     """An axis-aligned box in the world frame."""
 
@@ -88,3 +90,46 @@ def validate_quat(quat: ArrayLike, what: str = "target orientation") -> FloatArr
     if norm < 1e-6:
         raise ConfigError(f"{what} has zero norm; a rotation quaternion has norm 1")
     return q / norm
+
+
+def slew_toward(
+    pos: FloatArray,
+    quat: FloatArray,
+    goal_pos: FloatArray,
+    goal_quat: FloatArray,
+    max_step_m: float,
+    max_step_rad: float,
+) -> tuple[FloatArray, FloatArray]:
+    """Move a pose towards a goal by at most a given distance and angle (new arrays).
+
+    A big jump of the target (a click far away, an orientation half a turn off) would make the
+    differential IK take maximal steps and, near a half-turn, flip between two solutions tick
+    after tick; stepping the command towards the goal keeps every IK step small.
+
+    Args:
+        pos: Current command position, shape (3,), in [m].
+        quat: Current command orientation wxyz, shape (4,), unit norm.
+        goal_pos: Goal position, shape (3,), in [m].
+        goal_quat: Goal orientation wxyz, shape (4,), unit norm.
+        max_step_m: Largest position step [m].
+        max_step_rad: Largest rotation step [rad].
+
+    Returns:
+        The new position (3,) [m] and orientation wxyz (4,).
+    """
+    delta = np.asarray(goal_pos, dtype=np.float64) - pos
+    distance = float(np.linalg.norm(delta))
+    new_pos = pos + delta * min(1.0, max_step_m / distance) if distance > 0.0 else pos.copy()
+    goal = np.asarray(goal_quat, dtype=np.float64)
+    dot = float(np.dot(quat, goal))
+    if dot < 0.0:  # q and -q are the same rotation: take the short way
+        goal, dot = -goal, -dot
+    angle = 2.0 * math.acos(min(1.0, dot))
+    if angle <= max_step_rad or angle < 1e-12:
+        return new_pos, goal.copy()
+    fraction = max_step_rad / angle
+    half = angle / 2.0  # slerp on the unit quaternions
+    new_quat = (
+        math.sin((1.0 - fraction) * half) * np.asarray(quat) + math.sin(fraction * half) * goal
+    ) / math.sin(half)
+    return new_pos, new_quat / np.linalg.norm(new_quat)

@@ -1,0 +1,95 @@
+"""A session's settings (:class:`SessionConfig`) and snapshot (:class:`SessionStatus`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.records import FloatArray
+from bt_teleop.ik import IkSettings
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """Rates and policies of a session."""
+
+    control_hz: float = 100.0
+    """IK and actuator command rate [Hz]; a whole number of physics steps per tick."""
+    record_hz: float = 50.0
+    """Sampling rate of recordings on simulation time [Hz]; divides control_hz."""
+    max_speed_m_s: float = 1.0
+    """Fastest the commanded target follows the user's target [m/s]."""
+    max_turn_rad_s: float = 3.0
+    """Fastest the commanded orientation follows the user's [rad/s]."""
+    max_lag_s: float = 0.25
+    """Real-time loop: when it falls further behind than this [s] it skips ahead."""
+    save_incomplete: bool = True
+    """What :meth:`Session.close` does with a recording in progress: save it flagged
+    incomplete (True) or discard it (False)."""
+    ik: IkSettings = field(default_factory=IkSettings)
+    """IK weights and limits."""
+
+    def __post_init__(self) -> None:
+        for name in ("control_hz", "record_hz", "max_speed_m_s", "max_turn_rad_s", "max_lag_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (
+                isinstance(value, int | float) and math.isfinite(value) and value > 0.0
+            ):
+                raise ConfigError(f"{name} must be a positive number; got {value!r}")
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly
+class SessionStatus:
+    """A snapshot of a session for a UI (all arrays are copies)."""
+
+    sim_time_s: float
+    """Simulation time [s]."""
+    qpos: FloatArray
+    """Full MuJoCo qpos, shape (nq,) (to draw the scene)."""
+    ee_pos: FloatArray
+    """End-effector (attachment_site) position, shape (3,), in [m]."""
+    ee_quat: FloatArray
+    """End-effector orientation wxyz, shape (4,)."""
+    joint_pos: FloatArray
+    """Arm joint positions, shape (7,), in [rad]."""
+    target_pos: FloatArray
+    """The user's target after projection and clamping, shape (3,), in [m]."""
+    target_quat: FloatArray
+    """The user's target orientation wxyz, shape (4,)."""
+    command_pos: FloatArray
+    """The target the IK tracks this tick (the user's, approached at bounded speed), (3,) [m]."""
+    command_quat: FloatArray
+    """Orientation the IK tracks this tick, wxyz, shape (4,)."""
+    target_clamped: bool
+    """Whether the latest target was moved into the workspace box."""
+    gripper_open: bool | None
+    """Gripper command (None without a gripper)."""
+    ik_ok: bool
+    """Whether the latest IK tick succeeded."""
+    warning: str | None
+    """The latest IK or simulation warning, None when all is well."""
+    ik_failures: int
+    """IK ticks that failed since the session started."""
+    recording: bool
+    """Whether a demo is being recorded."""
+    n_samples: int
+    """Samples of the demo in progress (0 when not recording)."""
+    duration_s: float
+    """Duration of the demo in progress [s]."""
+    running: bool
+    """Whether the real-time background loop runs."""
+
+
+def whole_steps(ratio: float, what: str) -> int:
+    """`ratio` as a positive integer (steps per tick, ticks per sample), or an error naming the
+    rate to fix."""
+    n = round(ratio)
+    if n < 1 or abs(ratio - n) > 1e-6:
+        hint = (
+            "control_hz must be timestep⁻¹ divided by a whole number"
+            if what == "physics"
+            else "record_hz must divide control_hz"
+        )
+        raise ConfigError(f"rates do not fit: {ratio:.6g} {what} steps per tick; {hint}")
+    return n
