@@ -4,7 +4,7 @@ Conventions (docs/algorithms.md §7 rows 13, 14, 19):
 
 * R(θ) rotates counter-clockwise; θ is in degrees. A demonstrator draws ρ R(θ) x^g + c, with
   x^g the global shape (centred at the origin, θ = 0, ρ = 1) and c the centre shared by every
-  reference (the best demo's DMP anchor).
+  reference (the centre of the best demo's loop, see bt_pipeline.canonical).
 * A reference is a closed loop sampled at t_k = k/(N − 1): reference[N − 1] = reference[0], so
   its N − 1 distinct samples U_0 .. U_{N−2} repeat with period P = N − 1. A demo's start phase
   and direction are arbitrary: it is matched to the reference shifted by s samples, forward

@@ -49,7 +49,7 @@ value so only a loss of information is penalised, or not at all."""
 
 _PRESETS: dict[str, dict[str, object]] = {
     "default": {
-        "epochs": 150,
+        "epochs": 40,
         "lr": 1e-2,
         "hidden": 32,
         "beta_rate": 0.1,
@@ -57,7 +57,7 @@ _PRESETS: dict[str, dict[str, object]] = {
         "clamp_scores": True,
         "refine_best": False,
         "condition_on_reference": True,
-        "patience": 15,
+        "patience": 10,
         "skip_lr_scale": 5.0,
         "cosine_lr": True,
     },

@@ -19,6 +19,7 @@ robot it drives.
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import threading
 import warnings
@@ -59,6 +60,8 @@ witness point each, where a box or cylinder lying flat above the table has a who
 mink's linearised distance constraint lets the face tilt through the table."""
 
 _ATTACH_LOCK = threading.Lock()
+_EMPTY_PREFIX = "Attaching a spec with an empty prefix"
+LOGGER = logging.getLogger("bt.teleop")
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly
@@ -157,37 +160,10 @@ def load_scene(
     ee_quat = ee_quat / np.linalg.norm(ee_quat)
     seed_q_arm = _numeric(spec, "bt_seed_qpos", len(ARM_JOINTS), path)
 
-    robot_spec, robot_source, meshdir = _robot_spec(robot_name)
     tool_file = path.parent / _text(spec, "bt_tool", path)
     if not tool_file.is_file():
         raise ConfigError(f"{path}: bt_tool names {tool_file}, which does not exist")
-    tool_spec = mujoco.MjSpec.from_file(str(tool_file))
-    tool_body = tool_spec.worldbody.first_body()
-    if tool_body is None:
-        raise ConfigError(f"{tool_file} has no body to attach to {EE_SITE}")
-    tool_root = tool_body.name
-    for part in (robot_spec, tool_spec):  # the real FR3 compensates gravity; so do we
-        for body in part.bodies:
-            if body.name != "world":
-                body.gravcomp = 1.0
-    site = robot_spec.site(EE_SITE)
-    if site is None:
-        raise ConfigError(f"{robot_source} has no site {EE_SITE!r}")
-    with _quiet_attach():
-        robot_spec.attach(tool_spec, site=site, prefix="")
-        spec.attach(robot_spec, frame=spec.worldbody.add_frame(), prefix="")
-        if meshdir is not None:
-            spec.meshdir = meshdir
-        model = spec.compile()
-        xml = spec.to_xml()
-        ik_spec = spec.copy()
-        for body in list(ik_spec.worldbody.bodies):
-            if any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in body.joints):
-                ik_spec.delete(body)
-        for geom in ik_spec.geoms:
-            if geom.name.endswith(GUARD_SUFFIX):
-                geom.contype, geom.conaffinity = 1, 1
-        ik_model = ik_spec.compile()
+    model, ik_model, xml, tool_root, robot_source = _compose(spec, robot_name, tool_file)
 
     gripper_id = _id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, GRIPPER_ACTUATOR)
     gripper_qpos: tuple[int, ...] = ()
@@ -228,6 +204,45 @@ def load_scene(
         gripper_qpos_adr=gripper_qpos,
         avoid_geoms=tuple(avoid),
     )
+
+
+def _compose(
+    spec: mujoco.MjSpec, robot: Robot, tool_file: Path
+) -> tuple[mujoco.MjModel, mujoco.MjModel, str, str, str]:
+    """Attach tool and robot to the task scene `spec` (modified) and compile it.
+
+    Returns:
+        The simulation model, the IK model, the composed XML, the tool's root body name and the
+        robot's source.
+    """
+    robot_spec, robot_source, meshdir = _robot_spec(robot)
+    tool_spec = mujoco.MjSpec.from_file(str(tool_file))
+    tool_body = tool_spec.worldbody.first_body()
+    if tool_body is None:
+        raise ConfigError(f"{tool_file} has no body to attach to {EE_SITE}")
+    for part in (robot_spec, tool_spec):  # the real FR3 compensates gravity; so do we
+        for body in part.bodies:
+            if body.name != "world":
+                body.gravcomp = 1.0
+    site = robot_spec.site(EE_SITE)
+    if site is None:
+        raise ConfigError(f"{robot_source} has no site {EE_SITE!r}")
+    with _quiet_attach():
+        robot_spec.attach(tool_spec, site=site, prefix="")
+        spec.attach(robot_spec, frame=spec.worldbody.add_frame(), prefix="")
+        if meshdir is not None:
+            spec.meshdir = meshdir
+        model = spec.compile()
+        xml = spec.to_xml()
+        ik_spec = spec.copy()  # the IK sees the robot, the tool and the fixed scene only
+        for body in list(ik_spec.worldbody.bodies):
+            if any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in body.joints):
+                ik_spec.delete(body)
+        for geom in ik_spec.geoms:
+            if geom.name.endswith(GUARD_SUFFIX):
+                geom.contype, geom.conaffinity = 1, 1
+        ik_model = ik_spec.compile()
+    return model, ik_model, xml, tool_body.name, robot_source
 
 
 def robot_model(robot: str) -> mujoco.MjModel:
@@ -272,15 +287,23 @@ def _robot_spec(robot: Robot) -> tuple[mujoco.MjSpec, str, str | None]:
 
 @contextlib.contextmanager
 def _quiet_attach() -> Iterator[None]:
-    """Silence MuJoCo's warning about attaching with an empty prefix (names are unique here)."""
+    """Silence MuJoCo's warning about attaching with an empty prefix; log any other warning.
+
+    The robot and tool keep their own names (fr3_joint1, attachment_site, ...), which are unique
+    in every bundled scene, so the empty prefix is intended.
+    """
+    messages: list[str] = []
     with _ATTACH_LOCK, warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Attaching a spec with an empty prefix")
+        warnings.filterwarnings("ignore", message=_EMPTY_PREFIX)
         previous = mujoco.get_mju_user_warning()
-        mujoco.set_mju_user_warning(lambda _message: None)
+        mujoco.set_mju_user_warning(messages.append)
         try:
             yield
         finally:
             mujoco.set_mju_user_warning(previous)
+    for message in messages:
+        if _EMPTY_PREFIX not in message:
+            LOGGER.warning("MuJoCo: %s", message.strip())
 
 
 def _numeric(spec: mujoco.MjSpec, name: str, size: int, path: Path) -> FloatArray:

@@ -216,7 +216,7 @@ def test_file_is_complete_before_it_is_moved_into_place(
 
     def checked_replace(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
         assert Path(src).parent == Path(dst).parent  # same directory: an atomic rename
-        moved.append(len(RrdReader(src).store()))  # needs the footer: the stream is closed
+        moved.append(len(RrdReader(Path(src)).store()))  # needs the footer: the stream is closed
         replace(src, dst)
 
     monkeypatch.setattr(os, "replace", checked_replace)

@@ -125,3 +125,9 @@ def test_scene_file_must_declare_its_fields(tmp_path: Path) -> None:
     )
     with pytest.raises(ConfigError, match="bt_plane_origin"):
         load_scene("wiping", scene_file=path)
+
+
+def test_composition_prints_no_mujoco_warnings(capfd: pytest.CaptureFixture[str]) -> None:
+    load_scene("pick_and_place")
+    captured = capfd.readouterr()
+    assert "WARNING" not in captured.err and "WARNING" not in captured.out

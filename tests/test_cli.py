@@ -1,0 +1,139 @@
+"""The ``bt`` command line: score, synth, clean (JSON schemas, errors, exit codes)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bt_pipeline.cli import main
+from bt_pipeline.recording import read_recording
+
+
+def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    """Run ``bt args`` in-process; return (exit code, stdout, stderr)."""
+    code = 0
+    try:
+        main(list(args))
+    except SystemExit as exit_:
+        code = int(exit_.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def wiping_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("synth") / "wiping.hdf5"
+    main(["synth", "--task", "wiping", "--demos", "4", "--seed", "1", "--out", str(path)])
+    return path
+
+
+def test_synth_writes_a_valid_file_and_prints_its_path(capsys, tmp_path) -> None:
+    out_file = tmp_path / "w.hdf5"
+    code, out, _ = run(capsys, "synth", "--task", "weaving", "--demos", "5", "--out", str(out_file))
+    assert code == 0
+    assert out.strip() == str(out_file)
+    recording = read_recording(out_file)
+    assert recording.task == "weaving"
+    assert len(recording.demos) == 5
+
+
+def test_synth_refuses_to_overwrite(capsys, wiping_file) -> None:
+    code, _, err = run(capsys, "synth", "--out", str(wiping_file))
+    assert code == 2
+    assert str(wiping_file) in err
+
+
+def test_score_json_schema(capsys, wiping_file) -> None:
+    code, out, _ = run(capsys, "score", str(wiping_file), "--json")
+    assert code == 0
+    document = json.loads(out)
+    (task,) = document["tasks"]
+    assert task["task"] == "wiping"
+    assert set(task["best"]) == {"file", "demo"}
+    assert len(task["demos"]) == 4
+    keys = {"file", "demo", "demonstrator", "mutual_information", "symmetry", "closure"}
+    keys |= {"smoothness", "utility", "rank"}
+    for demo in task["demos"]:
+        assert keys <= set(demo)
+    ranks = sorted(d["rank"] for d in task["demos"])
+    assert ranks == [1, 2, 3, 4]
+    best = next(d for d in task["demos"] if d["rank"] == 1)
+    assert task["best"] == {"file": best["file"], "demo": best["demo"]}
+    assert best["utility"] == max(d["utility"] for d in task["demos"])
+
+
+def test_score_table_marks_the_best_and_groups_by_task(capsys, tmp_path, wiping_file) -> None:
+    other = tmp_path / "pnp.hdf5"
+    main(["synth", "--task", "pick_and_place", "--out", str(other)])
+    capsys.readouterr()
+    code, out, _ = run(capsys, "score", str(wiping_file), str(tmp_path / "*.hdf5"))
+    assert code == 0
+    assert "wiping: 4 demos" in out
+    assert "pick_and_place: 4 demos" in out
+    assert out.count("★") == 2
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["score", "does/not/exist.hdf5"], "no recordings found"),
+        (["synth", "--task", "sweeping", "--out", "x.hdf5"], "unknown task 'sweeping'"),
+    ],
+)
+def test_errors_print_one_line_and_exit_2(capsys, args, message) -> None:
+    code, out, err = run(capsys, *args)
+    assert code == 2
+    assert out == ""
+    assert message in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_score_of_a_corrupt_file_names_it(capsys, tmp_path) -> None:
+    bad = tmp_path / "bad.hdf5"
+    bad.write_bytes(b"not an hdf5 file at all")
+    code, _, err = run(capsys, "score", str(bad))
+    assert code == 2
+    assert "bad.hdf5" in err
+
+
+def test_clean_json_writes_outputs_and_leaves_inputs_alone(capsys, tmp_path, wiping_file) -> None:
+    digest = hashlib.sha256(wiping_file.read_bytes()).hexdigest()
+    out_dir = tmp_path / "out"
+    code, out, _ = run(
+        capsys, "clean", str(wiping_file), "--out", str(out_dir), "--epochs", "3", "--no-rrd",
+        "--json",
+    )  # fmt: skip
+    assert code == 0
+    document = json.loads(out)
+    (task,) = document["tasks"]
+    assert task["task"] == "wiping"
+    assert {"best", "demos", "seconds", "output"} <= set(task)
+    assert len(task["demos"]) == 4
+    for demo in task["demos"]:
+        assert {"file", "demo", "utility_raw", "utility_cleaned", "beta_final"} <= set(demo)
+    cleaned = read_recording(out_dir / "wiping.cleaned.hdf5")
+    assert list(cleaned.demos) == ["demo_0", "demo_1", "demo_2", "demo_3"]
+    assert cleaned.attrs["best_demo"] == task["best"]["demo"]
+    assert not (out_dir / "wiping.rrd").exists()
+    assert hashlib.sha256(wiping_file.read_bytes()).hexdigest() == digest
+
+
+def test_clean_with_no_demos_found_writes_nothing(capsys, tmp_path) -> None:
+    out_dir = tmp_path / "out"
+    code, _, err = run(capsys, "clean", str(tmp_path / "none*.hdf5"), "--out", str(out_dir))
+    assert code == 2
+    assert "no recordings found" in err
+    assert not out_dir.exists()
+
+
+def test_python_dash_m_runs_the_same_cli() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "bt_pipeline", "--help"], capture_output=True, text=True, check=True
+    )
+    for command in ("score", "synth", "clean"):
+        assert command in result.stdout
