@@ -121,9 +121,7 @@ def run_set(task: Task, m: int, seed: int, configs: dict[str, RefineConfig]) -> 
                 expert_ratio=float(after[expert] / before[expert]),
                 min_delta_utility=float(np.min(u[1] - u[0])),
                 closure_ratio=float(np.mean(new_vals[naive, 2]) / np.mean(raw_vals[naive, 2])),
-                smoothness_ratio=float(
-                    np.mean(new_vals[naive, 3]) / np.mean(raw_vals[naive, 3])
-                ),
+                smoothness_ratio=float(np.mean(new_vals[naive, 3]) / np.mean(raw_vals[naive, 3])),
                 seconds=seconds,
                 epochs=result.epochs,
                 best_is_expert=best == expert,
@@ -157,13 +155,14 @@ def _summary(rows: list[Row]) -> None:
             f"(mean {statistics.mean(r.naive_ratio for r in sel):.3f}) "
             f"expert≤{max(r.expert_ratio for r in sel):.3f} "
             f"minΔŨ={min(r.min_delta_utility for r in sel):+.3f} "
-            f"L2×{max(r.closure_ratio for r in sel):.3f} L3×{max(r.smoothness_ratio for r in sel):.3f} "
+            f"L2×{max(r.closure_ratio for r in sel):.3f} "
+            f"L3×{max(r.smoothness_ratio for r in sel):.3f} "
             f"t={statistics.median(r.seconds for r in sel):.2f}s"
         )
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--variants", nargs="+", default=["default", "paper"])
     parser.add_argument("--tasks", nargs="+", default=list(TASKS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])

@@ -109,7 +109,49 @@ def clean(
         print_clean_summary(summaries)
 
 
-COMMANDS = {"score": score, "synth": synth, "clean": clean}
+def teleop(
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    robot: Literal["light", "menagerie"] = "light",
+    recordings: Path = Path("recordings"),
+    rerun: Literal["serve", "save", "off"] = "serve",
+    max_sessions: int = 8,
+    script: Path | None = None,
+) -> None:
+    """Open the teleoperation web app: drag a target, a simulated FR3 follows; record demos.
+
+    Args:
+        host: Interface to bind. 127.0.0.1 (this machine only) unless you mean to expose it,
+            e.g. 0.0.0.0 for every interface.
+        port: Port of the web app (the next free one if busy; the real URL is printed).
+        robot: "light" (bundled FR3 model, no download) or "menagerie" (MuJoCo Menagerie's FR3
+            with meshes; downloaded once, or read from $MENAGERIE_ROOT).
+        recordings: Root folder of recordings; demos go to <recordings>/<task>/.
+        rerun: "serve" streams to Rerun's web viewer on localhost, "save" writes .rrd files next
+            to the recordings, "off" disables Rerun.
+        max_sessions: Most browser tabs at once; more get a "full, try later" message.
+        script: Run a scripted operator (JSON) without a browser: record, save, print the path.
+    """
+    if script is not None:
+        from bt_teleop.script import run_script
+
+        print(run_script(script, recordings))
+        return
+    from bt_teleop.app import AppOptions, serve
+
+    serve(
+        AppOptions(
+            host=host,
+            port=port,
+            robot=robot,
+            recordings=recordings,
+            rerun=rerun,
+            max_sessions=max_sessions,
+        )
+    )
+
+
+COMMANDS = {"teleop": teleop, "score": score, "synth": synth, "clean": clean}
 
 
 def main(args: list[str] | None = None) -> None:

@@ -151,7 +151,12 @@ def clean_blueprint(tasks: Iterable[Task | str]) -> rrb.Blueprint:
     )
 
 
-def save_clean_rrd(result: TaskCleanResult, path: str | os.PathLike[str]) -> Path:
+def save_clean_rrd(
+    result: TaskCleanResult,
+    path: str | os.PathLike[str],
+    *,
+    blueprint_tasks: Iterable[Task | str] | None = None,
+) -> Path:
     """Write one task's result and its blueprint to an .rrd file, atomically.
 
     The stream has application id ``bt_clean``, a recording id from :func:`recording_id` and no
@@ -162,16 +167,21 @@ def save_clean_rrd(result: TaskCleanResult, path: str | os.PathLike[str]) -> Pat
     Args:
         result: One task's cleaning result.
         path: Destination, ending in ``.rrd``; missing parent directories are created.
+        blueprint_tasks: Tasks the sent layout has tabs for; the result's task when None. Rerun
+            keeps one active layout per application id, so the files of one run can all carry
+            the run's tasks and be opened together.
 
     Returns:
         `path` as a Path.
 
     Raises:
         ConfigError: `path` does not end in .rrd, or Rerun is disabled (RERUN=off).
+        UnknownTaskError: `blueprint_tasks` names a task bt does not know.
     """
     path = Path(path)
     if path.suffix != ".rrd":
         raise ConfigError(f"a Rerun recording must end in .rrd; got {path}")
+    blueprint = clean_blueprint([result.task] if blueprint_tasks is None else blueprint_tasks)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id(result), send_properties=False)
@@ -182,16 +192,13 @@ def save_clean_rrd(result: TaskCleanResult, path: str | os.PathLike[str]) -> Pat
             rec.set_log_time_enabled(False)
             rec.save(tmp)
             rec.send_recording_name(f"bt clean: {result.task}")
-            rec.send_blueprint(clean_blueprint([result.task]), make_active=True, make_default=True)
+            rec.send_blueprint(blueprint, make_active=True, make_default=True)
             log_clean_result(rec, result)
             rec.flush()
         finally:
             rec.disconnect()  # Closes the file sink and writes the footer.
-        fd = os.open(tmp, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        with open(tmp, "rb") as written:
+            os.fsync(written.fileno())
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)

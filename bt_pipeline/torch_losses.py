@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 from scipy.special import digamma
 
 SMOOTHNESS_ALPHAS = (0.2, 0.3, 0.5)
@@ -146,7 +146,7 @@ def _neighbours(queries: torch.Tensor, points: torch.Tensor, rank: int, p: float
     x = points.detach().to(torch.float64).numpy()
     index = np.empty(q.shape[:2], dtype=np.int64)
     for b in range(q.shape[0]):
-        _, found = cKDTree(x[b]).query(q[b], k=[rank], p=p)
+        _, found = KDTree(x[b]).query(q[b], k=[rank], p=p)
         index[b] = found[:, 0]
     return torch.from_numpy(index)
 

@@ -201,6 +201,25 @@ def test_scores_are_bar_charts_before_and_after(cleaned: Cleaned, saved: Path) -
             assert len(abscissa[0]["buffer"]) == len(expected)
 
 
+def _view_origins(path: Path) -> set[str]:
+    reader = RrdReader(path)
+    [blueprint] = reader.blueprints()
+    origins = _values(
+        reader.stream(store=blueprint).to_chunks(), "ViewBlueprint:space_origin", static=False
+    )
+    return {origin for row in origins for origin in row}
+
+
+def test_blueprint_is_sent_with_the_recording(
+    cleaned: Cleaned, saved: Path, tmp_path: Path
+) -> None:
+    origins = _view_origins(saved)
+    assert {"/wiping", "/wiping/training/loss", "/wiping/scores/shape"} <= origins
+    assert all(origin.startswith("/wiping") for origin in origins)
+    both = save_clean_rrd(cleaned.result, tmp_path / "w.rrd", blueprint_tasks=["wiping", "weaving"])
+    assert {"/wiping", "/weaving"} <= _view_origins(both)
+
+
 def test_recording_id_is_deterministic(cleaned: Cleaned, tmp_path: Path) -> None:
     first = save_clean_rrd(cleaned.result, tmp_path / "a.rrd")
     second = save_clean_rrd(cleaned.result, tmp_path / "b.rrd")
@@ -252,9 +271,11 @@ def test_failure_mid_save_keeps_the_previous_file(
     assert [p.name for p in tmp_path.iterdir()] == ["wiping.rrd"]
 
 
-def test_destination_must_be_an_rrd(cleaned: Cleaned, tmp_path: Path) -> None:
+def test_bad_arguments_write_nothing(cleaned: Cleaned, tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"\.rrd"):
         save_clean_rrd(cleaned.result, tmp_path / "wiping.hdf5")
+    with pytest.raises(UnknownTaskError, match="mopping"):
+        save_clean_rrd(cleaned.result, tmp_path / "wiping.rrd", blueprint_tasks=["mopping"])
     assert list(tmp_path.iterdir()) == []
 
 

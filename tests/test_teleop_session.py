@@ -145,6 +145,20 @@ def test_two_sessions_stay_independent(scenes: dict[str, SceneModel], tmp_path: 
     assert a_now.recording and not b_now.recording
     assert a_now.sim_time_s == pytest.approx(b_now.sim_time_s)
 
+    # The same in real time, each session in its own thread.
+    a.start()
+    b.start()
+    try:
+        a.set_target_uv([-0.1, -0.05])
+        deadline = time.monotonic() + 30.0
+        while np.linalg.norm(a.status().ee_pos - a_now.ee_pos) < 0.1:
+            assert time.monotonic() < deadline, "session a did not move"
+            time.sleep(0.01)
+    finally:
+        a.stop()
+        b.stop()
+    np.testing.assert_allclose(b.status().ee_pos, b_start.ee_pos, atol=1e-3)
+
 
 def test_far_target_is_clamped_and_the_loop_keeps_running(
     scenes: dict[str, SceneModel], tmp_path: Path

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 from scipy.special import digamma
-from scipy.stats import spearmanr
+from scipy.stats import kendalltau
 
 from bt_pipeline import torch_losses as tl
 from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
@@ -48,7 +48,7 @@ def kl_reference(x: np.ndarray, k: int = 3) -> float:
     a = (actions - actions.mean(0)) / actions.std(0)
 
     def mean_log_radius(z: np.ndarray) -> float:
-        dist, _ = cKDTree(z).query(z, k=k + 1, p=np.inf)
+        dist, _ = KDTree(z).query(z, k=k + 1, p=np.inf)
         return float(np.mean(np.log(dist[:, -1])))
 
     joint = np.hstack([s, a])
@@ -106,7 +106,7 @@ def test_mi_kl_ranks_demos_like_ksg() -> None:
     kl = tl.mi_kl(as_t(demos)).numpy()
     actions = np.concatenate([np.diff(demos, axis=1), np.zeros((len(demos), 1, 2))], axis=1)
     ksg = [mutual_information(d, a) for d, a in zip(demos, actions, strict=True)]
-    assert spearmanr(kl, ksg).statistic > 0.8
+    assert float(kendalltau(kl, ksg)[0]) > 0.6
     assert kl[:2].min() > kl[-2:].max()  # smooth demos carry more information than noisy ones
 
 
