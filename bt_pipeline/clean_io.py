@@ -234,7 +234,13 @@ def clean_paths(
         if options.write_rrd:
             from bt_pipeline.rerun_log import save_clean_rrd
 
-            rrd = save_clean_rrd(result, out_dir / f"{result.task}.rrd")
+            # Rerun keeps one layout per app id: every file carries a tab for each task of
+            # the run, so opening several of them together shows all tasks.
+            rrd = save_clean_rrd(
+                result,
+                out_dir / f"{result.task}.rrd",
+                blueprint_tasks=[r.task for r in results],
+            )
         write_seconds = time.perf_counter() - write_start
         best = result.demos[result.best_index]
         stage_seconds = {"read": read_seconds / len(results), **result.seconds}
