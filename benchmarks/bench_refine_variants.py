@@ -14,7 +14,7 @@ Stage 2 with each variant, and measure against the known true shapes:
 Usage::
 
     .venv/bin/python benchmarks/bench_refine_variants.py --variants default paper --seeds 0 1 2
-    .venv/bin/python benchmarks/bench_refine_variants.py --timing   # M = 4, 20, 100 only
+    .venv/bin/python benchmarks/bench_refine_variants.py --timing --variants default
 """
 
 from __future__ import annotations
@@ -161,6 +161,46 @@ def _summary(rows: list[Row]) -> None:
         )
 
 
+def time_sizes(
+    config: RefineConfig, sizes: list[int], repeats: int, task: Task = "wiping"
+) -> None:
+    """Median wall time of scoring, Stage 1 and Stage 2 for M demos, and growth against M = 4."""
+    print(f"\ntiming {config.variant} on {task} (median of {repeats}; scoring and Stage 1 once):")
+    base = None
+    for m in sizes:
+        synth = make_demo_set(task, n_demos=m, seed=0)
+        demos = demos_from_recording(synth.recording)
+        start = time.perf_counter()
+        scores = score_demos(demos)
+        t_score = time.perf_counter() - start
+        start = time.perf_counter()
+        stage1 = run_stage1(demos, scores.best_index, seed=0)
+        t_stage1 = time.perf_counter() - start
+        positions = np.stack([d.positions for d in demos])
+        normaliser = refine_normaliser(scores.normaliser, stage1.shape_losses)
+        times, epochs = [], 0
+        for _ in range(repeats):
+            start = time.perf_counter()
+            result = refine_demos(
+                positions,
+                stage1.aligned,
+                thetas_deg=stage1.thetas,
+                best_index=scores.best_index,
+                reward_fn=stage1.rewards,
+                normaliser=normaliser,
+                config=config,
+            )
+            times.append(time.perf_counter() - start)
+            epochs = result.epochs
+        t_stage2 = statistics.median(times)
+        base = base or t_stage2
+        print(
+            f"M={m:3d}: score {t_score:5.2f} s, stage 1 {t_stage1:5.2f} s, stage 2 "
+            f"{t_stage2:6.2f} s ({epochs} epochs, {1e3 * t_stage2 / max(epochs, 1):.0f} ms/epoch, "
+            f"×{t_stage2 / base:.1f} of M=4)"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--variants", nargs="+", default=["default", "paper"])
@@ -168,6 +208,7 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--sizes", nargs="+", type=int, default=[4, 20])
     parser.add_argument("--timing", action="store_true", help="time M = 4, 20, 100 only")
+    parser.add_argument("--repeats", type=int, default=3, help="timing repeats (median)")
     parser.add_argument("--set", nargs="*", default=[], help="overrides, e.g. lr=0.02 hidden=16")
     args = parser.parse_args()
     overrides = {}
@@ -175,9 +216,12 @@ def main() -> None:
         key, value = item.split("=")
         overrides[key] = eval(value)  # a tuning script: values are Python literals
     configs = {v: RefineConfig(variant=v, **overrides) for v in args.variants}
-    sizes = [4, 20, 100] if args.timing else args.sizes
+    if args.timing:
+        for config in configs.values():
+            time_sizes(config, [4, 20, 100], args.repeats)
+        return
     rows: list[Row] = []
-    for m in sizes:
+    for m in args.sizes:
         for task in args.tasks:
             for seed in args.seeds:
                 rows.extend(run_set(task, m, seed, configs))

@@ -23,7 +23,7 @@ import contextlib
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, fields
-from typing import Literal, get_args
+from typing import Any, Literal, get_args
 
 import numpy as np
 import torch
@@ -58,6 +58,7 @@ _PRESETS: dict[str, dict[str, object]] = {
         "refine_best": False,
         "condition_on_reference": True,
         "patience": 10,
+        "linear_skip": True,
         "skip_lr_scale": 5.0,
         "cosine_lr": True,
     },
@@ -71,6 +72,7 @@ _PRESETS: dict[str, dict[str, object]] = {
         "refine_best": True,
         "condition_on_reference": False,
         "patience": 0,
+        "linear_skip": False,
         "skip_lr_scale": 1.0,
         "cosine_lr": False,
     },
@@ -97,6 +99,7 @@ class RefineSettings:
     refine_best: bool
     condition_on_reference: bool
     delta_penalty: float
+    linear_skip: bool
     skip_lr_scale: float
     cosine_lr: bool
     patience: int
@@ -141,8 +144,11 @@ class RefineConfig:
     """Feed x_i^aligned - x_i to the network (default True; paper False: the demo only)."""
     delta_penalty: float = 0.0
     """λ of an optional λ·mean(Δ/scale)² term keeping the output near the demo."""
+    linear_skip: bool | None = None
+    """Add a linear map of the input features to Δ beside the LSTM (default True; paper False:
+    the LSTM alone)."""
     skip_lr_scale: float | None = None
-    """Learning rate of the linear skip relative to `lr` (default 5; paper 1)."""
+    """Learning rate of the linear skip relative to `lr` (default 5)."""
     cosine_lr: bool | None = None
     """Anneal the learning rate to 0 over `epochs` on a cosine (default True; paper False)."""
     patience: int | None = None
@@ -168,6 +174,7 @@ class RefineConfig:
             raise ConfigError(f"seed must be an integer ≥ 0; got {self.seed!r}")
         for name, low, high in (
             ("lr", 0.0, math.inf),
+            ("skip_lr_scale", 0.0, math.inf),
             ("gamma", 0.0, math.inf),
             ("beta_rate", 0.0, 1.0),
         ):
@@ -260,20 +267,26 @@ def update_beta(
 class _Refiner(nn.Module):
     """Shared residual seq2seq LSTM: features (B, N, F) -> Δ (B, N, 2) in standardised units."""
 
-    def __init__(self, features: int, hidden: int, layers: int, bidirectional: bool) -> None:
+    def __init__(self, features: int, settings: RefineSettings) -> None:
         super().__init__()
         self.lstm = nn.LSTM(
-            features, hidden, num_layers=layers, batch_first=True, bidirectional=bidirectional
+            features,
+            settings.hidden,
+            num_layers=settings.layers,
+            batch_first=True,
+            bidirectional=settings.bidirectional,
         )
-        self.head = nn.Linear(hidden * (2 if bidirectional else 1), 2)
-        self.skip = nn.Linear(features, 2, bias=False)
-        for layer in (self.head, self.skip):  # x̂ = x at initialisation (§7 row 15)
-            nn.init.zeros_(layer.weight)
+        self.head = nn.Linear(settings.hidden * (2 if settings.bidirectional else 1), 2)
+        self.skip = nn.Linear(features, 2, bias=False) if settings.linear_skip else None
+        nn.init.zeros_(self.head.weight)  # x̂ = x at initialisation (§7 row 15)
         nn.init.zeros_(self.head.bias)
+        if self.skip is not None:
+            nn.init.zeros_(self.skip.weight)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         hidden, _ = self.lstm(features)
-        return self.head(hidden) + self.skip(features)
+        delta = self.head(hidden)
+        return delta if self.skip is None else delta + self.skip(features)
 
 
 def refine_demos(
@@ -312,7 +325,8 @@ def refine_demos(
     settings = (config or RefineConfig()).resolve()
     x, ref, thetas = _validate(positions, references, thetas_deg, best_index)
     m = x.shape[0]
-    spans = [normaliser.affine(name) for name in REFINE_METRICS]
+    for name in REFINE_METRICS:
+        normaliser.index(name)  # ConfigError naming the missing column
     refine_mask = np.ones(m, dtype=bool)
     if not settings.refine_best:
         refine_mask[best_index] = False
@@ -333,50 +347,27 @@ def refine_demos(
         theta_t = torch.as_tensor(thetas[refine_mask], dtype=dtype)
         features = _features(x, ref, centre, scale, settings.condition_on_reference)
         features_t = torch.as_tensor(features[refine_mask], dtype=dtype)
-        model = _Refiner(
-            features_t.shape[-1], settings.hidden, settings.layers, settings.bidirectional
-        )
-        optimiser = torch.optim.Adam(
-            [
-                {"params": [*model.lstm.parameters(), *model.head.parameters()]},
-                {"params": model.skip.parameters(), "lr": settings.lr * settings.skip_lr_scale},
-            ],
-            lr=settings.lr,
-        )
+        model = _Refiner(features_t.shape[-1], settings)
+        groups: list[dict[str, Any]] = [
+            {"params": [*model.lstm.parameters(), *model.head.parameters()]}
+        ]
+        if model.skip is not None:
+            lr = settings.lr * settings.skip_lr_scale
+            groups.append({"params": model.skip.parameters(), "lr": lr})
+        optimiser = torch.optim.Adam(groups, lr=settings.lr)
         scheduler = (
             torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, settings.epochs)
             if settings.cosine_lr
             else None
         )
-        with torch.no_grad():
-            mi_raw = tl.mi_kl(torch.as_tensor(x, dtype=dtype)).numpy().astype(np.float64)
-        mi_span = _span(mi_raw, normaliser.delta)
-        mi_raw_t = torch.as_tensor(mi_raw[refine_mask], dtype=dtype)
-        weights = torch.as_tensor(settings.weights, dtype=dtype)
+        objective = _Objective(
+            normaliser, settings, x_t, ref_t, theta_t, torch.as_tensor(x, dtype=dtype), refine_mask
+        )
         stall = 0
         best_loss = math.inf
         for epoch in range(1, settings.epochs + 1):
-            beta_t = torch.as_tensor(betas[refine_mask], dtype=dtype)
             delta = model(features_t) * scale
-            out = x_t + delta
-            losses = torch.stack(
-                (
-                    tl.symmetry_loss(out, theta_t),
-                    tl.closure_loss(out),
-                    tl.smoothness_loss(out),
-                    tl.shape_loss(out, ref_t),
-                ),
-                dim=-1,
-            )
-            lo = torch.as_tensor([s[0] for s in spans], dtype=dtype)
-            sc = torch.as_tensor([s[1] for s in spans], dtype=dtype)
-            norm = (losses - lo) * sc  # Eq. (7) with the frozen raw-set (min, max)
-            if settings.clamp_scores:  # no reward for beating the best raw demo on L1-L3
-                norm = torch.cat((norm[:, :3].clamp_min(0.0), norm[:, 3:]), dim=-1)
-            task_score = ((1.0 - norm) * weights).sum(dim=-1)  # Eq. (10)
-            mi_score = _mi_score(out, mi_raw_t, mi_span, settings.mi_term, settings.clamp_scores)
-            utility = (1.0 - beta_t) * mi_score + beta_t * task_score  # Eq. (8)
-            loss = -utility.mean()
+            loss = objective(x_t + delta, torch.as_tensor(betas[refine_mask], dtype=dtype))
             if settings.delta_penalty > 0.0:
                 loss = loss + settings.delta_penalty * (delta / scale).pow(2).mean()
             optimiser.zero_grad(set_to_none=True)
@@ -429,23 +420,58 @@ def refine_normaliser(normaliser: Normaliser, shape_losses: ArrayLike) -> Normal
     )
 
 
-def _mi_score(
-    out: torch.Tensor, mi_raw: torch.Tensor, span: tuple[float, float], mode: str, clamp: bool
-) -> torch.Tensor:
-    """Normalised MI term Ĩ_i of Eq. (8) for the loss, per the settings' `mi_term`."""
-    if mode == "off":
-        return out.new_zeros(out.shape[0])
-    lo, sc = span
-    current = (tl.mi_kl(out) - lo) * sc
-    if mode == "floor":  # no reward above the demo's own raw MI: only a loss of MI is penalised
-        current = torch.minimum(current, (mi_raw - lo) * sc)
-    return current.clamp_max(1.0) if clamp else current
+class _Objective:
+    """-mean_i Ũ_i of the refined demos (Eq. 8) with the frozen raw-set normalisers (Eq. 7)."""
 
+    def __init__(
+        self,
+        normaliser: Normaliser,
+        settings: RefineSettings,
+        x: torch.Tensor,
+        references: torch.Tensor,
+        thetas: torch.Tensor,
+        all_raw: torch.Tensor,
+        refined: NDArray[np.bool_],
+    ) -> None:
+        spans = [normaliser.affine(name) for name in REFINE_METRICS]
+        self.lo = x.new_tensor([lo for lo, _ in spans])
+        self.scale = x.new_tensor([scale for _, scale in spans])
+        self.weights = x.new_tensor(settings.weights)
+        self.references, self.thetas, self.settings = references, thetas, settings
+        # I_KL is not KSG: normalise it by its own range over the raw set (§7 row 16).
+        with torch.no_grad():
+            mi_raw = tl.mi_kl(all_raw)
+        span = float(mi_raw.max() - mi_raw.min())
+        self.mi_lo = float(mi_raw.min())
+        self.mi_scale = 1.0 / span if span > normaliser.delta else 0.0
+        self.mi_raw = (mi_raw[torch.from_numpy(refined)] - self.mi_lo) * self.mi_scale
 
-def _span(values: FloatArray, delta: float) -> tuple[float, float]:
-    """(min, 1 / (max - min)) of raw values, scale 0 when the range is ≤ δ (Eq. 7)."""
-    lo, hi = float(values.min()), float(values.max())
-    return lo, (1.0 / (hi - lo) if hi - lo > delta else 0.0)
+    def __call__(self, out: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
+        losses = torch.stack(
+            (
+                tl.symmetry_loss(out, self.thetas),
+                tl.closure_loss(out),
+                tl.smoothness_loss(out),
+                tl.shape_loss(out, self.references),
+            ),
+            dim=-1,
+        )
+        norm = (losses - self.lo) * self.scale  # Eq. (7), frozen (min, max) of the raw set
+        if self.settings.clamp_scores:  # no reward for beating the best raw demo on L1-L3
+            norm = torch.cat((norm[:, :3].clamp_min(0.0), norm[:, 3:]), dim=-1)
+        task_score = ((1.0 - norm) * self.weights).sum(dim=-1)  # Eq. (10)
+        utility = (1.0 - betas) * self._mi_score(out) + betas * task_score  # Eq. (8)
+        return -utility.mean()
+
+    def _mi_score(self, out: torch.Tensor) -> torch.Tensor:
+        """Ĩ_i of Eq. (8) as the settings' `mi_term` asks, shape (B,)."""
+        mode = self.settings.mi_term
+        if mode == "off":
+            return out.new_zeros(out.shape[0])
+        current = (tl.mi_kl(out) - self.mi_lo) * self.mi_scale
+        if mode == "floor":  # no reward above the demo's own raw MI: only a loss is penalised
+            current = torch.minimum(current, self.mi_raw)
+        return current.clamp_max(1.0) if self.settings.clamp_scores else current
 
 
 def _features(

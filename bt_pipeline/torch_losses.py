@@ -146,8 +146,8 @@ def _neighbours(queries: torch.Tensor, points: torch.Tensor, rank: int, p: float
     x = points.detach().to(torch.float64).numpy()
     index = np.empty(q.shape[:2], dtype=np.int64)
     for b in range(q.shape[0]):
-        _, found = KDTree(x[b]).query(q[b], k=[rank], p=p)
-        index[b] = found[:, 0]
+        _, found = KDTree(x[b]).query(q[b], k=rank, p=p)
+        index[b] = np.asarray(found).reshape(q.shape[1], rank)[:, -1]
     return torch.from_numpy(index)
 
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 from scipy.spatial import KDTree
 from scipy.special import digamma
-from scipy.stats import kendalltau
+from scipy.stats import rankdata
 
 from bt_pipeline import torch_losses as tl
 from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
@@ -106,7 +106,7 @@ def test_mi_kl_ranks_demos_like_ksg() -> None:
     kl = tl.mi_kl(as_t(demos)).numpy()
     actions = np.concatenate([np.diff(demos, axis=1), np.zeros((len(demos), 1, 2))], axis=1)
     ksg = [mutual_information(d, a) for d, a in zip(demos, actions, strict=True)]
-    assert float(kendalltau(kl, ksg)[0]) > 0.6
+    assert np.corrcoef(rankdata(kl), rankdata(ksg))[0, 1] > 0.8  # Spearman's ρ
     assert kl[:2].min() > kl[-2:].max()  # smooth demos carry more information than noisy ones
 
 

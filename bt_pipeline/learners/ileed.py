@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 import torch
@@ -38,6 +39,8 @@ from torch import nn
 from torch.nn import functional
 
 from bt_pipeline.exceptions import ConfigError
+
+RandomModel = Literal["uniform", "gaussian"]
 from bt_pipeline.learners.common import (
     TrainConfig,
     TrainedLearner,
@@ -72,6 +75,11 @@ class ILEEDConfig(TrainConfig):
     """Initial (or fixed) σ_a, in standardised velocity units."""
     min_action_std: float = 0.02
     """Floor of a learned σ_a, in standardised velocity units."""
+    max_action_std: float = 10.0
+    """Cap of a learned σ_a, in standardised velocity units."""
+    random_model: RandomModel = "uniform"
+    """The random-action density: uniform on the observed velocity box, or N(μ_v, Σ_v) of all
+    observed velocities (N(0, I) in standardised units)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -105,19 +113,27 @@ class _ILEEDModel(nn.Module):
             torch.full((2,), math.log(config.action_std)), requires_grad=config.learn_action_std
         )
         self.min_log_std = math.log(config.min_action_std)
+        self.max_log_std = math.log(config.max_action_std)
+        self.random_model = config.random_model
 
     def competence_logit(self, states: torch.Tensor, who: torch.Tensor) -> torch.Tensor:
         """⟨f_θ(s), ω_i⟩, shape (B,), for states (B, 2) of demonstrators `who` (B,)."""
         return torch.sum(self.embedding(states) * self.omega[who], dim=-1)
 
     def log_likelihood(
-        self, states: torch.Tensor, actions: torch.Tensor, who: torch.Tensor, log_uniform: float
+        self,
+        states: torch.Tensor,
+        actions: torch.Tensor,
+        who: torch.Tensor,
+        log_uniform: float | torch.Tensor,
     ) -> torch.Tensor:
         """log p_i(a | s) of the mixture, shape (B,)."""
-        log_std = self.log_std.clamp(min=self.min_log_std)
+        log_std = self.log_std.clamp(min=self.min_log_std, max=self.max_log_std)
         residual = (actions - self.policy(states)) / log_std.exp()
         log_gauss = -0.5 * residual.pow(2).sum(-1) - log_std.sum() - math.log(2.0 * math.pi)
         logit = self.competence_logit(states, who)
+        if self.random_model == "gaussian":
+            log_uniform = -0.5 * actions.pow(2).sum(-1) - math.log(2.0 * math.pi)
         return torch.logaddexp(
             functional.logsigmoid(logit) + log_gauss, functional.logsigmoid(-logit) + log_uniform
         )
