@@ -7,7 +7,7 @@ Stage 2 with each variant, and measure against the known true shapes:
   is ≤ 0.4 for every task);
 * expert ratio: the same for the expert-like demo (bar ≤ 1.1);
 * min ΔŨ: smallest Ũ(cleaned) - Ũ(raw) over the demos, with the true KSG, the raw set's frozen
-  normalisers (clipped to [0, 1]) and β = β0 for both (bar ≥ 0);
+  normalisers (clipped to [0, 1]), with β = β0 and with the final β_i (bar ≥ 0);
 * closure / smoothness: mean L2 and L3 after / before over the naive demos (bar < 1);
 * stage 2 seconds, and epochs run.
 
@@ -106,11 +106,13 @@ def run_set(task: Task, m: int, seed: int, configs: dict[str, RefineConfig]) -> 
             [_metrics(out[i], stage1.aligned[i], stage1.thetas[i]) for i in range(m)]
         )
         weights = result.settings.weights
-        beta = result.settings.beta0
-        u = []
-        for vals in (raw_vals, new_vals):
-            nv = normaliser.normalise(vals, clip=True)
-            u.append(normalised_utility(nv[:, 0], nv[:, 1:], weights, beta))
+        gains = []
+        for beta in (np.full(m, result.settings.beta0), result.betas):
+            u = []
+            for vals in (raw_vals, new_vals):
+                nv = normaliser.normalise(vals, clip=True)
+                u.append(normalised_utility(nv[:, 0], nv[:, 1:], weights, beta))
+            gains.append(u[1] - u[0])
         rows.append(
             Row(
                 task=task,
@@ -119,7 +121,7 @@ def run_set(task: Task, m: int, seed: int, configs: dict[str, RefineConfig]) -> 
                 variant=name,
                 naive_ratio=float(np.mean(after[naive]) / np.mean(before[naive])),
                 expert_ratio=float(after[expert] / before[expert]),
-                min_delta_utility=float(np.min(u[1] - u[0])),
+                min_delta_utility=float(np.min(gains)),
                 closure_ratio=float(np.mean(new_vals[naive, 2]) / np.mean(raw_vals[naive, 2])),
                 smoothness_ratio=float(np.mean(new_vals[naive, 3]) / np.mean(raw_vals[naive, 3])),
                 seconds=seconds,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree  # cKDTree underneath (scipy >= 1.6), typed
 
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.records import FloatArray
@@ -45,8 +45,8 @@ def chamfer_distance(a: ArrayLike, b: ArrayLike) -> float:
     pb = _as_points(b, "b")
     if pa.shape[1] != pb.shape[1]:
         raise ConfigError(f"a and b must have the same dimension; got {pa.shape} and {pb.shape}")
-    d_ab, _ = cKDTree(pb).query(pa)
-    d_ba, _ = cKDTree(pa).query(pb)
+    d_ab, _ = KDTree(pb).query(pa)
+    d_ba, _ = KDTree(pa).query(pb)
     return 0.5 * (float(np.mean(d_ab)) + float(np.mean(d_ba)))
 
 

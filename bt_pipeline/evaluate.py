@@ -5,12 +5,20 @@ For one task (pure core, :func:`evaluate_task`)::
     noisy demos ──score──> best ──Stage 1──> V_E, x_i^aligned, frozen normaliser   (the yardstick)
     for dataset in (noisy, cleaned):
         for learner in (bc, traj_bc, ileed, node):
-            train on the dataset ──> 50 rollouts of N steps from perturbed initial states
-            per rollout: R̄ (Eq. 11, V_E of the noisy set's best demo), L4 to the nearest
-            aligned reference (Eq. 9), Ũ (Eq. 8 with L1-L4, frozen normaliser, β = 0.5)
+            train on the dataset ──> R rollouts of N steps from perturbed initial states
+            per rollout: nearest demonstrator j* (phase-free distance to its reference), then
+                R̄ (Eq. 11 / N: V_E in j*'s frame), L4 to j*'s aligned reference (Eq. 9),
+                Ũ (Eq. 8 with L1-L4, the frozen normaliser, β = 0.5), and for comparison
+                R̄ with V_E read directly (the paper's literal protocol) and the phase-free
+                distance itself
 
 The yardstick comes from the noisy set only, so both datasets are measured by the same V_E,
-references and normaliser (docs/algorithms.md §7 row 20).
+references, normaliser and initial states (docs/algorithms.md §7 row 20). docs/evaluation.md
+explains every protocol choice, in particular why R̄ is read in the nearest demonstrator's frame:
+V_E is a thin ridge along the *best* demonstrator's loop (its θ, ρ), so read directly it scores a
+perfect loop of another demonstrator 0.2-0.4 against 0.6-0.7 for the best one's, whatever the
+quality; a learner trained on all demonstrators draws some loop among theirs and is then
+measured by its distance to the best demonstrator's preference, not by its quality.
 """
 
 from __future__ import annotations
@@ -25,6 +33,7 @@ import numpy as np
 from bt_pipeline.alignment import shape_loss
 from bt_pipeline.canonical import Stage1Result, run_stage1
 from bt_pipeline.demo import Demo
+from bt_pipeline.distance import chamfer_distance
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.learners import LEARNERS, LearnerName, learner_config, train_learner
 from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
@@ -36,6 +45,9 @@ from bt_pipeline.tasks import Task
 
 Dataset = Literal["noisy", "cleaned"]
 DATASETS: tuple[Dataset, ...] = ("noisy", "cleaned")
+RewardFrame = Literal["nearest", "best"]
+"""Where V_E reads a rollout: mapped from its nearest demonstrator's frame into the best one's
+(bt's default), or as it is, in the best demonstrator's frame (the paper's literal protocol)."""
 UTILITY_WEIGHTS = (0.2, 0.2, 0.2, 0.4)
 """w_1..w_4 of Ũ for rollouts (the refinement weights, docs/algorithms.md §7 row 8)."""
 UTILITY_BETA = 0.5
@@ -56,6 +68,10 @@ class EvalConfig:
     """Use each learner's CI-sized preset."""
     seed: int = 0
     """Seed of training and of the initial states."""
+    reward_frame: RewardFrame = "nearest"
+    """Frame in which V_E reads a rollout for the headline R̄ (both are always reported)."""
+    steps: int | None = None
+    """Override every learner's optimiser steps (tiny test runs); None keeps the presets."""
 
     def __post_init__(self) -> None:
         if not self.learners:
@@ -63,13 +79,21 @@ class EvalConfig:
         for name in self.learners:
             if name not in LEARNERS:
                 raise ConfigError(f"unknown learner {name!r}; valid learners: {', '.join(LEARNERS)}")
+        if len(set(self.learners)) != len(self.learners):
+            raise ConfigError(f"each learner may be given once; got {', '.join(self.learners)}")
         if self.rollouts < 1:
             raise ConfigError(f"--rollouts must be ≥ 1; got {self.rollouts}")
         if not 0.0 <= self.init_noise < 1.0:
             raise ConfigError(f"init_noise must lie in [0, 1); got {self.init_noise}")
+        if self.seed < 0:
+            raise ConfigError(f"--seed must be ≥ 0; got {self.seed}")
+        if self.reward_frame not in ("nearest", "best"):
+            raise ConfigError(f"reward_frame must be 'nearest' or 'best'; got {self.reward_frame!r}")
+        if self.steps is not None and self.steps < 1:
+            raise ConfigError(f"steps must be ≥ 1 or None; got {self.steps}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Yardstick:
     """What every rollout of a task is measured against (built from the noisy set)."""
 
@@ -79,9 +103,38 @@ class Yardstick:
     """Frozen raw-set (min, max) of MI, L1, L2, L3, L4."""
     size: float
     """Loop size of the best demo [m] (largest extent), for the initial-state noise."""
+    representatives: tuple[int, ...]
+    """One demo index per distinct demonstrator preference (θ, ρ): the candidate references."""
+    ceiling: float
+    """R̄ of the best raw demo itself: what a rollout as good as the expert-like demo scores."""
+
+    @property
+    def demonstrators(self) -> int:
+        """Number of distinct demonstrator preferences."""
+        return len(self.representatives)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
+class RolloutMetrics:
+    """Per-rollout metrics of R rollouts, each array of shape (R,)."""
+
+    rewards: FloatArray
+    """R̄ (Eq. 11 / N) with V_E read in the config's reward frame, in [0, 1]."""
+    rewards_direct: FloatArray
+    """R̄ with V_E read directly (the best demonstrator's frame: the paper's protocol)."""
+    rewards_nearest: FloatArray
+    """R̄ with V_E read in the nearest demonstrator's frame."""
+    shape_losses: FloatArray
+    """L4 (Eq. 9, best circular shift and direction) to the nearest aligned reference [m]."""
+    shape_distances: FloatArray
+    """Phase-free (Chamfer) distance to the nearest aligned reference [m]."""
+    utilities: FloatArray
+    """Ũ (Eq. 8), in [0, 1]."""
+    nearest: np.ndarray
+    """Index (into the demos) of the nearest demonstrator's representative, int, shape (R,)."""
+
+
+@dataclass(frozen=True, eq=False)
 class LearnerEval:
     """One learner trained on one dataset of one task, and its rollouts' metrics."""
 
@@ -90,58 +143,117 @@ class LearnerEval:
     dataset: Dataset
     rollouts: FloatArray
     """Rollout states, shape (R, N, 2), in task coordinates [m]."""
-    rewards: FloatArray
-    """R̄ of each rollout, shape (R,), in [0, 1] (Eq. 11, mean-normalised)."""
-    shape_losses: FloatArray
-    """L4 of each rollout to its nearest aligned reference, shape (R,), in [m]."""
-    utilities: FloatArray
-    """Ũ of each rollout, shape (R,), in [0, 1]."""
+    metrics: RolloutMetrics
+    """Per-rollout metrics."""
     train_seconds: float
     """Training wall time [s]."""
     expertise: dict[str, float]
     """ILEED's learned expertise per demonstrator (empty for other learners)."""
     finite: bool
     """Training never produced a non-finite loss and every rollout is finite."""
+    final_loss: float
+    """Mean training loss over the last 5 % of the steps (learner-specific units)."""
+
+    @property
+    def rewards(self) -> FloatArray:
+        """Headline R̄ of each rollout, shape (R,)."""
+        return self.metrics.rewards
+
+    @property
+    def shape_losses(self) -> FloatArray:
+        """L4 of each rollout [m], shape (R,)."""
+        return self.metrics.shape_losses
+
+    @property
+    def utilities(self) -> FloatArray:
+        """Ũ of each rollout, shape (R,)."""
+        return self.metrics.utilities
 
     def to_json(self) -> dict[str, object]:
         """One row of ``bt evaluate --json``."""
+        m = self.metrics
         return {
             "task": self.task,
             "learner": self.learner,
             "dataset": self.dataset,
-            "reward_mean": float(np.mean(self.rewards)),
-            "reward_std": float(np.std(self.rewards)),
-            "shape_loss": float(np.mean(self.shape_losses)),
-            "shape_loss_std": float(np.std(self.shape_losses)),
-            "utility": float(np.mean(self.utilities)),
-            "utility_std": float(np.std(self.utilities)),
+            "reward_mean": _mean(m.rewards),
+            "reward_std": _std(m.rewards),
+            "shape_loss": _mean(m.shape_losses),
+            "shape_loss_std": _std(m.shape_losses),
+            "utility": _mean(m.utilities),
+            "utility_std": _std(m.utilities),
+            "reward_direct_mean": _mean(m.rewards_direct),
+            "reward_direct_std": _std(m.rewards_direct),
+            "reward_nearest_mean": _mean(m.rewards_nearest),
+            "reward_nearest_std": _std(m.rewards_nearest),
+            "shape_distance": _mean(m.shape_distances),
+            "shape_distance_std": _std(m.shape_distances),
+            "rollouts": int(self.rollouts.shape[0]),
             "train_seconds": self.train_seconds,
+            "final_loss": self.final_loss,
+            "finite": self.finite,
             "expertise": self.expertise,
         }
 
 
+def _mean(values: FloatArray) -> float:
+    return float(np.mean(values))
+
+
+def _std(values: FloatArray) -> float:
+    return float(np.std(values))
+
+
 def build_yardstick(noisy: Sequence[Demo], seed: int = 0) -> Yardstick:
-    """V_E, aligned references and the frozen normaliser of the noisy set."""
+    """V_E, aligned references and the frozen normaliser of the noisy set.
+
+    Raises:
+        DemoError: No demos.
+    """
+    if not noisy:
+        raise DemoError("the yardstick needs at least one noisy demo")
     scores = score_demos(noisy)
     stage1 = run_stage1(noisy, scores.best_index, seed=seed)
     normaliser = refine_normaliser(scores.normaliser, stage1.shape_losses)
     best = noisy[scores.best_index].positions
-    return Yardstick(stage1=stage1, normaliser=normaliser, size=float(np.max(np.ptp(best, axis=0))))
+    keys: dict[tuple[float, float], int] = {}
+    for i in range(stage1.n_demos):  # demos sharing a preference share one reference loop
+        keys.setdefault((round(float(stage1.thetas[i]), 6), round(float(stage1.rhos[i]), 6)), i)
+    return Yardstick(
+        stage1=stage1,
+        normaliser=normaliser,
+        size=float(np.max(np.ptp(best, axis=0))),
+        representatives=tuple(sorted(keys.values())),
+        ceiling=stage1.value_map.mean_reward(best),
+    )
 
 
 def rollout_metrics(
-    rollouts: FloatArray, yardstick: Yardstick
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """R̄, L4 (nearest reference) and Ũ of every rollout, each shape (R,)."""
+    rollouts: FloatArray, yardstick: Yardstick, reward_frame: RewardFrame = "nearest"
+) -> RolloutMetrics:
+    """R̄ (both frames), L4, phase-free distance and Ũ of every rollout (module doc).
+
+    Args:
+        rollouts: States, shape (R, N, 2), in task coordinates [m].
+        yardstick: The task's yardstick (:func:`build_yardstick`).
+        reward_frame: Which R̄ is the headline `rewards`.
+
+    Returns:
+        The metrics, each of shape (R,).
+    """
     stage1 = yardstick.stage1
-    rewards = stage1.value_map.mean_rewards(rollouts)  # Eq. (11) / N
+    value_map = stage1.value_map
     n = rollouts.shape[1]
     times = np.linspace(0.0, 1.0, n)
-    shape_losses, utilities = [], []
+    references = {i: _resampled(stage1.aligned[i], n) for i in yardstick.representatives}
+    columns: dict[str, list[float]] = {
+        k: [] for k in ("direct", "nearest", "l4", "chamfer", "utility", "index")
+    }
     for rollout in rollouts:
-        # Eq. (9) against every demonstrator's reference; the nearest one is the rollout's.
-        losses = [shape_loss(rollout, _resampled(ref, n)) for ref in stage1.aligned]
-        j = int(np.argmin(losses))
+        # The demonstrator whose loop this rollout draws: phase-free, so timing cannot pick it.
+        distances = {i: chamfer_distance(rollout, ref) for i, ref in references.items()}
+        j = min(distances, key=lambda i: distances[i])
+        l4 = shape_loss(rollout, references[j])  # Eq. (9), best shift and direction
         actions = np.zeros_like(rollout)
         actions[:-1] = np.diff(rollout, axis=0) / np.diff(times)[:, None]
         values = np.array(
@@ -150,16 +262,29 @@ def rollout_metrics(
                 symmetry_loss(rollout, float(stage1.thetas[j])),
                 closure_loss(rollout),
                 smoothness_loss(rollout),
-                losses[j],
+                l4,
             ]
         )
         normalised = yardstick.normaliser.normalise(values, clip=True)
         utility = normalised_utility(
             normalised[None, 0], normalised[None, 1:], UTILITY_WEIGHTS, UTILITY_BETA
-        )
-        shape_losses.append(losses[j])
-        utilities.append(float(utility[0]))
-    return np.asarray(rewards, dtype=np.float64), np.array(shape_losses), np.array(utilities)
+        )  # Eq. (8)
+        columns["direct"].append(value_map.mean_reward(rollout))  # Eq. (11) / N
+        columns["nearest"].append(value_map.mean_reward(stage1.to_best_frame(j, rollout)))
+        columns["l4"].append(l4)
+        columns["chamfer"].append(distances[j])
+        columns["utility"].append(float(utility[0]))
+        columns["index"].append(j)
+    direct, nearest = np.array(columns["direct"]), np.array(columns["nearest"])
+    return RolloutMetrics(
+        rewards=nearest if reward_frame == "nearest" else direct,
+        rewards_direct=direct,
+        rewards_nearest=nearest,
+        shape_losses=np.array(columns["l4"]),
+        shape_distances=np.array(columns["chamfer"]),
+        utilities=np.array(columns["utility"]),
+        nearest=np.array(columns["index"], dtype=np.int64),
+    )
 
 
 def _resampled(curve: FloatArray, n: int) -> FloatArray:
@@ -179,27 +304,12 @@ def initial_states(demos: Sequence[Demo], count: int, noise_m: float, seed: int)
     return starts[picks] + rng.normal(0.0, noise_m, size=(count, 2))
 
 
-def evaluate_task(
-    noisy: Sequence[Demo],
-    cleaned: Sequence[Demo],
-    config: EvalConfig | None = None,
-    on_trained: Callable[[LearnerEval], None] | None = None,
-) -> list[LearnerEval]:
-    """Train every learner on the noisy and on the cleaned demos of one task and measure them.
-
-    Args:
-        noisy: The raw demos (they also define the yardstick).
-        cleaned: The cleaned demos of the same task (any number, same N).
-        config: Protocol settings.
-        on_trained: Called after each learner is trained and measured (progress).
-
-    Returns:
-        One :class:`LearnerEval` per (dataset, learner), noisy first.
+def check_pair(noisy: Sequence[Demo], cleaned: Sequence[Demo]) -> tuple[Task, int]:
+    """The task and N shared by a noisy and a cleaned demo set.
 
     Raises:
         DemoError: Empty sets, mixed tasks, or sets of different N.
     """
-    config = config or EvalConfig()
     if not noisy or not cleaned:
         raise DemoError("evaluation needs both noisy and cleaned demos of the task")
     tasks = {d.task for d in (*noisy, *cleaned)}
@@ -208,10 +318,39 @@ def evaluate_task(
     lengths = {d.n_samples for d in (*noisy, *cleaned)}
     if len(lengths) != 1:
         raise DemoError(f"noisy and cleaned demos must have the same N; got {sorted(lengths)}")
-    task = noisy[0].task
-    n = noisy[0].n_samples
-    yardstick = build_yardstick(noisy, seed=config.seed)
+    return noisy[0].task, noisy[0].n_samples
+
+
+def evaluate_task(
+    noisy: Sequence[Demo],
+    cleaned: Sequence[Demo],
+    config: EvalConfig | None = None,
+    on_trained: Callable[[LearnerEval], None] | None = None,
+    yardstick: Yardstick | None = None,
+) -> list[LearnerEval]:
+    """Train every learner on the noisy and on the cleaned demos of one task and measure them.
+
+    Args:
+        noisy: The raw demos (they also define the yardstick and the initial states).
+        cleaned: The cleaned demos of the same task (any number, same N).
+        config: Protocol settings.
+        on_trained: Called after each learner is trained and measured (progress).
+        yardstick: The noisy set's yardstick if already built (:func:`build_yardstick` with
+            the config's seed); built here when None.
+
+    Returns:
+        One :class:`LearnerEval` per (dataset, learner), noisy first.
+
+    Raises:
+        DemoError: Empty sets, mixed tasks, or sets of different N.
+    """
+    config = config or EvalConfig()
+    task, n = check_pair(noisy, cleaned)
+    yardstick = yardstick or build_yardstick(noisy, seed=config.seed)
     x0 = initial_states(noisy, config.rollouts, config.init_noise * yardstick.size, config.seed)
+    overrides: dict[str, object] = {"seed": config.seed}
+    if config.steps is not None:
+        overrides["steps"] = config.steps
     results = []
     for dataset, demos in (("noisy", noisy), ("cleaned", cleaned)):
         positions = np.stack([d.positions for d in demos])
@@ -222,23 +361,23 @@ def evaluate_task(
                 learner,
                 positions,
                 demonstrators,
-                learner_config(learner, quick=config.quick, seed=config.seed),
+                learner_config(learner, quick=config.quick, **overrides),
             )
             seconds = time.perf_counter() - start
             rollouts = trained.policy.rollout(x0, n_samples=n)
             finite = bool(np.all(np.isfinite(rollouts))) and trained.skipped_steps == 0
-            rewards, losses, utilities = rollout_metrics(rollouts, yardstick)
+            history = trained.loss_history[np.isfinite(trained.loss_history)]
+            tail = history[-max(1, len(history) // 20) :] if history.size else np.array([np.nan])
             result = LearnerEval(
                 task=task,
                 learner=learner,
                 dataset=dataset,  # type: ignore[arg-type]  # literal from DATASETS
                 rollouts=rollouts,
-                rewards=rewards,
-                shape_losses=losses,
-                utilities=utilities,
+                metrics=rollout_metrics(rollouts, yardstick, config.reward_frame),
                 train_seconds=seconds,
                 expertise=dict(trained.expertise),
                 finite=finite,
+                final_loss=float(np.mean(tail)),
             )
             results.append(result)
             if on_trained is not None:

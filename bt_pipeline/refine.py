@@ -98,7 +98,6 @@ class RefineSettings:
     clamp_scores: bool
     refine_best: bool
     condition_on_reference: bool
-    delta_penalty: float
     linear_skip: bool
     skip_lr_scale: float
     cosine_lr: bool
@@ -142,8 +141,6 @@ class RefineConfig:
     """Refine x_best too (default False: passed through; paper True)."""
     condition_on_reference: bool | None = None
     """Feed x_i^aligned - x_i to the network (default True; paper False: the demo only)."""
-    delta_penalty: float = 0.0
-    """λ of an optional λ·mean(Δ/scale)² term keeping the output near the demo."""
     linear_skip: bool | None = None
     """Add a linear map of the input features to Δ beside the LSTM (default True; paper False:
     the LSTM alone)."""
@@ -190,9 +187,8 @@ class RefineConfig:
             )
         if self.mi_term is not None and self.mi_term not in get_args(MiTerm):
             raise ConfigError(f"mi_term must be one of {get_args(MiTerm)}; got {self.mi_term!r}")
-        for name in ("delta_penalty", "tolerance"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
-                raise ConfigError(f"{name} must be finite and ≥ 0; got {getattr(self, name)!r}")
+        if not (math.isfinite(self.tolerance) and self.tolerance >= 0.0):
+            raise ConfigError(f"tolerance must be finite and ≥ 0; got {self.tolerance!r}")
 
     def resolve(self) -> RefineSettings:
         """Concrete settings: this config with every None replaced by the variant's value."""
@@ -368,8 +364,6 @@ def refine_demos(
         for epoch in range(1, settings.epochs + 1):
             delta = model(features_t) * scale
             loss = objective(x_t + delta, torch.as_tensor(betas[refine_mask], dtype=dtype))
-            if settings.delta_penalty > 0.0:
-                loss = loss + settings.delta_penalty * (delta / scale).pow(2).mean()
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 if TYPE_CHECKING:
@@ -66,21 +67,28 @@ def print_score_tables(results: Sequence[TaskScores], console: Console | None = 
     """One table per task: demo, demonstrator, θ, ρ, MI, L1, L2, L3, Ũ, rank; best marked ★."""
     console = console or _console()
     for result in results:
+        files = {s.demo.file for s in result.scores}
+        one_file = len(files) == 1
+
+        def label(file: str, demo: str, one_file: bool = one_file) -> str:
+            return demo if one_file else _short(file, demo)
+
+        where = f" in {next(iter(files))}" if one_file else f" from {len(files)} files"
         table = Table(
             title=(
-                f"{result.task}: {len(result.scores)} demos, best = "
-                f"{_short(result.best.demo.file, result.best.demo.name)}"
+                f"{result.task}: {len(result.scores)} demos{where}, best = "
+                f"{label(result.best.demo.file, result.best.demo.name)} ★"
             ),
             title_justify="left",
         )
         for column in ("", "demo", "demonstrator", "θ [°]", "ρ"):
-            table.add_column(column)
+            table.add_column(escape(column))
         for column in ("MI [nats]", "L1 sym [mm]", "L2 close [mm]", "L3 smooth", "Ũ", "rank"):
-            table.add_column(column, justify="right")
+            table.add_column(escape(column), justify="right")
         for index, s in enumerate(result.scores):
             table.add_row(
                 "★" if index == result.best_index else "",
-                _short(s.demo.file, s.demo.name),
+                label(s.demo.file, s.demo.name),
                 s.demo.demonstrator,
                 _fmt_pref(s.demo.theta_deg, 1),
                 _fmt_pref(s.demo.rho, 2),
@@ -113,7 +121,7 @@ def print_clean_summary(summaries: Sequence[TaskCleanSummary], console: Console 
         for column in ("demo", "demonstrator"):
             table.add_column(column)
         for column in ("Ũ raw", "Ũ cleaned", "L4 raw [mm]", "L4 cleaned [mm]", "β final"):
-            table.add_column(column, justify="right")
+            table.add_column(escape(column), justify="right")
         for demo in summary.demos:
             table.add_row(
                 _short(demo.file, demo.demo),

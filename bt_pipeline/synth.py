@@ -8,8 +8,8 @@ demonstrator k mod 4, so a 4-demo set is the paper's D1 (one demo each) and a 20
 
 Every set holds exactly one expert-like demo (which one is drawn from the seed): tiny noise
 (0.3 mm) and a mild, natural speed variation. Every other demo is naive: high-frequency noise
-(white jitter, a 6-10 Hz tremor, or both) plus 1-3 further defects, at least one of which changes
-the drawn shape:
+(white jitter, a 6-10 Hz tremor, or both) plus 1-3 further defects, at least one of which
+(drift, incomplete or lopsided) changes the drawn loop as a whole:
 
 ==============  ============================================================================
 defect          what it does (magnitudes drawn per demo)
@@ -39,6 +39,7 @@ from typing import Any, Literal, get_args
 import numpy as np
 
 from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.recording import DEFAULT_ENV_TYPE
 from bt_pipeline.records import DemoRecord, FloatArray, Recording, forward_difference_actions
 from bt_pipeline.shapes import SHAPE_SIZE, canonical_loop, canonical_shape, similarity_transform
 from bt_pipeline.tasks import TASKS, Task, default_plane, parse_task
@@ -66,7 +67,6 @@ EXPERT_NOISE_STD_M = 0.0003
 """Position noise of the expert-like demo, std per axis [m]."""
 ENV_NAME = "bt_synthetic"
 """``env_args["env_name"]`` of synthetic recordings."""
-_ROBOMIMIC_ENV_TYPE = 2  # robomimic's EnvType.GYM_TYPE: the closest to "no simulator".
 _CREATED_EPOCH = datetime(2026, 1, 1, tzinfo=UTC)  # Fixed, so files are reproducible.
 
 
@@ -168,7 +168,7 @@ def make_demo_set(task: Task | str, n_demos: int = 4, seed: int = 0) -> SynthSet
         demos={d.name: d.record for d in demos},
         env_args={
             "env_name": ENV_NAME,
-            "type": _ROBOMIMIC_ENV_TYPE,
+            "type": DEFAULT_ENV_TYPE,
             "env_kwargs": {"task": task, "seed": seed, "preset": preset, "n_demos": n_demos},
         },
     )
@@ -249,51 +249,63 @@ def _tremor(t: FloatArray, amplitude: float, rng: np.random.Generator) -> FloatA
     return out
 
 
+def _add_noise_and_outliers(
+    uv: FloatArray,
+    t: FloatArray,
+    defects: tuple[Defect, ...],
+    rng: np.random.Generator,
+    params: dict[str, Any],
+) -> FloatArray:
+    """`uv` (shape (T, 2), [m]) with the demo's noise, drift and spikes added; records params."""
+    out = uv.copy()
+    s = t / t[-1]
+    if not defects:  # the expert-like demo
+        out += rng.normal(0.0, EXPERT_NOISE_STD_M, size=out.shape)
+    if "jitter" in defects:
+        params["jitter_std_m"] = std = float(rng.uniform(0.002, 0.006))
+        out += rng.normal(0.0, std, size=out.shape)
+    if "tremor" in defects:
+        params["tremor_amplitude_m"] = amplitude = float(rng.uniform(0.003, 0.008))
+        out += _tremor(t, amplitude, rng)
+    if "drift" in defects:
+        params["drift_m"] = size = float(rng.uniform(0.02, 0.04))
+        angle = rng.uniform(0.0, 2.0 * np.pi)
+        growth = s ** rng.uniform(1.0, 2.0)
+        out += size * growth[:, None] * np.array([np.cos(angle), np.sin(angle)])
+    if "spikes" in defects:
+        params["spikes"] = count = int(rng.integers(2, 6))
+        for start in rng.choice(np.arange(1, t.size - 2), size=count, replace=False):
+            angle = rng.uniform(0.0, 2.0 * np.pi)
+            offset = rng.uniform(0.01, 0.03) * np.array([np.cos(angle), np.sin(angle)])
+            out[start : start + int(rng.integers(1, 3))] += offset
+    return out
+
+
 def _make_demo(
     task: Task, k: int, is_expert: bool, rng: np.random.Generator, seed: int
 ) -> SynthDemo:
+    """Demo k of a set: one loop drawn by demonstrator k mod 4, expert-like or naive."""
     teacher = DEMONSTRATORS[k % len(DEMONSTRATORS)]
     duration_s = float(rng.uniform(5.0, 8.0))
-    n = round(duration_s * SAMPLE_RATE_HZ) + 1
-    t = np.arange(n) / SAMPLE_RATE_HZ
+    t = np.arange(round(duration_s * SAMPLE_RATE_HZ) + 1) / SAMPLE_RATE_HZ
     s = t / t[-1]
     defects: tuple[Defect, ...] = () if is_expert else _draw_defects(rng)
     params: dict[str, Any] = {"duration_s": float(t[-1])}
 
+    # Where along the loop the hand is at each sample, in the demonstrator's own frame.
     fraction = float(rng.uniform(0.7, 0.9)) if "incomplete" in defects else 1.0
     if "incomplete" in defects:
         params["loop_fraction"] = fraction
     start_phase = float(rng.uniform(0.0, 2.0 * np.pi))
-    phase = start_phase + 2.0 * np.pi * _phase(_speed_profile(s, duration_s, defects, rng), s, fraction)
-    uv = canonical_shape(task, phase)
+    speed = _speed_profile(s, duration_s, defects, rng)
+    uv = canonical_shape(task, start_phase + 2.0 * np.pi * _phase(speed, s, fraction))
     if "lopsided" in defects:
         uv, extra = _lopsided(uv, task, rng)
         params.update(extra)
     uv = similarity_transform(uv, teacher.theta_deg, teacher.rho)
+    uv = _add_noise_and_outliers(uv, t, defects, rng, params)
 
-    if is_expert:
-        uv += rng.normal(0.0, EXPERT_NOISE_STD_M, size=uv.shape)
-    if "jitter" in defects:
-        params["jitter_std_m"] = std = float(rng.uniform(0.002, 0.006))
-        uv += rng.normal(0.0, std, size=uv.shape)
-    if "tremor" in defects:
-        params["tremor_amplitude_m"] = amp = float(rng.uniform(0.003, 0.008))
-        uv += _tremor(t, amp, rng)
-    if "drift" in defects:
-        params["drift_m"] = size = float(rng.uniform(0.02, 0.04))
-        angle = rng.uniform(0.0, 2.0 * np.pi)
-        uv += size * (s ** rng.uniform(1.0, 2.0))[:, None] * np.array([np.cos(angle), np.sin(angle)])
-    if "spikes" in defects:
-        count = int(rng.integers(2, 6))
-        params["spikes"] = count
-        for start in rng.choice(np.arange(1, n - 2), size=count, replace=False):
-            angle = rng.uniform(0.0, 2.0 * np.pi)
-            offset = rng.uniform(0.01, 0.03) * np.array([np.cos(angle), np.sin(angle)])
-            uv[start : start + int(rng.integers(1, 3))] += offset
-
-    plane = default_plane(task)
-    ee_pos = plane.to_world(uv)
-    name = f"demo_{k}"
+    ee_pos = default_plane(task).to_world(uv)
     record = DemoRecord(
         ee_pos=ee_pos,
         timestamps=t,
@@ -312,8 +324,14 @@ def _make_demo(
             }
         },
     )
-    truth = similarity_transform(canonical_loop(task, TRUTH_SAMPLES), teacher.theta_deg, teacher.rho)
-    return SynthDemo(name=name, record=record, truth=truth, is_expert=is_expert, defects=defects)
+    truth_canonical = canonical_loop(task, TRUTH_SAMPLES)
+    return SynthDemo(
+        name=f"demo_{k}",
+        record=record,
+        truth=similarity_transform(truth_canonical, teacher.theta_deg, teacher.rho),
+        is_expert=is_expert,
+        defects=defects,
+    )
 
 
 __all__ = [

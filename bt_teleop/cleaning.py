@@ -28,6 +28,7 @@ import logging
 import multiprocessing
 import queue
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -122,7 +123,12 @@ class CleanRunner:
     """Runs clean jobs for the app, one at a time, each in its own process."""
 
     def __init__(
-        self, recordings_dir: str | Path, options: CleanOptions | None = None, *, processes=True
+        self,
+        recordings_dir: str | Path,
+        options: CleanOptions | None = None,
+        *,
+        processes: bool = True,
+        on_finish: Callable[[CleanJob], None] | None = None,
     ) -> None:
         """Prepare a runner.
 
@@ -130,10 +136,12 @@ class CleanRunner:
             recordings_dir: Root folder of the recordings.
             options: Cleaner settings (progress bars are turned off); defaults when None.
             processes: Run jobs in a spawned process (True) or in a thread of this process.
+            on_finish: Called (from a runner thread) when a job ends, done or failed.
         """
         self.recordings_dir = Path(recordings_dir)
         self.options = replace(options or CleanOptions(), progress=False)
         self.processes = processes
+        self.on_finish = on_finish
         self._lock = threading.Lock()
         self._job: CleanJob | None = None
         self._process: Any = None  # multiprocessing.Process (its type depends on the context)
@@ -203,10 +211,19 @@ class CleanRunner:
         )
         worker.start()
         self._consume(job, messages, worker.is_alive)
+        self._finished(job)
 
     def _read_process(self, job: CleanJob, messages: Any, process: Any) -> None:
         self._consume(job, messages, process.is_alive)
         process.join(5.0)
+        self._finished(job)
+
+    def _finished(self, job: CleanJob) -> None:
+        if self.on_finish is not None:
+            try:
+                self.on_finish(job)
+            except Exception:
+                LOGGER.exception("on_finish of the clean job for %s failed", job.task)
 
     def _consume(self, job: CleanJob, messages: Any, alive: Any) -> None:
         while True:

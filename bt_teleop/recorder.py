@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 
 from bt_pipeline.exceptions import ConfigError, RecordingError
-from bt_pipeline.recording import write_recording
+from bt_pipeline.recording import DEFAULT_ENV_TYPE, write_recording
 from bt_pipeline.records import (
     MIN_SAMPLES,
     DemoRecord,
@@ -37,8 +37,6 @@ from bt_teleop.scene import SCENES_DIR, SceneModel
 
 STATE_SIGNATURE = int(mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_CTRL)
 """What ``states`` holds per sample: ``mj_getState`` with the full physics state and ctrl."""
-ENV_TYPE = 0
-"""robomimic env ``type``: 0 is none of robomimic's env classes (bt's scenes are its own)."""
 
 
 @dataclass(frozen=True)
@@ -163,7 +161,7 @@ def env_args(scene: SceneModel, *, control_hz: float, record_hz: float) -> dict[
         scene_file = str(scene.scene_file)
     return {
         "env_name": f"bt_{scene.task}",
-        "type": ENV_TYPE,
+        "type": DEFAULT_ENV_TYPE,
         "env_kwargs": {
             "task": scene.task,
             "robot": scene.robot,

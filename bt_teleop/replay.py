@@ -255,7 +255,7 @@ def replay_sync(session: Session, track: ReplayTrack) -> ReplayResult:
         session.step(1)
         waited += session.dt_s
     times, reached, targets = [], [], []
-    for k in range(int(math.ceil(track.duration_s / session.dt_s)) + 1):
+    for k in range(math.ceil(track.duration_s / session.dt_s) + 1):
         t_s = min(k * session.dt_s, track.duration_s)
         target = track.target_at(t_s)
         session.set_target(target)
@@ -341,11 +341,11 @@ class ReplayPlayer:
 
 __all__ = [
     "ReplayPlayer",
-    "library_markdown",
     "ReplayResult",
     "ReplayTrack",
     "TaskLibrary",
     "TrackKind",
+    "library_markdown",
     "load_library",
     "replay_sync",
 ]

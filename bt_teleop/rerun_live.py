@@ -184,7 +184,8 @@ class RerunHub:
             ConfigError: Unknown mode.
         """
         if mode not in RERUN_MODES:
-            raise ConfigError(f"unknown --rerun {mode!r}; valid values are {', '.join(RERUN_MODES)}")
+            valid = ", ".join(RERUN_MODES)
+            raise ConfigError(f"unknown --rerun {mode!r}; valid values are {valid}")
         self.mode: RerunMode = mode
         self.recordings_dir = Path(recordings_dir)
         self.grpc_url: str | None = None
@@ -233,7 +234,7 @@ def _free_port(preferred: int) -> int:
     for candidate in (preferred, 0):
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
             try:
-                probe.bind(("0.0.0.0", candidate))  # noqa: S104  # Rerun binds all interfaces
+                probe.bind(("0.0.0.0", candidate))  # Rerun binds all interfaces
             except OSError:
                 continue
             return int(probe.getsockname()[1])

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import logging
-import math
 import queue
 import threading
 import time
@@ -30,7 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import viser
 
 from bt_pipeline.exceptions import BtError
@@ -237,7 +235,9 @@ class ClientUI:
         with gui.add_folder("Clean & replay"):
             self.clean_button = gui.add_button("Clean")
             self.clean_progress = gui.add_progress_bar(0.0, visible=False, animated=True)
-            self.replay_input = gui.add_dropdown("Replay", (NO_DEMOS,))
+            self.replay_input: viser.GuiDropdownHandle[str] = gui.add_dropdown(
+                "Replay", [str(NO_DEMOS)]  # str, not a literal type: the options change
+            )
             self.play_button = gui.add_button("Play")
             self.stop_replay_button = gui.add_button("Stop replay", disabled=True)
         if self.ctx.rerun.viewer_url is not None:

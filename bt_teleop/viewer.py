@@ -38,6 +38,10 @@ VISIBLE_GROUPS = (0, 1, 2)
 Rgb = tuple[int, int, int]
 
 _GEOM = mujoco.mjtGeom
+# Tessellation of round primitives: ~500 triangles a capsule (trimesh's default is 4096), so
+# the FR3 stays light for software WebGL (headless browsers, laptops without a GPU).
+_CAPSULE_COUNT = (24, 12)
+_SECTIONS = 24
 
 
 class MjSceneView:
@@ -211,10 +215,12 @@ def _merged_geoms(model: mujoco.MjModel) -> list[tuple[int, Rgb, float | None, t
         color: Rgb = (int(255 * rgba[0]), int(255 * rgba[1]), int(255 * rgba[2]))
         opacity = None if rgba[3] >= 1.0 else round(float(rgba[3]), 3)
         parts.setdefault((int(model.geom_bodyid[g]), color, opacity), []).append(mesh)
-    return [
-        (body, color, opacity, trimesh.util.concatenate(meshes))
-        for (body, color, opacity), meshes in parts.items()
-    ]
+    merged = []
+    for (body, color, opacity), meshes in parts.items():
+        mesh = meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)
+        assert isinstance(mesh, trimesh.Trimesh)
+        merged.append((body, color, opacity, mesh))
+    return merged
 
 
 def _geom_rgba(model: mujoco.MjModel, g: int) -> FloatArray:
@@ -231,9 +237,13 @@ def _geom_mesh(model: mujoco.MjModel, g: int) -> trimesh.Trimesh | None:
     if kind == _GEOM.mjGEOM_SPHERE:
         return trimesh.creation.icosphere(subdivisions=2, radius=float(size[0]))
     if kind == _GEOM.mjGEOM_CAPSULE:
-        return trimesh.creation.capsule(height=2.0 * float(size[1]), radius=float(size[0]))
+        return trimesh.creation.capsule(
+            height=2.0 * float(size[1]), radius=float(size[0]), count=_CAPSULE_COUNT
+        )
     if kind == _GEOM.mjGEOM_CYLINDER:
-        return trimesh.creation.cylinder(radius=float(size[0]), height=2.0 * float(size[1]))
+        return trimesh.creation.cylinder(
+            radius=float(size[0]), height=2.0 * float(size[1]), sections=_SECTIONS
+        )
     if kind == _GEOM.mjGEOM_ELLIPSOID:
         sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
         sphere.apply_scale(size)

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike
 from torch import nn
+from torch.nn import functional
 
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.records import MIN_SAMPLES, FloatArray
@@ -132,23 +133,37 @@ class Policy(Protocol):
         ...
 
 
-def make_mlp(n_in: int, n_out: int, hidden: int, depth: int) -> nn.Sequential:
-    """Tanh MLP with `depth` hidden layers of `hidden` units, orthogonal weights, zero biases.
+class MLP(nn.Module):
+    """Tanh MLP with orthogonal weights and zero biases; the output layer is scaled down (gain 0.1)
+    so an untrained field is small.
 
-    The output layer is scaled down (gain 0.1) so an untrained field is small.
+    The forward pass calls ``F.linear`` on the layers' weights directly rather than the layer
+    modules: on these tiny nets the per-module call overhead is a large part of a step.
     """
-    layers: list[nn.Module] = []
-    width = n_in
-    for _ in range(depth):
-        layers += [nn.Linear(width, hidden), nn.Tanh()]
-        width = hidden
-    layers.append(nn.Linear(width, n_out))
-    for i, layer in enumerate(layers):
-        if isinstance(layer, nn.Linear):
-            gain = 0.1 if i == len(layers) - 1 else nn.init.calculate_gain("tanh")
-            nn.init.orthogonal_(layer.weight, gain=gain)
+
+    def __init__(self, n_in: int, n_out: int, hidden: int, depth: int) -> None:
+        super().__init__()
+        widths = [n_in, *([hidden] * depth), n_out]
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(widths, widths[1:], strict=False))
+        tanh_gain = nn.init.calculate_gain("tanh")
+        for i, layer in enumerate(self.layers):
+            assert isinstance(layer, nn.Linear)
+            nn.init.orthogonal_(layer.weight, gain=0.1 if i == depth else tanh_gain)
             nn.init.zeros_(layer.bias)
-    return nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Outputs, shape (B, n_out), of inputs (B, n_in)."""
+        *hidden, last = self.layers
+        for layer in hidden:
+            assert isinstance(layer, nn.Linear)
+            x = torch.tanh(functional.linear(x, layer.weight, layer.bias))
+        assert isinstance(last, nn.Linear)
+        return functional.linear(x, last.weight, last.bias)
+
+
+def make_mlp(n_in: int, n_out: int, hidden: int, depth: int) -> MLP:
+    """A tanh :class:`MLP` with `depth` hidden layers of `hidden` units."""
+    return MLP(n_in, n_out, hidden, depth)
 
 
 @dataclass(frozen=True, eq=False)

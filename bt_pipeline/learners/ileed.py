@@ -77,7 +77,7 @@ class ILEEDConfig(TrainConfig):
     """Floor of a learned σ_a, in standardised velocity units."""
     max_action_std: float = 10.0
     """Cap of a learned σ_a, in standardised velocity units."""
-    random_model: RandomModel = "uniform"
+    random_model: RandomModel = "gaussian"
     """The random-action density: uniform on the observed velocity box, or N(μ_v, Σ_v) of all
     observed velocities (N(0, I) in standardised units)."""
 

@@ -1,0 +1,259 @@
+"""``bt teleop``: the viser web app, one session per browser tab.
+
+::
+
+    serve(options)            blocks until Ctrl-C, then stops the app
+    start_app(options) -> TeleopApp (.port, .url, .stop()): the same, non-blocking (tests)
+
+    TeleopApp
+      viser server (binds options.host, 127.0.0.1 by default)
+        on_client_connect  -> slot free? ClientUI(client) : "full, try later" message
+        on_client_disconnect -> ClientUI.close(): a recording in progress is saved flagged
+                                incomplete (or discarded: save_incomplete=False)
+      shared by the tabs: CleanRunner (one clean job at a time, in a process),
+                          RerunHub (live viewer / .rrd files / off),
+                          a one-thread executor for reading and scoring a task's demos
+
+Stopping closes every tab the same way a closed tab is closed, then stops viser, the clean job,
+Rerun's gRPC server and the executor.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+import secrets
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import viser
+
+from bt_pipeline.clean import CleanOptions
+from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.tasks import Task, parse_task
+from bt_teleop.cleaning import CleanRunner
+from bt_teleop.rerun_live import RERUN_MODES, RerunHub, RerunMode
+from bt_teleop.scene import Robot, parse_robot
+from bt_teleop.session import SessionConfig
+from bt_teleop.ui import ClientUI, TaskVersions, UiContext
+
+LOGGER = logging.getLogger("bt.teleop")
+CAMERA_POSITION = (1.25, -0.95, 0.8)
+"""Where a new tab's camera starts [m]: the FR3 and its table fill the view."""
+CAMERA_LOOK_AT = (0.4, 0.0, 0.25)
+"""What a new tab's camera looks at [m]."""
+FULL_MESSAGE = (
+    "## This teleop server is full\n\n"
+    "{n} people are recording right now, the most this server allows. "
+    "Please try again later (reload this page)."
+)
+
+
+@dataclass(frozen=True)
+class AppOptions:
+    """Settings of the teleop app (``bt teleop`` flags)."""
+
+    host: str = "127.0.0.1"
+    """Interface to bind; 127.0.0.1 keeps the app on this machine."""
+    port: int = 8080
+    """Port of the web app (the next free one if busy; 0: any free port)."""
+    robot: Robot = "light"
+    """FR3 model: light (bundled) or menagerie."""
+    recordings: Path = Path("recordings")
+    """Root folder of the recordings; demos go to <recordings>/<task>/."""
+    rerun: RerunMode = "serve"
+    """serve (live web viewer), save (.rrd files) or off."""
+    max_sessions: int = 8
+    """Most browser tabs with a robot at once."""
+    save_incomplete: bool = True
+    """A closed tab's recording in progress: save it flagged incomplete, or discard it."""
+    publish_hz: float = 30.0
+    """Scene updates per second sent to each tab."""
+    clean_epochs: int | None = None
+    """Refinement epochs of the Clean button (None: the cleaner's default)."""
+    clean_in_process: bool = True
+    """Run clean jobs in a separate process (keeps the sessions responsive)."""
+    initial_task: Task = "wiping"
+    """The task a new tab opens with."""
+    rerun_grpc_port: int = 9876
+    """Preferred port of Rerun's gRPC server (serve mode)."""
+    rerun_web_port: int = 9090
+    """Preferred port of Rerun's web viewer (serve mode)."""
+    session: SessionConfig = field(default_factory=SessionConfig)
+    """Control and recording rates of every session."""
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.port <= 65535:
+            raise ConfigError(f"--port must be in 0..65535; got {self.port}")
+        if self.max_sessions < 1:
+            raise ConfigError(f"--max-sessions must be ≥ 1; got {self.max_sessions}")
+        if self.rerun not in RERUN_MODES:
+            raise ConfigError(
+                f"unknown --rerun {self.rerun!r}; valid values are {', '.join(RERUN_MODES)}"
+            )
+        if not (self.publish_hz > 0.0 and self.publish_hz <= 240.0):
+            raise ConfigError(f"publish_hz must be in (0, 240]; got {self.publish_hz}")
+        parse_robot(self.robot)
+        parse_task(self.initial_task)
+        object.__setattr__(self, "recordings", Path(self.recordings))
+
+
+class TeleopApp:
+    """A running teleop server; create it with :func:`start_app`."""
+
+    def __init__(self, options: AppOptions) -> None:
+        """Start the server, Rerun (per options) and the shared services."""
+        self.options = options
+        options.recordings.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.Lock()
+        self._uis: dict[int, ClientUI] = {}
+        self._pending = 0  # tabs being set up (they hold a slot)
+        self._departed: set[int] = set()  # tabs that left while being set up
+        self._stopping = False
+        self.rerun = RerunHub(
+            options.rerun,
+            options.recordings,
+            grpc_port=options.rerun_grpc_port,
+            web_port=options.rerun_web_port,
+        )
+        self.versions = TaskVersions()
+        self.cleaner = CleanRunner(
+            options.recordings,
+            CleanOptions(epochs=options.clean_epochs, write_rrd=options.rerun != "off"),
+            processes=options.clean_in_process,
+            on_finish=lambda job: self.versions.bump(job.task),
+        )
+        self._background = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-read")
+        self.context = UiContext(
+            recordings_dir=options.recordings,
+            robot=options.robot,
+            cleaner=self.cleaner,
+            rerun=self.rerun,
+            background=self._background,
+            versions=self.versions,
+            session_config=options.session,
+            publish_hz=options.publish_hz,
+            save_incomplete=options.save_incomplete,
+            initial_task=options.initial_task,
+        )
+        self.server = viser.ViserServer(
+            host=options.host, port=options.port, label="bt teleop", verbose=False
+        )
+        self.server.initial_camera.position = CAMERA_POSITION
+        self.server.initial_camera.look_at = CAMERA_LOOK_AT
+        self.server.on_client_connect(self._on_connect)
+        self.server.on_client_disconnect(self._on_disconnect)
+
+    @property
+    def port(self) -> int:
+        """The port actually bound."""
+        return self.server.get_port()
+
+    @property
+    def url(self) -> str:
+        """The address to open in a browser."""
+        host = self.options.host
+        shown = "localhost" if host in ("0.0.0.0", "::", "") else host
+        return f"http://{shown}:{self.port}/"
+
+    def sessions(self) -> dict[int, ClientUI]:
+        """The tabs with a session, by viser client id."""
+        with self._lock:
+            return dict(self._uis)
+
+    def wait_for_sessions(self, n: int, timeout_s: float = 30.0) -> dict[int, ClientUI]:
+        """Wait until `n` tabs have a session (tests); the tabs.
+
+        Raises:
+            TimeoutError: Fewer than `n` after `timeout_s` [s].
+        """
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            uis = self.sessions()
+            if len(uis) >= n:
+                return uis
+            time.sleep(0.02)
+        raise TimeoutError(f"{len(self.sessions())} sessions after {timeout_s} s; expected {n}")
+
+    def stop(self) -> None:
+        """Close every tab (incomplete-recording policy), then stop the server and services."""
+        with self._lock:
+            if self._stopping:
+                return
+            self._stopping = True
+            uis = list(self._uis.values())
+            self._uis.clear()
+        for ui in uis:
+            path = ui.close()
+            if path is not None:
+                LOGGER.info("saved the incomplete recording %s", path)
+        self.server.stop()
+        self.cleaner.close()
+        self._background.shutdown(wait=True)
+        self.rerun.close()
+
+    def _on_connect(self, client: viser.ClientHandle) -> None:
+        with self._lock:
+            full = len(self._uis) + self._pending >= self.options.max_sessions
+            if self._stopping or full:
+                refused = True
+            else:
+                refused = False
+                self._pending += 1
+        if refused:
+            client.gui.add_markdown(FULL_MESSAGE.format(n=self.options.max_sessions))
+            LOGGER.info("tab %d refused: %d sessions", client.client_id, self.options.max_sessions)
+            return
+        ui: ClientUI | None = None
+        try:
+            ui = ClientUI(client, self.context, session_id=secrets.token_hex(4))
+        finally:
+            with self._lock:
+                self._pending -= 1
+                gone = client.client_id in self._departed or self._stopping
+                self._departed.discard(client.client_id)
+                if ui is not None and not gone:
+                    self._uis[client.client_id] = ui
+        if ui is not None and gone:
+            ui.close()
+        elif ui is not None:
+            LOGGER.info("tab %d: session %s", client.client_id, ui.session_id)
+
+    def _on_disconnect(self, client: viser.ClientHandle) -> None:
+        with self._lock:
+            ui = self._uis.pop(client.client_id, None)
+            if ui is None and self._pending > 0:
+                self._departed.add(client.client_id)
+        if ui is not None:
+            path = ui.close()
+            LOGGER.info(
+                "tab %d closed%s",
+                client.client_id,
+                "" if path is None else f"; saved the incomplete recording {path}",
+            )
+
+
+def start_app(options: AppOptions | None = None) -> TeleopApp:
+    """Start the app in background threads and return it (stop it with ``.stop()``)."""
+    return TeleopApp(options or AppOptions())
+
+
+def serve(options: AppOptions | None = None) -> None:
+    """Run the app until Ctrl-C, printing its address; then close every session cleanly."""
+    app = start_app(options)
+    print(f"bt teleop: open {app.url}", flush=True)
+    if app.rerun.viewer_url is not None:
+        print(f"bt teleop: live Rerun viewer at {app.rerun.viewer_url}", flush=True)
+    print("bt teleop: press Ctrl-C to stop", flush=True)
+    try:
+        while True:
+            time.sleep(3600.0)
+    except KeyboardInterrupt:
+        print("bt teleop: stopping; recordings in progress are settled", flush=True)
+    finally:
+        app.stop()
+
+
+__all__ = ["AppOptions", "TeleopApp", "serve", "start_app"]
