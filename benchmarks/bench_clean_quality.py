@@ -57,7 +57,10 @@ def measure(task: str, preset: str, seed: int, rows: tuple[str, ...]) -> dict[st
             result = results[row]
             cleaned = result.positions
             utility_ok = np.mean(
-                [c.utility >= r.utility - 1e-9 for c, r in zip(result.cleaned, result.raw)]
+                [
+                    c.utility >= r.utility - 1e-9
+                    for c, r in zip(result.cleaned, result.raw, strict=True)
+                ]
             )
             seconds = results[row + "_s"]
             selected_expert = result.best_index == expert
@@ -90,7 +93,7 @@ def measure(task: str, preset: str, seed: int, rows: tuple[str, ...]) -> dict[st
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3, help="seeds per task and preset")
     parser.add_argument("--presets", default="D1,D2")
     parser.add_argument("--rows", default=",".join(ROWS))

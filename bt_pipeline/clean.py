@@ -24,6 +24,7 @@ from bt_pipeline.alignment import shape_loss
 from bt_pipeline.canonical import Stage1Result, run_stage1
 from bt_pipeline.demo import DEFAULT_SAMPLES, Demo
 from bt_pipeline.exceptions import ConfigError, DemoError
+from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
 from bt_pipeline.mi import mutual_information
 from bt_pipeline.records import FloatArray
 from bt_pipeline.refine import (
@@ -41,7 +42,6 @@ from bt_pipeline.scoring import (
     normalised_utility,
     score_demos,
 )
-from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
 from bt_pipeline.tasks import Task
 
 MIN_EXTENT_M = 1e-3
@@ -227,7 +227,7 @@ def clean_demos(
     start = time.perf_counter()
     stage1 = run_stage1(demos, scores.best_index, seed=options.seed)
     seconds["stage1"] = time.perf_counter() - start
-    for i in np.flatnonzero(stage1.estimated):
+    for i in map(int, np.flatnonzero(stage1.estimated)):
         notes.append(
             f"{demos[i].label}: θ/ρ missing, estimated by similarity alignment to the canonical "
             f"shape as θ = {stage1.thetas[i]:.1f}°, ρ = {stage1.rhos[i]:.3f}"

@@ -49,7 +49,9 @@ class Demo:
     def __post_init__(self) -> None:
         positions = np.asarray(self.positions, dtype=np.float64)
         if positions.ndim != 2 or positions.shape[1] != 2:
-            raise DemoError(f"{self.label}: positions must have shape (N, 2); got {positions.shape}")
+            raise DemoError(
+                f"{self.label}: positions must have shape (N, 2); got {positions.shape}"
+            )
         if positions.shape[0] < MIN_SAMPLES:
             raise DemoError(
                 f"{self.label} has {positions.shape[0]} samples; at least {MIN_SAMPLES} are needed"

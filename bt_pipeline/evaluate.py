@@ -23,7 +23,6 @@ measured by its distance to the best demonstrator's preference, not by its quali
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -38,6 +37,7 @@ from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.learners import LEARNERS, LearnerName, learner_config, train_learner
 from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
 from bt_pipeline.mi import mutual_information
+from bt_pipeline.plane import TaskPlane
 from bt_pipeline.records import FloatArray
 from bt_pipeline.refine import refine_normaliser
 from bt_pipeline.scoring import Normaliser, normalised_utility, score_demos
@@ -78,7 +78,9 @@ class EvalConfig:
             raise ConfigError("give at least one learner")
         for name in self.learners:
             if name not in LEARNERS:
-                raise ConfigError(f"unknown learner {name!r}; valid learners: {', '.join(LEARNERS)}")
+                raise ConfigError(
+                    f"unknown learner {name!r}; valid learners: {', '.join(LEARNERS)}"
+                )
         if len(set(self.learners)) != len(self.learners):
             raise ConfigError(f"each learner may be given once; got {', '.join(self.learners)}")
         if self.rollouts < 1:
@@ -88,7 +90,9 @@ class EvalConfig:
         if self.seed < 0:
             raise ConfigError(f"--seed must be ≥ 0; got {self.seed}")
         if self.reward_frame not in ("nearest", "best"):
-            raise ConfigError(f"reward_frame must be 'nearest' or 'best'; got {self.reward_frame!r}")
+            raise ConfigError(
+                f"reward_frame must be 'nearest' or 'best'; got {self.reward_frame!r}"
+            )
         if self.steps is not None and self.steps < 1:
             raise ConfigError(f"steps must be ≥ 1 or None; got {self.steps}")
 
@@ -146,7 +150,7 @@ class LearnerEval:
     metrics: RolloutMetrics
     """Per-rollout metrics."""
     train_seconds: float
-    """Training wall time [s]."""
+    """Wall time of the learner's optimiser loop [s] (its own measure: no one-off set-up)."""
     expertise: dict[str, float]
     """ILEED's learned expertise per demonstrator (empty for other learners)."""
     finite: bool
@@ -356,14 +360,12 @@ def evaluate_task(
         positions = np.stack([d.positions for d in demos])
         demonstrators = [d.demonstrator for d in demos]
         for learner in config.learners:
-            start = time.perf_counter()
             trained = train_learner(
                 learner,
                 positions,
                 demonstrators,
                 learner_config(learner, quick=config.quick, **overrides),
             )
-            seconds = time.perf_counter() - start
             rollouts = trained.policy.rollout(x0, n_samples=n)
             finite = bool(np.all(np.isfinite(rollouts))) and trained.skipped_steps == 0
             history = trained.loss_history[np.isfinite(trained.loss_history)]
@@ -374,7 +376,7 @@ def evaluate_task(
                 dataset=dataset,  # type: ignore[arg-type]  # literal from DATASETS
                 rollouts=rollouts,
                 metrics=rollout_metrics(rollouts, yardstick, config.reward_frame),
-                train_seconds=seconds,
+                train_seconds=trained.seconds,
                 expertise=dict(trained.expertise),
                 finite=finite,
                 final_loss=float(np.mean(tail)),
@@ -383,3 +385,55 @@ def evaluate_task(
             if on_trained is not None:
                 on_trained(result)
     return results
+
+
+@dataclass(frozen=True, eq=False)
+class TaskEvaluation:
+    """Every learner's evaluation on one task, with what it was measured against."""
+
+    task: Task
+    """The task."""
+    yardstick: Yardstick
+    """The noisy set's yardstick."""
+    results: tuple[LearnerEval, ...]
+    """One per (dataset, learner), noisy first."""
+    plane: TaskPlane
+    """The noisy set's task plane (maps rollouts to 3-D)."""
+    duration_s: float
+    """Mean duration of the noisy demos [s] (a rollout spans one demo)."""
+
+    def result(self, learner: str, dataset: str) -> LearnerEval:
+        """The evaluation of `learner` on `dataset`.
+
+        Raises:
+            ConfigError: No such pair was evaluated.
+        """
+        for r in self.results:
+            if r.learner == learner and r.dataset == dataset:
+                return r
+        raise ConfigError(f"{learner} on {dataset} {self.task} was not evaluated")
+
+    @property
+    def learners(self) -> tuple[LearnerName, ...]:
+        """Evaluated learners, in order."""
+        return tuple(dict.fromkeys(r.learner for r in self.results))
+
+
+def evaluate_demos(
+    noisy: Sequence[Demo],
+    cleaned: Sequence[Demo],
+    config: EvalConfig | None = None,
+    on_trained: Callable[[LearnerEval], None] | None = None,
+) -> TaskEvaluation:
+    """:func:`evaluate_task`, returned with its yardstick, plane and demo duration."""
+    config = config or EvalConfig()
+    check_pair(noisy, cleaned)
+    yardstick = build_yardstick(noisy, seed=config.seed)
+    results = evaluate_task(noisy, cleaned, config, on_trained, yardstick=yardstick)
+    return TaskEvaluation(
+        task=noisy[0].task,
+        yardstick=yardstick,
+        results=tuple(results),
+        plane=noisy[0].plane,
+        duration_s=float(np.mean([d.duration_s for d in noisy])),
+    )

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
@@ -107,7 +107,9 @@ def clean_json(summaries: Sequence[TaskCleanSummary]) -> dict[str, Any]:
     return {"tasks": [summary.to_json() for summary in summaries]}
 
 
-def print_clean_summary(summaries: Sequence[TaskCleanSummary], console: Console | None = None) -> None:
+def print_clean_summary(
+    summaries: Sequence[TaskCleanSummary], console: Console | None = None
+) -> None:
     """One table per cleaned task: Ũ and L4 before and after, β, and the output files."""
     console = console or _console()
     for summary in summaries:

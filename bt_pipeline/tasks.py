@@ -26,7 +26,8 @@ def parse_task(name: str) -> Task:
 # Default task planes, shared by the synthetic demonstrators and the teleop scenes. The FR3 base
 # sits at the world origin on the table top (z = 0); all planes lie well inside its reach.
 _DEFAULT_PLANES: dict[Task, TaskPlane] = {
-    # Horizontal: the wiping surface. u = -world y (robot's right), v = world x (forward), normal up.
+    # Horizontal: the wiping surface. u = -world y (robot's right), v = world x (forward);
+    # normal up.
     "wiping": TaskPlane(
         origin=np.array([0.5, 0.0, 0.05]), axes=np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
     ),

@@ -40,9 +40,9 @@ from bt_teleop.session import SessionConfig
 from bt_teleop.ui import ClientUI, TaskVersions, UiContext
 
 LOGGER = logging.getLogger("bt.teleop")
-CAMERA_POSITION = (1.25, -0.95, 0.8)
+CAMERA_POSITION = (1.1, -0.85, 0.7)
 """Where a new tab's camera starts [m]: the FR3 and its table fill the view."""
-CAMERA_LOOK_AT = (0.4, 0.0, 0.25)
+CAMERA_LOOK_AT = (0.42, 0.0, 0.2)
 """What a new tab's camera looks at [m]."""
 FULL_MESSAGE = (
     "## This teleop server is full\n\n"
@@ -83,6 +83,9 @@ class AppOptions:
     """Preferred port of Rerun's web viewer (serve mode)."""
     session: SessionConfig = field(default_factory=SessionConfig)
     """Control and recording rates of every session."""
+    fancy_lighting: bool = False
+    """viser's environment map and shadows: pretty with a GPU, but software WebGL (headless
+    browsers, GPU-less laptops) needs tens of seconds to prepare them."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -137,6 +140,7 @@ class TeleopApp:
             publish_hz=options.publish_hz,
             save_incomplete=options.save_incomplete,
             initial_task=options.initial_task,
+            fancy_lighting=options.fancy_lighting,
         )
         self.server = viser.ViserServer(
             host=options.host, port=options.port, label="bt teleop", verbose=False
@@ -209,6 +213,9 @@ class TeleopApp:
         ui: ClientUI | None = None
         try:
             ui = ClientUI(client, self.context, session_id=secrets.token_hex(4))
+        except Exception as exc:  # tell the person, keep serving the others
+            LOGGER.exception("tab %d: could not start a session", client.client_id)
+            client.gui.add_markdown(f"## Could not start a session\n\n{exc}")
         finally:
             with self._lock:
                 self._pending -= 1

@@ -94,6 +94,9 @@ class UiContext:
     save_incomplete: bool = True
     """A closed tab's recording in progress: save it flagged incomplete (True) or discard it."""
     initial_task: Task = "wiping"
+    fancy_lighting: bool = False
+    """viser's environment map and shadows (pretty with a GPU; software WebGL, as in headless
+    browsers and GPU-less laptops, takes tens of seconds to prepare them)."""
 
 
 @dataclass(frozen=True)
@@ -137,6 +140,8 @@ class ClientUI:
         self._seen_job: CleanJob | None = None
         self._status_text = ""
         self._build_gui()
+        if not ctx.fancy_lighting:
+            _plain_lighting(client.scene)
         self.session: Session = self._new_session(ctx.initial_task)
         self.view = MjSceneView(client.scene, self.session.scene.model, root="/robot")
         self._draw_task_scene()
@@ -540,6 +545,19 @@ def _async_action(action: Callable[[], None]) -> Callable[[viser.GuiEvent], Any]
         action()
 
     return callback
+
+
+def _plain_lighting(scene_api: viser.SceneApi) -> None:
+    """Cheap lighting: no environment map, no shadows; sky, ambient and a key light."""
+    scene_api.configure_environment_map(None)
+    scene_api.configure_default_lights(enabled=False, cast_shadow=False)
+    scene_api.add_light_hemisphere(
+        "/lights/sky", sky_color=(255, 255, 255), ground_color=(90, 90, 100), intensity=1.2
+    )
+    scene_api.add_light_ambient("/lights/ambient", intensity=0.6)
+    scene_api.add_light_directional(
+        "/lights/key", intensity=1.6, position=(1.5, -1.0, 2.5), cast_shadow=False
+    )
 
 
 def status_markdown(status: SessionStatus, replay: ReplayPlayer | None) -> str:

@@ -66,7 +66,9 @@ def parse_learner(name: str) -> LearnerName:
     raise ConfigError(f"unknown learner {name!r}; valid learners: {', '.join(LEARNERS)}")
 
 
-def learner_config(name: LearnerName | str, quick: bool = False, **overrides: object) -> LearnerConfig:
+def learner_config(
+    name: LearnerName | str, quick: bool = False, **overrides: object
+) -> LearnerConfig:
     """The full (default) or CI-sized (`quick`) settings of a learner, with `overrides` applied.
 
     Raises:

@@ -35,17 +35,17 @@ from bt_pipeline.learners.common import (
 class BCConfig(TrainConfig):
     """Behaviour-cloning settings (full preset by default; :meth:`quick` for CI)."""
 
-    steps: int = 2000
+    steps: int = 1500
     """Optimiser steps."""
     lr: float = 3e-3
     """Initial Adam learning rate."""
-    batch_size: int = 1024
+    batch_size: int = 512
     """(state, action) pairs per step; 0 = all."""
 
     @classmethod
     def quick(cls, **overrides: object) -> BCConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=300, lr=5e-3), **overrides)  # pyright: ignore[reportArgumentType]  # overrides are validated in __post_init__
+        return replace(cls(steps=300, lr=5e-3, batch_size=256), **overrides)  # pyright: ignore[reportArgumentType]  # overrides are validated in __post_init__
 
 
 def train_bc(demos: ArrayLike, config: BCConfig | None = None) -> TrainedLearner:

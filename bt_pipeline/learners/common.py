@@ -1,4 +1,4 @@
-"""What every imitation learner shares: data preparation, the vector-field policy, the training loop.
+"""What every imitation learner shares: data preparation, the vector-field policy, training.
 
 Data flow, one learner::
 
@@ -28,6 +28,7 @@ Choices (docs/algorithms.md §5, §7 rows 1 and 20):
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -144,7 +145,7 @@ class MLP(nn.Module):
     def __init__(self, n_in: int, n_out: int, hidden: int, depth: int) -> None:
         super().__init__()
         widths = [n_in, *([hidden] * depth), n_out]
-        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(widths, widths[1:], strict=False))
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(widths))
         tanh_gain = nn.init.calculate_gain("tanh")
         for i, layer in enumerate(self.layers):
             assert isinstance(layer, nn.Linear)
@@ -254,10 +255,12 @@ class VectorFieldPolicy:
     """Torch threads while rolling out."""
 
     def velocity(self, positions: ArrayLike) -> FloatArray:
-        """π(x): velocities, shape (B, 2), in [m per unit normalised time], at positions (B, 2) [m]."""
+        """π(x) [m per unit normalised time], shape (B, 2), at positions (B, 2) [m]."""
         x = _points(positions, "positions")
         with _threads(self.threads), torch.no_grad():
-            z = torch.as_tensor((x - self.positions.mean) / self.positions.scale, dtype=torch.float32)
+            z = torch.as_tensor(
+                (x - self.positions.mean) / self.positions.scale, dtype=torch.float32
+            )
             v = self.net(z).double().numpy()
         return v * self.velocities.scale + self.velocities.mean
 
@@ -297,7 +300,7 @@ class VectorFieldPolicy:
                 z = (z + step * _increment(rate, z, step, self.integrator)).clamp(lo, hi)
                 states.append(z)
             out = torch.stack(states, dim=1).double().numpy()
-        return out * s + mu
+        return np.clip(out * s + mu, self.box[0], self.box[1])  # float32 round-off at the walls
 
 
 def _increment(

@@ -51,11 +51,11 @@ Solver = Literal["rk4", "midpoint", "euler"]
 class NODEConfig(TrainConfig):
     """Neural-ODE settings (full preset by default; :meth:`quick` for CI)."""
 
-    steps: int = 500
+    steps: int = 400
     """Optimiser steps."""
     lr: float = 5e-3
     """Initial Adam learning rate."""
-    batch_size: int = 256
+    batch_size: int = 64
     """Segments per step; 0 = every segment start."""
     min_segment: float = 0.02
     """Segment length at the start of the curriculum, fraction of the demo's N - 1 intervals."""
@@ -63,7 +63,7 @@ class NODEConfig(TrainConfig):
     """Segment length at the end of the curriculum, fraction of the demo's N - 1 intervals."""
     curriculum_fraction: float = 0.5
     """Fraction of the steps over which the segment length grows."""
-    stride: int = 2
+    stride: int = 3
     """Solver step in sample intervals (the step is `stride` × Δt)."""
     solver: Solver = "rk4"
     """torchdiffeq fixed-grid method used in training."""
@@ -87,7 +87,7 @@ class NODEConfig(TrainConfig):
     @classmethod
     def quick(cls, **overrides: object) -> NODEConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=150, lr=1e-2, max_segment=0.1), **overrides)  # pyright: ignore[reportArgumentType]  # overrides are validated in __post_init__
+        return replace(cls(steps=120, lr=1e-2, max_segment=0.1), **overrides)  # pyright: ignore[reportArgumentType]  # overrides are validated in __post_init__
 
     def segment_steps(self, step: int, n_intervals: int) -> int:
         """Solver steps per segment at optimiser step `step` (the curriculum), >= 1."""

@@ -3,8 +3,8 @@
 The paper's Traj-BC (its ref. [21]) cannot be recovered; docs/algorithms.md §5 resolves it as
 choice (b): **BC with a trajectory-level loss**. The same MLP policy as
 :mod:`bt_pipeline.learners.bc` is unrolled with Euler for H = 20 steps of Δt = 1 / (N - 1) from
-random window starts x_k of the demos, and the unrolled states x̂_{k+1..k+H} are matched to the demo's
-x_{k+1..k+H}. So the policy is trained on the states its own rollout reaches, and compounding
+random window starts x_k of the demos, and the unrolled states x̂_{k+1..k+H} are matched to the
+demo's x_{k+1..k+H}. So the policy is trained on the states its own rollout reaches, and compounding
 errors within a window are penalised, which one-step BC never sees. It sits between one-step BC
 and the full-horizon Neural ODE.
 
@@ -44,15 +44,15 @@ from bt_pipeline.learners.common import (
 class TrajBCConfig(TrainConfig):
     """Trajectory-BC settings (full preset by default; :meth:`quick` for CI)."""
 
-    steps: int = 1000
+    steps: int = 500
     """Optimiser steps."""
     lr: float = 3e-3
     """Initial Adam learning rate."""
-    batch_size: int = 256
+    batch_size: int = 64
     """Windows per step; 0 = every window start."""
     horizon: int = 20
     """H, Euler steps per window (docs/algorithms.md §5)."""
-    warmup_fraction: float = 0.3
+    warmup_fraction: float = 0.5
     """Fraction of the steps over which H grows from 1 to `horizon`."""
 
     def __post_init__(self) -> None:
@@ -65,7 +65,7 @@ class TrajBCConfig(TrainConfig):
     @classmethod
     def quick(cls, **overrides: object) -> TrajBCConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=200, lr=5e-3), **overrides)  # pyright: ignore[reportArgumentType]  # overrides are validated in __post_init__
+        return replace(cls(steps=150, lr=5e-3), **overrides)  # pyright: ignore[reportArgumentType]  # overrides are validated in __post_init__
 
     def horizon_at(self, step: int) -> int:
         """H of optimiser step `step` (the curriculum)."""

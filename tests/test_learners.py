@@ -1,0 +1,221 @@
+"""Tests of bt_pipeline.learners: every learner fits a clean loop, stays finite, bounded and
+deterministic; the shared policy integrates correctly; configs and inputs are validated."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from bt_pipeline.distance import chamfer_distance
+from bt_pipeline.exceptions import ConfigError, DemoError
+from bt_pipeline.learners import (
+    LEARNERS,
+    BCConfig,
+    NODEConfig,
+    TrajBCConfig,
+    VectorFieldPolicy,
+    learner_config,
+    parse_learner,
+    train_learner,
+)
+from bt_pipeline.learners.common import Standardiser, prepare_demos
+from bt_pipeline.shapes import canonical_shape, similarity_transform
+from bt_pipeline.tasks import Task
+
+N = 300
+
+
+def ellipse_loops(n_demos: int = 4, seed: int = 0, noise_m: float = 0.0) -> np.ndarray:
+    """Closed ellipses 0.24 m × 0.12 m at (0.4, 0.1), each with its own small rotation, scale and
+    start phase (one period over N samples), plus optional white noise; shape (M, N, 2) [m]."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n_demos):
+        phase = np.linspace(0.0, 2.0 * np.pi, N) + rng.uniform(0.0, 2.0 * np.pi)
+        loop = np.stack([0.12 * np.cos(phase), 0.06 * np.sin(phase)], axis=1)
+        theta, rho = rng.uniform(-5.0, 5.0), 1.0 + 0.05 * rng.standard_normal()
+        noise = noise_m * rng.standard_normal((N, 2))
+        out.append(similarity_transform(loop, theta, rho, (0.4, 0.1)) + noise)
+    return np.stack(out)
+
+
+def task_loops(task: Task, n_demos: int = 4, seed: int = 0) -> np.ndarray:
+    """Clean closed loops of a task's canonical shape, each with its own small rotation, scale
+    and start phase, at (0.4, 0.1); shape (M, N, 2) [m]."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n_demos):
+        phase = np.linspace(0.0, 2.0 * np.pi, N) + rng.uniform(0.0, 2.0 * np.pi)
+        theta, rho = rng.uniform(-5.0, 5.0), 1.0 + 0.05 * rng.standard_normal()
+        out.append(similarity_transform(canonical_shape(task, phase), theta, rho, (0.4, 0.1)))
+    return np.stack(out)
+
+
+def tiny(name: str, **overrides: object):
+    """A few-step config, for tests of properties other than fit quality."""
+    return learner_config(name, quick=True, **{"steps": 12, **overrides})
+
+
+@pytest.mark.parametrize("name", LEARNERS)
+def test_learner_reproduces_a_clean_loop(name: str) -> None:
+    # The pick-and-place arch: a high outbound arc, a low return and two sharp turns.
+    demos = task_loops("pick_and_place")
+    trained = train_learner(name, demos, config=learner_config(name, quick=True))
+    rollouts = trained.policy.rollout(demos[:, 0], N)
+    size = float(np.ptp(demos.reshape(-1, 2), axis=0).max())
+    errors = [chamfer_distance(r, d) / size for r, d in zip(rollouts, demos, strict=True)]
+    assert max(errors) < 0.08, errors  # measured 0.025-0.037
+    # The rollout goes once around (it does not just sit near its start).
+    assert np.ptp(rollouts[0], axis=0).max() > 0.8 * size
+    assert trained.loss_history.shape == (trained.config.steps,)
+    assert trained.loss_history[-10:].mean() < trained.loss_history[:10].mean()
+    assert trained.skipped_steps == 0 and trained.seconds > 0.0
+
+
+@pytest.mark.parametrize("name", LEARNERS)
+def test_learner_is_deterministic_for_a_seed(name: str) -> None:
+    demos = ellipse_loops(n_demos=2)
+    x0 = demos[:, 0]
+    first = train_learner(name, demos, config=tiny(name))
+    second = train_learner(name, demos, config=tiny(name))
+    other = train_learner(name, demos, config=tiny(name, seed=1))
+    np.testing.assert_array_equal(first.loss_history, second.loss_history)
+    np.testing.assert_array_equal(first.policy.rollout(x0, 50), second.policy.rollout(x0, 50))
+    assert not np.array_equal(first.loss_history, other.loss_history)
+
+
+@pytest.mark.parametrize("name", LEARNERS)
+def test_learner_stays_finite_on_noisy_data(name: str) -> None:
+    demos = ellipse_loops(noise_m=0.01)  # 1 cm white noise: velocities dominated by noise
+    demos[1, 100:103] += 0.2  # and a 20 cm spike
+    trained = train_learner(name, demos, config=tiny(name, steps=30, lr=0.05))
+    assert np.all(np.isfinite(trained.loss_history))
+    assert trained.skipped_steps == 0
+    rollouts = trained.policy.rollout(demos[:, 0], N)
+    assert np.all(np.isfinite(rollouts))
+    assert all(torch.isfinite(p).all() for p in trained.policy.net.parameters())
+
+
+@pytest.mark.parametrize("name", LEARNERS)
+def test_rollouts_stay_in_the_padded_box_from_a_wild_start(name: str) -> None:
+    demos = ellipse_loops(n_demos=2)
+    trained = train_learner(name, demos, config=tiny(name))
+    box = trained.policy.box
+    flat = demos.reshape(-1, 2)
+    pad = 0.25 * np.ptp(flat, axis=0).max()
+    np.testing.assert_allclose(box, [flat.min(axis=0) - pad, flat.max(axis=0) + pad])
+    x0 = np.array([[1e3, -1e3], [0.4, 0.1], [-50.0, 7.0]])
+    rollouts = trained.policy.rollout(x0, 200)
+    assert rollouts.shape == (3, 200, 2)
+    assert np.all(rollouts >= box[0]) and np.all(rollouts <= box[1])
+    np.testing.assert_allclose(rollouts[1, 0], x0[1])  # inside the box: kept as given
+
+
+def test_training_leaves_inputs_and_torch_state_alone() -> None:
+    demos = ellipse_loops(n_demos=2)
+    copy = demos.copy()
+    torch.manual_seed(123)
+    state = torch.random.get_rng_state()
+    threads = torch.get_num_threads()
+    trained = train_learner("bc", demos, config=tiny("bc", threads=1))
+    trained.policy.rollout(demos[:, 0], 10)
+    np.testing.assert_array_equal(demos, copy)
+    assert torch.equal(torch.random.get_rng_state(), state)
+    assert torch.get_num_threads() == threads
+
+
+def test_prepare_demos_standardises_forward_differences_without_the_last_action() -> None:
+    demos = ellipse_loops(n_demos=3)
+    data = prepare_demos(demos, box_padding=0.0)
+    dt = 1.0 / (N - 1)
+    assert data.dt == pytest.approx(dt)
+    assert tuple(data.z.shape) == (3, N, 2) and tuple(data.v.shape) == (3, N - 1, 2)
+    velocity = data.v.double().numpy() * data.velocities.scale + data.velocities.mean
+    np.testing.assert_allclose(velocity, np.diff(demos, axis=1) / dt, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(data.z.double().numpy().reshape(-1, 2).mean(axis=0), 0, atol=1e-5)
+    np.testing.assert_allclose(data.z.double().numpy().reshape(-1, 2).std(axis=0), 1, atol=1e-5)
+
+
+def _rotation_policy(integrator: str, omega: float = 2.0 * math.pi) -> VectorFieldPolicy:
+    """The exact field ẋ = ω J x (a circle per unit time) as a policy with identity scalings."""
+    net = nn.Linear(2, 2, bias=False)
+    with torch.no_grad():
+        net.weight.copy_(torch.tensor([[0.0, -omega], [omega, 0.0]]))
+    unit = Standardiser(mean=np.zeros(2), scale=np.ones(2))
+    box = np.array([[-10.0, -10.0], [10.0, 10.0]])
+    return VectorFieldPolicy(net, unit, unit, box, dt=1.0 / (N - 1), integrator=integrator)  # pyright: ignore[reportArgumentType]  # a literal
+
+
+def test_euler_rollout_matches_its_analytic_growth_and_rk4_is_exact_on_a_rotation() -> None:
+    x0 = np.array([[1.0, 0.0], [0.0, 0.5]])
+    h = 1.0 / (N - 1)
+    euler = _rotation_policy("euler").rollout(x0, N)
+    rk4 = _rotation_policy("rk4").rollout(x0, N)
+    # Euler on ẋ = ωJx multiplies the radius by sqrt(1 + (ωh)²) per step.
+    growth = math.sqrt(1.0 + (2.0 * math.pi * h) ** 2) ** (N - 1)
+    np.testing.assert_allclose(
+        np.linalg.norm(euler[:, -1], axis=1), [growth, 0.5 * growth], rtol=1e-4
+    )
+    # RK4 closes the circle after one period.
+    np.testing.assert_allclose(rk4[:, -1], x0, atol=1e-4)
+    velocity = _rotation_policy("euler").velocity(x0)
+    np.testing.assert_allclose(velocity, [[0.0, 2.0 * math.pi], [-math.pi, 0.0]], atol=1e-6)
+
+
+def test_rollout_is_batched_consistently_and_validates_inputs() -> None:
+    policy = _rotation_policy("euler")
+    x0 = np.array([[1.0, 0.0], [0.3, -0.2]])
+    together = policy.rollout(x0, 20)
+    np.testing.assert_allclose(together[1], policy.rollout(x0[1], 20)[0], atol=1e-6)
+    assert policy.rollout(x0, 1).shape == (2, 1, 2)
+    with pytest.raises(ConfigError, match="n_samples"):
+        policy.rollout(x0, 0)
+    with pytest.raises(ConfigError, match="dt"):
+        policy.rollout(x0, 5, dt=-1.0)
+    with pytest.raises(ConfigError, match="x0"):
+        policy.rollout(np.array([[np.nan, 0.0]]), 5)
+    with pytest.raises(ConfigError, match="positions"):
+        policy.velocity(np.zeros((3, 3)))
+
+
+def test_curricula_grow_to_their_targets() -> None:
+    traj = TrajBCConfig(steps=100, horizon=20, warmup_fraction=0.5)
+    horizons = [traj.horizon_at(k) for k in range(100)]
+    assert horizons[0] == 1 and horizons[49] == 20 and horizons[-1] == 20
+    assert all(a <= b for a, b in itertools.pairwise(horizons))
+    node = NODEConfig(steps=100, stride=3, min_segment=0.02, max_segment=0.2)
+    lengths = [node.segment_steps(k, N - 1) for k in range(100)]
+    assert lengths[0] == 2 and lengths[-1] == 20
+    assert all(a <= b for a, b in itertools.pairwise(lengths))
+    assert NODEConfig(stride=3).segment_steps(0, 4) == 1  # never longer than the demo
+
+
+def test_invalid_inputs_raise_errors_naming_the_problem() -> None:
+    demos = ellipse_loops(n_demos=2)
+    with pytest.raises(ConfigError, match="bc, traj_bc, ileed, node"):
+        parse_learner("gail")
+    with pytest.raises(ConfigError, match="needs a BCConfig"):
+        train_learner("bc", demos, config=TrajBCConfig())
+    with pytest.raises(ConfigError, match="steps"):
+        BCConfig(steps=0)
+    with pytest.raises(ConfigError, match="bad setting"):
+        learner_config("bc", wings=2)
+    with pytest.raises(ConfigError, match="horizon"):
+        learner_config("traj_bc", horizon=0)
+    with pytest.raises(DemoError, match=r"\(M, N, 2\)"):
+        train_learner("bc", demos[0], config=tiny("bc"))
+    with pytest.raises(DemoError, match="at least 22"):
+        train_learner("traj_bc", demos[:, :21], config=tiny("traj_bc"))
+    with pytest.raises(DemoError, match="NaN"):
+        bad = demos.copy()
+        bad[0, 5, 0] = np.nan
+        train_learner("node", bad, config=tiny("node"))
+    with pytest.raises(DemoError, match="do not vary"):
+        train_learner("bc", np.ones((2, 50, 2)), config=tiny("bc"))
+    with pytest.raises(ConfigError, match="one demonstrator name per demo"):
+        train_learner("ileed", demos, ["a"], config=tiny("ileed"))

@@ -1,0 +1,416 @@
+"""The teleop web app without a browser: server, one session per tab, files, Clean, replay, Rerun.
+
+Tabs are simulated by :class:`FakeTab`, a raw viser websocket client: it connects with viser's
+protocol version, sends the first camera message (what makes viser call ``on_client_connect``),
+decodes everything the server sends, and closes like a tab. GUI actions are driven through the
+same handles the browser drives (setting a handle's value runs its callbacks).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+import urllib.request
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+import pytest
+import viser
+import zstandard
+from websockets.sync.client import connect
+
+from bt_pipeline.clean import CleanOptions
+from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.recording import read_recording
+from bt_teleop.app import AppOptions, TeleopApp, start_app
+from bt_teleop.cleaning import CleanRunner, cleaned_path
+from bt_teleop.replay import load_library, replay_sync
+from bt_teleop.rerun_live import RerunHub, SessionLogger
+from bt_teleop.script import run_script
+from bt_teleop.session import Session
+from bt_teleop.ui import ClientUI
+from bt_teleop.viewer import Trail, guide_loop_world
+
+CAMERA = {
+    "type": "ViewerCameraMessage",
+    "wxyz": [1.0, 0.0, 0.0, 0.0],
+    "position": [1.0, -1.0, 1.0],
+    "fov": 1.0,
+    "near": 0.01,
+    "far": 100.0,
+    "image_height": 600,
+    "image_width": 800,
+    "look_at": [0.4, 0.0, 0.2],
+    "up_direction": [0.0, 0.0, 1.0],
+}
+
+
+class FakeTab:
+    """A browser tab as the server sees it: a viser websocket client that reads everything."""
+
+    def __init__(self, port: int) -> None:
+        self.ws = connect(
+            f"ws://127.0.0.1:{port}",
+            subprotocols=[f"viser-v{viser.__version__}"],  # type: ignore[list-item]
+            max_size=None,
+        )
+        self.messages: list[dict[str, Any]] = []
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+        self.ws.send(msgspec.msgpack.encode(CAMERA))
+
+    def _read(self) -> None:
+        decompress = zstandard.ZstdDecompressor()
+        try:
+            for frame in self.ws:
+                assert isinstance(frame, bytes)
+                size = int.from_bytes(frame[:8], "little")
+                compressed = int.from_bytes(frame[8:16], "little")
+                payload = decompress.decompress(frame[16 : 16 + compressed], max_output_size=size)
+                self.messages.extend(msgspec.msgpack.decode(payload)["messages"])
+        except Exception:  # closed
+            return
+
+    def text(self) -> str:
+        """Every message received, as text (to look for strings)."""
+        return " ".join(str(m) for m in list(self.messages))
+
+    def close(self) -> None:
+        self.ws.close()
+        self._thread.join(5.0)
+
+
+def wait_until(condition: Callable[[], Any], timeout_s: float = 30.0, what: str = "") -> Any:
+    """Poll `condition` until it is truthy; its value (fails the test after `timeout_s`)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.02)
+    pytest.fail(f"timed out after {timeout_s} s waiting for {what or condition}")
+
+
+@pytest.fixture
+def make_app(tmp_path: Path) -> Iterator[Callable[..., TeleopApp]]:
+    apps: list[TeleopApp] = []
+
+    def make(**kwargs: Any) -> TeleopApp:
+        defaults: dict[str, Any] = {
+            "port": 0,
+            "recordings": tmp_path / "recordings",
+            "rerun": "off",
+            "clean_epochs": 2,
+        }
+        app = start_app(AppOptions(**(defaults | kwargs)))
+        apps.append(app)
+        return app
+
+    yield make
+    for app in apps:
+        app.stop()
+
+
+@pytest.fixture
+def tabs() -> Iterator[Callable[[TeleopApp], FakeTab]]:
+    opened: list[FakeTab] = []
+
+    def open_tab(app: TeleopApp) -> FakeTab:
+        tab = FakeTab(app.port)
+        opened.append(tab)
+        return tab
+
+    yield open_tab
+    for tab in opened:
+        tab.close()
+
+
+def only_session(app: TeleopApp) -> ClientUI:
+    (ui,) = app.wait_for_sessions(1).values()
+    return ui
+
+
+def record(ui: ClientUI, seconds: float) -> Path:
+    """Record for `seconds` [s] of simulation time through the GUI buttons, then save."""
+    ui.record_button.value = True  # what a click does
+    assert ui.wait_idle()
+    wait_until(lambda: ui.session.status().duration_s >= seconds, what="recording")
+    ui.save_button.value = True
+    assert ui.wait_idle()
+    return ui.saved[-1]
+
+
+def bt_threads() -> list[str]:
+    return [t.name for t in threading.enumerate() if t.name.startswith("bt-") and t.is_alive()]
+
+
+# -- server -------------------------------------------------------------------------------------
+
+
+def test_server_serves_the_page_on_a_free_port_and_stops_cleanly(make_app, tabs) -> None:
+    app = make_app()
+    assert app.port != 0 and app.url == f"http://127.0.0.1:{app.port}/"
+    with urllib.request.urlopen(app.url, timeout=10) as response:
+        page = response.read().decode()
+    assert response.status == 200 and "<html" in page.lower() and "<script" in page.lower()
+    tabs(app)
+    only_session(app)
+    assert any(name.startswith("bt-session") for name in bt_threads())
+    app.stop()
+    assert wait_until(lambda: not bt_threads(), 10.0, "bt threads to end") is True
+    with pytest.raises(OSError):
+        urllib.request.urlopen(app.url, timeout=2)
+
+
+def test_options_are_validated() -> None:
+    with pytest.raises(ConfigError, match="max-sessions"):
+        AppOptions(max_sessions=0)
+    with pytest.raises(ConfigError, match="--rerun"):
+        AppOptions(rerun="loud")  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="robot"):
+        AppOptions(robot="ur5")  # type: ignore[arg-type]
+    assert AppOptions().host == "127.0.0.1"
+
+
+# -- sessions -----------------------------------------------------------------------------------
+
+
+def test_every_tab_has_its_own_robot(make_app, tabs) -> None:
+    app = make_app()
+    tab_a, tab_b = tabs(app), tabs(app)
+    uis = app.wait_for_sessions(2)
+    ui_a, ui_b = (uis[k] for k in sorted(uis))
+    assert ui_a.session is not ui_b.session and ui_a.session_id != ui_b.session_id
+    start_b = ui_b.session.status().ee_pos
+    goal = ui_a.session.scene.plane.to_world(np.array([0.06, 0.04]))
+    ui_a.gizmo.position = goal  # what a drag does, then the callback sets the target
+    ui_a.session.set_target(goal)
+    wait_until(lambda: np.linalg.norm(ui_a.session.status().ee_pos - goal) < 5e-3, what="A")
+    assert np.linalg.norm(ui_b.session.status().ee_pos - start_b) < 1e-3
+    # Each tab's robot is drawn into that tab only: the moved link poses go to A's socket.
+    wait_until(lambda: ui_a.frames > 5 and ui_b.frames > 5, what="scene updates")
+    assert "/robot/body_" in tab_a.text() and "/robot/body_" in tab_b.text()
+    ui_a.task_input.value = "pick_and_place"
+    assert ui_a.wait_idle()
+    assert ui_a.task == "pick_and_place" and ui_a.gripper_input.visible
+    assert ui_b.task == "wiping"
+
+
+def test_a_closed_tab_saves_its_recording_flagged_incomplete(make_app, tabs) -> None:
+    app = make_app()
+    tab = tabs(app)
+    ui = only_session(app)
+    ui.record_button.value = True
+    wait_until(lambda: ui.session.status().n_samples >= 40, what="samples")
+    tab.close()
+    wait_until(lambda: not app.sessions(), what="the session to end")
+    (path,) = ui.saved
+    demo = read_recording(path).demos["demo_0"]
+    assert demo.ep_meta["incomplete"] is True and demo.num_samples >= 40
+    assert path.parent == app.options.recordings / "wiping"
+
+
+def test_a_closed_tab_discards_its_recording_when_configured(make_app, tabs) -> None:
+    app = make_app(save_incomplete=False)
+    tab = tabs(app)
+    ui = only_session(app)
+    ui.record_button.value = True
+    wait_until(lambda: ui.session.status().n_samples >= 40, what="samples")
+    tab.close()
+    wait_until(lambda: not app.sessions(), what="the session to end")
+    assert ui.saved == [] and not list(app.options.recordings.rglob("*.hdf5"))
+
+
+def test_more_tabs_than_max_sessions_get_a_full_message(make_app, tabs) -> None:
+    app = make_app(max_sessions=1)
+    tabs(app)
+    only_session(app)
+    refused = tabs(app)
+    wait_until(lambda: "server is full" in refused.text(), what="the full message")
+    assert len(app.sessions()) == 1 and "/robot/" not in refused.text()
+
+
+def test_a_name_from_the_browser_never_leaves_the_recordings_folder(make_app, tabs) -> None:
+    app = make_app()
+    tabs(app)
+    ui = only_session(app)
+    ui.name_input.value = "../../etc/passwd"
+    path = record(ui, 0.5)
+    task_dir = (app.options.recordings / "wiping").resolve()
+    assert path.resolve().parent == task_dir
+    assert path.name.startswith("etc-passwd_") and ".." not in path.name
+    assert read_recording(path).demos["demo_0"].demonstrator == "../../etc/passwd"
+    assert ("Saved", f"wiping/{path.name}") in ui.messages
+
+
+def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
+    app = make_app()
+    tabs(app)
+    ui = only_session(app)
+    ui.theta_input.value = 10
+    ui.rho_input.value = 1.2
+    record(ui, 0.5)
+    wait_until(lambda: ui.library is not None and len(ui.library.raw) == 1, what="library")
+    assert "10°, 1.20" in ui.library_text.content and "★" in ui.library_text.content
+    assert ui.replay_input.options == (ui.library.raw[0].key,)  # type: ignore[union-attr]
+
+
+# -- clean and replay ---------------------------------------------------------------------------
+
+
+def circle_script(radius_m: float, theta_deg: float) -> dict[str, Any]:
+    times = np.linspace(0.0, 3.0, 31)
+    phase = 2.0 * math.pi * times / 3.0
+    rows = [[t, radius_m * math.cos(p), 0.5 * radius_m * math.sin(p)] for t, p in zip(times, phase)]
+    return {"task": "wiping", "demonstrator": f"r{radius_m}", "theta_deg": theta_deg, "rho": 1.0,
+            "waypoints": rows}  # fmt: skip
+
+
+@pytest.fixture
+def three_recordings(tmp_path: Path) -> Path:
+    root = tmp_path / "recordings"
+    for radius, theta in ((0.08, 0.0), (0.1, 5.0), (0.07, -5.0)):
+        run_script(circle_script(radius, theta), root)
+    return root
+
+
+def test_clean_runs_in_a_process_and_writes_outside_the_raw_folder(three_recordings) -> None:
+    runner = CleanRunner(three_recordings, CleanOptions(epochs=2, write_rrd=False), processes=True)
+    job = runner.start("wiping")
+    with pytest.raises(ConfigError, match="running"):
+        runner.start("wiping")
+    progress = job.wait(240.0)
+    runner.close()
+    assert progress.state == "done", progress.message
+    assert progress.output == cleaned_path(three_recordings, "wiping")
+    cleaned = read_recording(progress.output)
+    assert len(cleaned.demos) == 3 and job.result is not None
+    library = load_library(three_recordings, "wiping")
+    assert len(library.raw) == 3 and len(library.cleaned) == 3  # cleaned file is not raw input
+    assert {t.key.removeprefix("cleaned · ") for t in library.cleaned} == {
+        t.key.removeprefix("raw · ") for t in library.raw
+    }
+
+
+def test_clean_button_then_replay_a_cleaned_demo(three_recordings, make_app, tabs) -> None:
+    app = make_app(recordings=three_recordings, clean_in_process=False)
+    tabs(app)
+    ui = only_session(app)
+    ui.clean_button.value = True
+    wait_until(lambda: ("Clean done" in [m[0] for m in ui.messages]), 240.0, "clean")
+    wait_until(lambda: ui.library is not None and ui.library.cleaned, what="cleaned demos")
+    key = ui.library.cleaned[0].key  # type: ignore[union-attr]
+    ui.replay_input.value = key
+    ui.play_button.value = True
+    assert ui.wait_idle()
+    assert ui.client.scene.get_handle_by_name("/replay/cleaned") is not None
+    assert ui.client.scene.get_handle_by_name("/replay/raw") is not None  # its source, to compare
+    wait_until(lambda: ui.last_replay is not None, 30.0, "the replay to end")
+    result = ui.last_replay.result  # type: ignore[union-attr]
+    assert result is not None and result.rms_error_m < 0.01
+    assert any(title == "Replay done" for title, _ in ui.messages)
+
+
+def test_replay_tracks_a_raw_demo(three_recordings) -> None:
+    library = load_library(three_recordings, "wiping")
+    track = library.raw[0]
+    session = Session("wiping", three_recordings / "unused")
+    result = replay_sync(session, track)
+    assert result.times_s[-1] == pytest.approx(track.duration_s)
+    assert result.rms_error_m < 0.005
+    session.close()
+
+
+# -- scene drawing ------------------------------------------------------------------------------
+
+
+def test_guide_lies_on_the_task_plane_and_follows_theta_and_rho() -> None:
+    from bt_teleop.scene import load_scene
+
+    scene = load_scene("weaving")
+    base = guide_loop_world(scene, 0.0, 1.0)
+    turned = guide_loop_world(scene, 20.0, 1.5)
+    for loop in (base, turned):
+        assert np.allclose((loop - scene.plane.origin) @ scene.plane.normal, 0.0, atol=1e-12)
+    uv, uv_turned = scene.plane.to_plane(base), scene.plane.to_plane(turned)
+    assert np.ptp(np.linalg.norm(uv_turned, axis=1)) == pytest.approx(
+        1.5 * np.ptp(np.linalg.norm(uv, axis=1))
+    )
+    angle = math.radians(20.0)
+    rotation = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    assert np.allclose(uv_turned, 1.5 * uv @ rotation.T)
+
+
+def test_trail_resends_only_its_newest_chunk() -> None:
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        trail = Trail(server.scene, "/trail", (255, 0, 0), chunk=10)
+        points = np.random.default_rng(0).random((35, 3))
+        trail.set(points[:5])
+        first = server.scene.get_handle_by_name("/trail/chunk_0")
+        trail.set(points[:25])
+        assert trail.n_chunks == 3
+        chunk_0 = server.scene.get_handle_by_name("/trail/chunk_0")
+        assert chunk_0 is not None and chunk_0 is not first  # grew from 5 to 11 points: re-sent
+        trail.set(points)
+        assert trail.n_chunks == 4
+        assert server.scene.get_handle_by_name("/trail/chunk_0") is chunk_0  # full: kept
+        trail.set(points[:3])  # a new, shorter trail starts over
+        assert trail.n_chunks == 1
+        trail.clear()
+        assert server.scene.get_handle_by_name("/trail/chunk_0") is None
+    finally:
+        server.stop()
+
+
+# -- Rerun --------------------------------------------------------------------------------------
+
+
+def test_rerun_save_mode_writes_a_session_rrd(make_app, tabs) -> None:
+    from rerun.chunk import RrdReader
+
+    app = make_app(rerun="save")
+    tab = tabs(app)
+    ui = only_session(app)
+    record(ui, 0.5)
+    wait_until(lambda: ui.frames > 10, what="frames")
+    tab.close()
+    wait_until(lambda: not app.sessions(), what="the session to end")
+    (rrd,) = (app.options.recordings / "rerun").glob("*.rrd")
+    paths = {chunk.entity_path for chunk in RrdReader(rrd).stream().to_chunks()}
+    assert {"/ee/position", "/joints"} <= paths
+    assert any(p.startswith("/demos/") for p in paths)
+
+
+def test_rerun_serve_mode_serves_the_web_viewer(tmp_path: Path) -> None:
+    hub = RerunHub("serve", tmp_path, grpc_port=0, web_port=0)
+    try:
+        assert hub.viewer_url is not None and hub.grpc_url is not None
+        with urllib.request.urlopen(hub.viewer_url.replace("localhost", "127.0.0.1")) as reply:
+            assert reply.status == 200 and b"<html" in reply.read().lower()
+        logger = hub.session_logger("abc123")
+        logger.log_state(0.0, np.zeros(3), np.zeros(7))
+        logger.close()
+        assert logger.dropped == 0
+    finally:
+        hub.close()
+
+
+def test_session_logger_drops_instead_of_blocking() -> None:
+    import rerun as rr
+
+    rec = rr.RecordingStream("bt_test", recording_id="drop")
+    rec.memory_recording()
+    logger = SessionLogger(rec, queue_size=1)
+    release = threading.Event()
+    logger._submit(lambda _: release.wait(10.0))  # occupies the worker
+    wait_until(lambda: logger._queue.empty(), what="the worker to take the job")
+    for k in range(5):  # one fits in the queue; the rest are dropped, not waited for
+        logger.log_demo(f"d{k}", np.zeros((4, 3)))
+    release.set()
+    logger.close()
+    assert logger.dropped == 4
