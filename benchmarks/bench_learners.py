@@ -68,9 +68,11 @@ def train_fn(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description="Benchmark of the imitation learners.")
     parser.add_argument("--repeats", type=int, default=3, help="runs per measurement (median)")
-    parser.add_argument("--presets", nargs="+", default=["quick", "full"], choices=["quick", "full"])
+    parser.add_argument(
+        "--presets", nargs="+", default=["quick", "full"], choices=["quick", "full"]
+    )
     parser.add_argument("--learners", nargs="+", default=list(LEARNERS), choices=list(LEARNERS))
     parser.add_argument("--threads", action="store_true", help="also compare 1 vs 2 threads")
     args = parser.parse_args()
@@ -88,14 +90,14 @@ def main() -> None:
         for preset in args.presets:
             quick = preset == "quick"
             cells, share = [], 0.0
-            for m, data in sets.items():
+            for data in sets.values():
                 baseline, _ = median_times(baseline_fn, 1)
                 wall, cpu = median_times(train_fn(name, data, quick), args.repeats)
                 cells.append(f"{wall:.2f} / {cpu:.2f} / {wall / baseline:.1f}×")
                 share += TRAININGS_PER_SIZE * wall
             trained = train_learner(name, *sets[4], learner_config(name, quick=quick))
             x0 = np.repeat(sets[4][0][:, 0], N_ROLLOUTS // 4 + 1, axis=0)[:N_ROLLOUTS]
-            roll, _ = median_times(lambda p=trained.policy: p.rollout(x0, N_SAMPLES), 3)
+            roll, _ = median_times(lambda p=trained.policy, x=x0: p.rollout(x, N_SAMPLES), 3)
             rollout_s[name] = roll
             share += 2 * TRAININGS_PER_SIZE * roll
             totals[preset] = totals.get(preset, 0.0) + share

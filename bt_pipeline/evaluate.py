@@ -45,6 +45,9 @@ from bt_pipeline.tasks import Task
 
 Dataset = Literal["noisy", "cleaned"]
 DATASETS: tuple[Dataset, ...] = ("noisy", "cleaned")
+StartRule = Literal["reference", "demo"]
+"""Where rollouts start (before the noise): a random demo's first state moved onto its
+demonstrator's reference loop (bt's default), or the raw first state itself (§7 row 20)."""
 RewardFrame = Literal["nearest", "best"]
 """Where V_E reads a rollout: mapped from its nearest demonstrator's frame into the best one's
 (bt's default), or as it is, in the best demonstrator's frame (the paper's literal protocol)."""
@@ -70,6 +73,8 @@ class EvalConfig:
     """Seed of training and of the initial states."""
     reward_frame: RewardFrame = "nearest"
     """Frame in which V_E reads a rollout for the headline R̄ (both are always reported)."""
+    starts: StartRule = "reference"
+    """Where rollouts start before the perturbation."""
     steps: int | None = None
     """Override every learner's optimiser steps (tiny test runs); None keeps the presets."""
 
@@ -93,6 +98,8 @@ class EvalConfig:
             raise ConfigError(
                 f"reward_frame must be 'nearest' or 'best'; got {self.reward_frame!r}"
             )
+        if self.starts not in ("reference", "demo"):
+            raise ConfigError(f"starts must be 'reference' or 'demo'; got {self.starts!r}")
         if self.steps is not None and self.steps < 1:
             raise ConfigError(f"steps must be ≥ 1 or None; got {self.steps}")
 
@@ -300,12 +307,40 @@ def _resampled(curve: FloatArray, n: int) -> FloatArray:
     return np.stack([np.interp(s_new, s_old, curve[:, j]) for j in range(2)], axis=1)
 
 
-def initial_states(demos: Sequence[Demo], count: int, noise_m: float, seed: int) -> FloatArray:
-    """A random demo's first state plus N(0, noise_m²) per axis, shape (count, 2), in [m]."""
+def initial_states(
+    demos: Sequence[Demo],
+    count: int,
+    noise_m: float,
+    seed: int,
+    references: FloatArray | None = None,
+) -> FloatArray:
+    """A random demo's first state plus N(0, noise_m²) per axis, shape (count, 2), in [m].
+
+    Args:
+        demos: The demos whose starts are drawn.
+        count: Number of initial states.
+        noise_m: Std of the perturbation per axis [m].
+        seed: Seed of the draws (the same picks and noise whatever `references`).
+        references: Each demo's closed reference loop, shape (M, K, 2) [m]: the first state is
+            then moved to its nearest point on the demo's loop before the noise is added.
+    """
     rng = np.random.default_rng(seed)
     starts = np.stack([demo.positions[0] for demo in demos])
+    if references is not None:
+        starts = np.stack(
+            [_nearest_on_loop(p, ref) for p, ref in zip(starts, references, strict=True)]
+        )
     picks = rng.integers(0, len(demos), size=count)
     return starts[picks] + rng.normal(0.0, noise_m, size=(count, 2))
+
+
+def _nearest_on_loop(point: FloatArray, loop: FloatArray) -> FloatArray:
+    """The point of the polyline `loop` (K, 2) nearest to `point` (2,)."""
+    a, b = loop[:-1], loop[1:]
+    ab = b - a
+    t = np.clip(np.sum((point - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-30), 0, 1)
+    candidates = a + t[:, None] * ab
+    return candidates[int(np.argmin(np.sum((candidates - point) ** 2, axis=1)))]
 
 
 def check_pair(noisy: Sequence[Demo], cleaned: Sequence[Demo]) -> tuple[Task, int]:
@@ -351,7 +386,9 @@ def evaluate_task(
     config = config or EvalConfig()
     task, n = check_pair(noisy, cleaned)
     yardstick = yardstick or build_yardstick(noisy, seed=config.seed)
-    x0 = initial_states(noisy, config.rollouts, config.init_noise * yardstick.size, config.seed)
+    references = yardstick.stage1.aligned if config.starts == "reference" else None
+    noise_m = config.init_noise * yardstick.size
+    x0 = initial_states(noisy, config.rollouts, noise_m, config.seed, references)
     overrides: dict[str, object] = {"seed": config.seed}
     if config.steps is not None:
         overrides["steps"] = config.steps

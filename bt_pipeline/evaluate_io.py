@@ -64,7 +64,7 @@ def parse_learners(text: str) -> tuple[LearnerName, ...]:
     names = [part.strip() for part in text.split(",") if part.strip()]
     if not names:
         raise ConfigError("--learners is empty; give e.g. bc,traj_bc,ileed,node")
-    learners = tuple(parse_learner(name) for name in names)
+    learners: tuple[LearnerName, ...] = tuple(parse_learner(name) for name in names)
     if len(set(learners)) != len(learners):
         raise ConfigError(f"--learners names a learner twice: {text}")
     return learners

@@ -2,9 +2,9 @@
 
 Data flow, one task, all refined demos in one batch per epoch::
 
-    x_i, x_i^aligned ──► features: standardised x_i, (x_i^aligned - x_i), cos/sin of 2πk/N
-        ──► shared 2-layer bidirectional LSTM ─┬─► zero-initialised linear head ──► Δ_i
-            linear skip (zero-initialised) ────┘
+    x_i, x_i^aligned ──► features: standardised x_i, pull x_i^aligned - x_i, cos/sin of 2πk/N
+        ──► shared 2-layer bidirectional LSTM ──► zero-initialised linear head ─┬─► Δ_i
+            pull ──► zero-initialised 2x2 linear map ───────────────────────────┘
         ──► x̂_i = x_i + Δ_i  (x̂ = x before the first step: docs/algorithms.md §7 row 15)
         ──► L1..L4 and I_KL (bt_pipeline.torch_losses) ──► frozen raw-set min-max (Eq. 7)
         ──► Ũ_i = (1 - β_i) Ĩ_i + β_i Σ_j w_j (1 - L̃_j)  (Eq. 8) ──► loss -mean_i Ũ_i ──► Adam
@@ -142,8 +142,8 @@ class RefineConfig:
     condition_on_reference: bool | None = None
     """Feed x_i^aligned - x_i to the network (default True; paper False: the demo only)."""
     linear_skip: bool | None = None
-    """Add a linear map of the input features to Δ beside the LSTM (default True; paper False:
-    the LSTM alone)."""
+    """With `condition_on_reference`, also map x_i^aligned - x_i linearly to Δ beside the LSTM
+    (default True; paper False: the LSTM alone)."""
     skip_lr_scale: float | None = None
     """Learning rate of the linear skip relative to `lr` (default 5)."""
     cosine_lr: bool | None = None
@@ -273,7 +273,10 @@ class _Refiner(nn.Module):
             bidirectional=settings.bidirectional,
         )
         self.head = nn.Linear(settings.hidden * (2 if settings.bidirectional else 1), 2)
-        self.skip = nn.Linear(features, 2, bias=False) if settings.linear_skip else None
+        # The pull x_i^aligned - x_i (features 2:4) also reaches Δ through a 2x2 linear map: a
+        # gain of 1 is the reference itself, so L4's pull is learnt in a few steps (§8 trap 4).
+        use_skip = settings.linear_skip and settings.condition_on_reference
+        self.skip = nn.Linear(2, 2, bias=False) if use_skip else None
         nn.init.zeros_(self.head.weight)  # x̂ = x at initialisation (§7 row 15)
         nn.init.zeros_(self.head.bias)
         if self.skip is not None:
@@ -282,7 +285,7 @@ class _Refiner(nn.Module):
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         hidden, _ = self.lstm(features)
         delta = self.head(hidden)
-        return delta if self.skip is None else delta + self.skip(features)
+        return delta if self.skip is None else delta + self.skip(features[..., 2:4])
 
 
 def refine_demos(
@@ -439,8 +442,13 @@ class _Objective:
         self.mi_lo = float(mi_raw.min())
         self.mi_scale = 1.0 / span if span > normaliser.delta else 0.0
         self.mi_raw = (mi_raw[torch.from_numpy(refined)] - self.mi_lo) * self.mi_scale
+        self.floor: torch.Tensor | None = None
+        if settings.clamp_scores:
+            with torch.no_grad():
+                self.floor = self.normalised_losses(references)[:, :3].clamp_min(0.0)
 
-    def __call__(self, out: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
+    def normalised_losses(self, out: torch.Tensor) -> torch.Tensor:
+        """L̃1..L̃4 of each demo, shape (B, 4) (Eq. 7 with the frozen raw-set (min, max))."""
         losses = torch.stack(
             (
                 tl.symmetry_loss(out, self.thetas),
@@ -450,9 +458,12 @@ class _Objective:
             ),
             dim=-1,
         )
-        norm = (losses - self.lo) * self.scale  # Eq. (7), frozen (min, max) of the raw set
-        if self.settings.clamp_scores:  # no reward for beating the best raw demo on L1-L3
-            norm = torch.cat((norm[:, :3].clamp_min(0.0), norm[:, 3:]), dim=-1)
+        return (losses - self.lo) * self.scale
+
+    def __call__(self, out: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
+        norm = self.normalised_losses(out)
+        if self.floor is not None:  # L1-L3: no reward beyond the best raw demo or the reference
+            norm = torch.cat((torch.maximum(norm[:, :3], self.floor), norm[:, 3:]), dim=-1)
         task_score = ((1.0 - norm) * self.weights).sum(dim=-1)  # Eq. (10)
         utility = (1.0 - betas) * self._mi_score(out) + betas * task_score  # Eq. (8)
         return -utility.mean()

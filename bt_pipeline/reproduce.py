@@ -163,7 +163,7 @@ class ReproduceRun:
 def run_reproduce(config: ReproduceConfig, progress: bool = True) -> ReproduceRun:
     """Run every (seed, set, task) job of `config` (progress bar on stderr)."""
     start = time.perf_counter()
-    jobs = [
+    jobs: list[tuple[int, SetName, Task, ReproduceConfig]] = [
         (seed, set_name, task, config)
         for set_name in config.sets
         for task in config.tasks
@@ -385,7 +385,7 @@ def report_markdown(
                 n, k = (table[(set_name, task, learner, d)] for d in DATASETS)
                 lines.append(
                     f"| {task} | {learner} | {_pm(n, c.seeds)} | {_pm(k, c.seeds)} | "
-                    f"{k.mean - n.mean:+.3f} | {_verdict(n, k)} | "
+                    f"{k.mean - n.mean:+.3f} | {verdict(n, k)} | "
                     f"{n.direct:.3f} → {k.direct:.3f} | "
                     f"{1e3 * n.shape_loss:.1f} → {1e3 * k.shape_loss:.1f} | "
                     f"{1e3 * n.shape_distance:.1f} → {1e3 * k.shape_distance:.1f} | "
@@ -418,7 +418,7 @@ def _standard_error(noisy: Cell, cleaned: Cell) -> float:
     return float(np.sqrt(noisy.std**2 / noisy.count + cleaned.std**2 / cleaned.count))
 
 
-def _verdict(noisy: Cell, cleaned: Cell) -> str:
+def verdict(noisy: Cell, cleaned: Cell) -> str:
     """ "cleaned" / "noisy" when the difference of R̄ exceeds 2 standard errors, else "tie"."""
     delta, se = cleaned.mean - noisy.mean, _standard_error(noisy, cleaned)
     return "cleaned" if delta > 2.0 * se else "noisy" if delta < -2.0 * se else "tie"
@@ -447,7 +447,7 @@ def _verdict_section(run: ReproduceRun, table: dict) -> list[str]:
     keys = [
         (s, t, lr) for s in run.config.sets for t in run.config.tasks for lr in run.config.learners
     ]
-    verdicts = {key: _verdict(table[(*key, "noisy")], table[(*key, "cleaned")]) for key in keys}
+    verdicts = {key: verdict(table[(*key, "noisy")], table[(*key, "cleaned")]) for key in keys}
     count = {v: sum(1 for x in verdicts.values() if x == v) for v in ("cleaned", "tie", "noisy")}
     lines = [
         "## Where cleaned beats noisy, and where it does not",
@@ -458,8 +458,8 @@ def _verdict_section(run: ReproduceRun, table: dict) -> list[str]:
         "rollouts; they ignore training-seed variance, which `--seeds` shows).",
         "",
     ]
-    for label, verdict in (("Cleaned worse", "noisy"), ("No clear difference", "tie")):
-        worse = [key for key in keys if verdicts[key] == verdict]
+    for label, which in (("Cleaned worse", "noisy"), ("No clear difference", "tie")):
+        worse = [key for key in keys if verdicts[key] == which]
         if worse:
             items = ", ".join(
                 f"{s} {t} {lr} ({table[(s, t, lr, 'noisy')].mean:.3f} → "
@@ -540,5 +540,6 @@ __all__ = [
     "results_json",
     "run_job",
     "run_reproduce",
+    "verdict",
     "write_outputs",
 ]

@@ -112,8 +112,9 @@ class TeleopApp:
         options.recordings.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
         self._uis: dict[int, ClientUI] = {}
-        self._pending = 0  # tabs being set up (they hold a slot)
+        self._pending: set[int] = set()  # tabs being set up (they hold a slot)
         self._departed: set[int] = set()  # tabs that left while being set up
+        self._closing: set[ClientUI] = set()  # tabs being closed after a disconnect
         self._stopping = False
         self.rerun = RerunHub(
             options.rerun,
@@ -129,6 +130,9 @@ class TeleopApp:
             on_finish=lambda job: self.versions.bump(job.task),
         )
         self._background = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-read")
+        self.server = viser.ViserServer(
+            host=options.host, port=options.port, label="bt teleop", verbose=False
+        )
         self.context = UiContext(
             recordings_dir=options.recordings,
             robot=options.robot,
@@ -141,9 +145,7 @@ class TeleopApp:
             save_incomplete=options.save_incomplete,
             initial_task=options.initial_task,
             fancy_lighting=options.fancy_lighting,
-        )
-        self.server = viser.ViserServer(
-            host=options.host, port=options.port, label="bt teleop", verbose=False
+            event_loop=self.server.get_event_loop(),
         )
         self.server.initial_camera.position = CAMERA_POSITION
         self.server.initial_camera.look_at = CAMERA_LOOK_AT
@@ -187,7 +189,7 @@ class TeleopApp:
             if self._stopping:
                 return
             self._stopping = True
-            uis = list(self._uis.values())
+            uis = [*self._uis.values(), *self._closing]
             self._uis.clear()
         for ui in uis:
             path = ui.close()
@@ -200,12 +202,12 @@ class TeleopApp:
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
         with self._lock:
-            full = len(self._uis) + self._pending >= self.options.max_sessions
+            full = len(self._uis) + len(self._pending) >= self.options.max_sessions
             if self._stopping or full:
                 refused = True
             else:
                 refused = False
-                self._pending += 1
+                self._pending.add(client.client_id)
         if refused:
             client.gui.add_markdown(FULL_MESSAGE.format(n=self.options.max_sessions))
             LOGGER.info("tab %d refused: %d sessions", client.client_id, self.options.max_sessions)
@@ -218,7 +220,7 @@ class TeleopApp:
             client.gui.add_markdown(f"## Could not start a session\n\n{exc}")
         finally:
             with self._lock:
-                self._pending -= 1
+                self._pending.discard(client.client_id)
                 gone = client.client_id in self._departed or self._stopping
                 self._departed.discard(client.client_id)
                 if ui is not None and not gone:
@@ -231,10 +233,16 @@ class TeleopApp:
     def _on_disconnect(self, client: viser.ClientHandle) -> None:
         with self._lock:
             ui = self._uis.pop(client.client_id, None)
-            if ui is None and self._pending > 0:
+            if ui is None and client.client_id in self._pending:
                 self._departed.add(client.client_id)
+            if ui is not None:
+                self._closing.add(ui)
         if ui is not None:
-            path = ui.close()
+            try:
+                path = ui.close()
+            finally:
+                with self._lock:
+                    self._closing.discard(ui)
             LOGGER.info(
                 "tab %d closed%s",
                 client.client_id,

@@ -19,6 +19,7 @@ that changes the tab's scene and the only one that swaps its Session (task switc
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures
 import logging
 import queue
@@ -94,6 +95,8 @@ class UiContext:
     save_incomplete: bool = True
     """A closed tab's recording in progress: save it flagged incomplete (True) or discard it."""
     initial_task: Task = "wiping"
+    event_loop: asyncio.AbstractEventLoop | None = None
+    """viser's event loop (where async GUI callbacks run)."""
     fancy_lighting: bool = False
     """viser's environment map and shadows (pretty with a GPU; software WebGL, as in headless
     browsers and GPU-less laptops, takes tens of seconds to prepare them)."""
@@ -132,6 +135,8 @@ class ClientUI:
         self.last_replay: ReplayPlayer | None = None
         self._commands: queue.Queue[tuple[Callable[..., Any], tuple[Any, ...]]] = queue.Queue()
         self._stop = threading.Event()
+        self._close_lock = threading.Lock()
+        self._closed = False
         self._frames = 0
         self._time_offset_s = 0.0
         self._guide_dirty = True
@@ -180,7 +185,13 @@ class ClientUI:
         self._queue(self._do_stop_replay)
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
-        """Wait until every action queued so far has run; whether it happened in time."""
+        """Wait until every action asked for so far has run; whether it happened in time.
+
+        Includes actions of GUI callbacks already scheduled on viser's event loop.
+        """
+        loop = self.ctx.event_loop
+        if loop is not None and loop.is_running():
+            asyncio.run_coroutine_threadsafe(asyncio.sleep(0), loop).result(timeout_s)
         done = threading.Event()
         self._commands.put((done.set, ()))
         return done.wait(timeout_s)
@@ -205,18 +216,22 @@ class ClientUI:
         Returns:
             The incomplete demo saved, or None.
         """
-        self._stop.set()
-        if threading.current_thread() is not self._worker:
-            self._worker.join(5.0)
-        if self.replay is not None:
-            self.replay.stop()
-        keep = self.ctx.save_incomplete if save_incomplete is None else save_incomplete
-        path = self.session.close(save_incomplete=keep)
-        if path is not None:
-            self.saved.append(path)
-            self.ctx.versions.bump(self.task)
-        self.logger.close()
-        return path
+        with self._close_lock:  # a second caller waits for the first to finish
+            if self._closed:
+                return None
+            self._closed = True
+            self._stop.set()
+            if threading.current_thread() is not self._worker:
+                self._worker.join(5.0)
+            if self.replay is not None:
+                self.replay.stop()
+            keep = self.ctx.save_incomplete if save_incomplete is None else save_incomplete
+            path = self.session.close(save_incomplete=keep)
+            if path is not None:
+                self.saved.append(path)
+                self.ctx.versions.bump(self.task)
+            self.logger.close()
+            return path
 
     # -- GUI ----------------------------------------------------------------------------------
 
@@ -241,7 +256,8 @@ class ClientUI:
             self.clean_button = gui.add_button("Clean")
             self.clean_progress = gui.add_progress_bar(0.0, visible=False, animated=True)
             self.replay_input: viser.GuiDropdownHandle[str] = gui.add_dropdown(
-                "Replay", [str(NO_DEMOS)]  # str, not a literal type: the options change
+                "Replay",
+                [str(NO_DEMOS)],  # str, not a literal type: the options change
             )
             self.play_button = gui.add_button("Play")
             self.stop_replay_button = gui.add_button("Stop replay", disabled=True)
@@ -400,9 +416,12 @@ class ClientUI:
         version = self.ctx.versions.get(task)
         if version != self._library_version and self._library_future is None:
             self._library_version = version
-            self._library_future = self.ctx.background.submit(
-                load_library, self.ctx.recordings_dir, task
-            )
+            try:
+                self._library_future = self.ctx.background.submit(
+                    load_library, self.ctx.recordings_dir, task
+                )
+            except RuntimeError:  # the app is stopping
+                return
         future = self._library_future
         if future is not None and future.done():
             self._library_future = None

@@ -91,6 +91,13 @@ class MjSceneView:
             frame.position = self._data.xpos[body]
             frame.wxyz = self._data.xquat[body]
 
+    def set_visible(self, visible: bool, *, moving_only: bool = True) -> None:
+        """Show or hide the drawn model (only the moving bodies, e.g. the robot, by default)."""
+        for node in (
+            self._frames.values() if moving_only else [*self._frames.values(), *self._nodes]
+        ):
+            node.visible = visible
+
     def body_pose(self, body: int) -> tuple[FloatArray, FloatArray]:
         """Last drawn position (3,) [m] and orientation wxyz (4,) of `body`."""
         return self._data.xpos[body].copy(), self._data.xquat[body].copy()

@@ -29,6 +29,8 @@ from bt_pipeline.synth import make_d1
 from bt_pipeline.tasks import TASKS
 
 ROLLOUTS = 3
+SAMPLES = 100
+"""N of the demos in these tests (300 in real runs): rollouts and metrics cost ∝ N."""
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
@@ -70,6 +72,7 @@ def evaluated(files: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) 
     args += ["--cleaned", str(files["cleaned"]), "--learners", "bc,node", "--quick"]
     args += ["--rollouts", str(ROLLOUTS), "--steps", "20", "--json", "--plots", str(out / "plots")]
     args += ["--rrd", str(out / "eval.rrd"), "--rollouts-out", str(out / "rollouts")]
+    args += ["--samples", str(SAMPLES)]
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
         main(args)
@@ -96,21 +99,10 @@ def test_json_has_one_row_per_task_learner_dataset(evaluated) -> None:
 
 
 def test_json_prints_alone_on_stdout(files, capsys) -> None:
-    code, out, err = run(
-        capsys,
-        "evaluate",
-        "--noisy",
-        str(files["wiping"]),
-        "--cleaned",
-        str(files["cleaned"] / "wiping.cleaned.hdf5"),
-        "--learners",
-        "bc",
-        "--rollouts",
-        "2",
-        "--steps",
-        "5",
-        "--json",
-    )
+    cleaned = files["cleaned"] / "wiping.cleaned.hdf5"
+    args = ["--noisy", str(files["wiping"]), "--cleaned", str(cleaned), "--learners", "bc"]
+    args += ["--rollouts", "2", "--steps", "5", "--samples", str(SAMPLES), "--json"]
+    code, out, err = run(capsys, "evaluate", *args)
     assert code == 0
     assert list(json.loads(out)) == ["results"]  # the whole of stdout is the document
     assert "evaluate" in err  # the progress bar went to stderr
@@ -152,47 +144,23 @@ def test_rollouts_out_are_valid_replayable_recordings(evaluated, files) -> None:
 
 
 def test_task_in_one_set_only_is_an_error(files, capsys) -> None:
-    code, out, err = run(
-        capsys,
-        "evaluate",
-        "--noisy",
-        str(files["wiping"]),
-        str(files["weaving"]),
-        "--cleaned",
-        str(files["cleaned"] / "wiping.cleaned.hdf5"),
-        "--learners",
-        "bc",
-    )
+    noisy = ["--noisy", str(files["wiping"]), str(files["weaving"])]
+    cleaned = ["--cleaned", str(files["cleaned"] / "wiping.cleaned.hdf5")]
+    code, out, err = run(capsys, "evaluate", *noisy, *cleaned, "--learners", "bc")
     assert code == 2 and out == ""
     assert err.strip().count("\n") == 0 and "weaving" in err
 
 
 def test_unknown_learner_is_an_error(files, capsys) -> None:
-    code, _, err = run(
-        capsys,
-        "evaluate",
-        "--noisy",
-        str(files["wiping"]),
-        "--cleaned",
-        str(files["cleaned"]),
-        "--learners",
-        "bc,gail",
-    )
+    sets = ["--noisy", str(files["wiping"]), "--cleaned", str(files["cleaned"])]
+    code, _, err = run(capsys, "evaluate", *sets, "--learners", "bc,gail")
     assert code == 2
     assert err.strip().count("\n") == 0 and "gail" in err and "traj_bc" in err
 
 
 def test_bad_rrd_suffix_fails_before_training(files, capsys) -> None:
-    code, _, err = run(
-        capsys,
-        "evaluate",
-        "--noisy",
-        str(files["wiping"]),
-        "--cleaned",
-        str(files["cleaned"]),
-        "--rrd",
-        "out.txt",
-    )
+    sets = ["--noisy", str(files["wiping"]), "--cleaned", str(files["cleaned"])]
+    code, _, err = run(capsys, "evaluate", *sets, "--rrd", "out.txt")
     assert code == 2 and ".rrd" in err
 
 
@@ -259,9 +227,27 @@ def test_initial_states_are_seeded_and_near_demo_starts(wiping_yardstick) -> Non
     assert nearest.max() < 5 * 0.005 and nearest.mean() > 0.001
 
 
+def test_reference_starts_sit_on_the_demonstrators_loops(wiping_yardstick) -> None:
+    demos, yardstick = wiping_yardstick
+    aligned = yardstick.stage1.aligned
+    x0 = initial_states(demos, 30, 0.0, seed=1, references=aligned)
+    raw = initial_states(demos, 30, 0.0, seed=1)
+    for p, q in zip(x0, raw, strict=True):
+        i = next(k for k, d in enumerate(demos) if np.array_equal(d.positions[0], q))
+        gap = np.min(np.linalg.norm(_dense(aligned[i]) - p, axis=1))
+        assert gap < 1e-4  # on demo i's reference loop
+        assert np.linalg.norm(p - q) <= np.min(np.linalg.norm(aligned[i] - q, axis=1)) + 1e-12
+
+
+def _dense(loop: np.ndarray, factor: int = 50) -> np.ndarray:
+    s = np.linspace(0.0, 1.0, len(loop))
+    t = np.linspace(0.0, 1.0, (len(loop) - 1) * factor + 1)
+    return np.stack([np.interp(t, s, loop[:, j]) for j in range(2)], axis=1)
+
+
 @pytest.mark.parametrize("task", TASKS)
 def test_every_learner_trains_finitely_and_rolls_out_bounded(task) -> None:
-    noisy = demos_from_recording(make_d1(task, seed=2).recording)
+    noisy = demos_from_recording(make_d1(task, seed=2).recording, n_samples=SAMPLES)
     cleaned = cleaned_quickly(noisy, seed=2)
     config = EvalConfig(rollouts=4, quick=True, steps=15, seed=2)
     results = evaluate_task(noisy, cleaned, config)

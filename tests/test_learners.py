@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.learners import (
     LEARNERS,
     BCConfig,
+    LearnerConfig,
     NODEConfig,
     TrajBCConfig,
     VectorFieldPolicy,
@@ -23,7 +25,7 @@ from bt_pipeline.learners import (
     parse_learner,
     train_learner,
 )
-from bt_pipeline.learners.common import Standardiser, prepare_demos
+from bt_pipeline.learners.common import Integrator, Standardiser, prepare_demos
 from bt_pipeline.shapes import canonical_shape, similarity_transform
 from bt_pipeline.tasks import Task
 
@@ -56,7 +58,7 @@ def task_loops(task: Task, n_demos: int = 4, seed: int = 0) -> np.ndarray:
     return np.stack(out)
 
 
-def tiny(name: str, **overrides: object):
+def tiny(name: str, **overrides: Any) -> LearnerConfig:
     """A few-step config, for tests of properties other than fit quality."""
     return learner_config(name, quick=True, **{"steps": 12, **overrides})
 
@@ -141,14 +143,14 @@ def test_prepare_demos_standardises_forward_differences_without_the_last_action(
     np.testing.assert_allclose(data.z.double().numpy().reshape(-1, 2).std(axis=0), 1, atol=1e-5)
 
 
-def _rotation_policy(integrator: str, omega: float = 2.0 * math.pi) -> VectorFieldPolicy:
+def _rotation_policy(integrator: Integrator, omega: float = 2.0 * math.pi) -> VectorFieldPolicy:
     """The exact field ẋ = ω J x (a circle per unit time) as a policy with identity scalings."""
     net = nn.Linear(2, 2, bias=False)
     with torch.no_grad():
         net.weight.copy_(torch.tensor([[0.0, -omega], [omega, 0.0]]))
     unit = Standardiser(mean=np.zeros(2), scale=np.ones(2))
     box = np.array([[-10.0, -10.0], [10.0, 10.0]])
-    return VectorFieldPolicy(net, unit, unit, box, dt=1.0 / (N - 1), integrator=integrator)  # pyright: ignore[reportArgumentType]  # a literal
+    return VectorFieldPolicy(net, unit, unit, box, dt=1.0 / (N - 1), integrator=integrator)
 
 
 def test_euler_rollout_matches_its_analytic_growth_and_rk4_is_exact_on_a_rotation() -> None:

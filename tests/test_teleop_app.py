@@ -263,11 +263,17 @@ def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
 
 
 def circle_script(radius_m: float, theta_deg: float) -> dict[str, Any]:
+    """A 3 s scripted ellipse in the wiping plane (the scripted operator's JSON)."""
     times = np.linspace(0.0, 3.0, 31)
     phase = 2.0 * math.pi * times / 3.0
-    rows = [[t, radius_m * math.cos(p), 0.5 * radius_m * math.sin(p)] for t, p in zip(times, phase)]
-    return {"task": "wiping", "demonstrator": f"r{radius_m}", "theta_deg": theta_deg, "rho": 1.0,
-            "waypoints": rows}  # fmt: skip
+    rows = np.stack([times, radius_m * np.cos(phase), 0.5 * radius_m * np.sin(phase)], axis=1)
+    return {
+        "task": "wiping",
+        "demonstrator": f"r{radius_m}",
+        "theta_deg": theta_deg,
+        "rho": 1.0,
+        "waypoints": rows.tolist(),
+    }
 
 
 @pytest.fixture
@@ -301,7 +307,7 @@ def test_clean_button_then_replay_a_cleaned_demo(three_recordings, make_app, tab
     tabs(app)
     ui = only_session(app)
     ui.clean_button.value = True
-    wait_until(lambda: ("Clean done" in [m[0] for m in ui.messages]), 240.0, "clean")
+    wait_until(lambda: "Clean done" in [m[0] for m in ui.messages], 240.0, "clean")
     wait_until(lambda: ui.library is not None and ui.library.cleaned, what="cleaned demos")
     key = ui.library.cleaned[0].key  # type: ignore[union-attr]
     ui.replay_input.value = key

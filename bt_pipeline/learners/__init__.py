@@ -23,7 +23,7 @@ Usage::
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import get_args
+from typing import Any, get_args
 
 from numpy.typing import ArrayLike
 
@@ -66,9 +66,7 @@ def parse_learner(name: str) -> LearnerName:
     raise ConfigError(f"unknown learner {name!r}; valid learners: {', '.join(LEARNERS)}")
 
 
-def learner_config(
-    name: LearnerName | str, quick: bool = False, **overrides: object
-) -> LearnerConfig:
+def learner_config(name: LearnerName | str, quick: bool = False, **overrides: Any) -> LearnerConfig:
     """The full (default) or CI-sized (`quick`) settings of a learner, with `overrides` applied.
 
     Raises:
@@ -76,7 +74,7 @@ def learner_config(
     """
     cls = _CONFIGS[parse_learner(name)]
     try:
-        return cls.quick(**overrides) if quick else cls(**overrides)  # pyright: ignore[reportArgumentType]  # validated in __post_init__
+        return cls.quick(**overrides) if quick else cls(**overrides)
     except TypeError as error:  # an unknown keyword
         raise ConfigError(f"bad setting for learner {name!r}: {error}") from error
 

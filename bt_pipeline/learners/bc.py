@@ -15,6 +15,7 @@ by fewer mini-batch steps at a higher rate, which reach the same loss much soone
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import torch
 from numpy.typing import ArrayLike
@@ -43,9 +44,9 @@ class BCConfig(TrainConfig):
     """(state, action) pairs per step; 0 = all."""
 
     @classmethod
-    def quick(cls, **overrides: object) -> BCConfig:
+    def quick(cls, **overrides: Any) -> BCConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=300, lr=5e-3, batch_size=256), **overrides)  # pyright: ignore[reportArgumentType]  # overrides are validated in __post_init__
+        return replace(cls(steps=300, lr=5e-3, batch_size=256), **overrides)
 
 
 def train_bc(demos: ArrayLike, config: BCConfig | None = None) -> TrainedLearner:

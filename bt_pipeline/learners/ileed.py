@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -66,7 +66,7 @@ RandomModel = Literal["uniform", "gaussian"]
 class ILEEDConfig(TrainConfig):
     """ILEED settings (full preset by default; :meth:`quick` for CI)."""
 
-    steps: int = 1500
+    steps: int = 1200
     """Optimiser steps."""
     lr: float = 3e-3
     """Initial Adam learning rate of the policy, σ_a and the state embedding."""
@@ -76,6 +76,8 @@ class ILEEDConfig(TrainConfig):
     """e, dimension of the state and expertise embeddings."""
     embed_depth: int = 2
     """Hidden layers of the state-embedding MLP."""
+    embed_hidden: int = 32
+    """Width of the state-embedding MLP's hidden layers."""
     embedding_lr: float = 1e-2
     """Initial Adam learning rate of the expertise embeddings ω_i."""
     learn_action_std: bool = True
@@ -92,10 +94,9 @@ class ILEEDConfig(TrainConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.embed_dim < 1 or self.embed_depth < 1:
-            raise ConfigError(
-                f"embed_dim and embed_depth must be >= 1; got {self.embed_dim}, {self.embed_depth}"
-            )
+        for name in ("embed_dim", "embed_depth", "embed_hidden"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be >= 1; got {getattr(self, name)}")
         if not self.embedding_lr > 0.0:
             raise ConfigError(f"embedding_lr must be > 0; got {self.embedding_lr}")
         if not 0.0 < self.min_action_std <= self.action_std:
@@ -105,9 +106,9 @@ class ILEEDConfig(TrainConfig):
             )
 
     @classmethod
-    def quick(cls, **overrides: object) -> ILEEDConfig:
+    def quick(cls, **overrides: Any) -> ILEEDConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=300, lr=5e-3, embedding_lr=2e-2, batch_size=256), **overrides)  # pyright: ignore[reportArgumentType]  # overrides are validated in __post_init__
+        return replace(cls(steps=300, lr=5e-3, embedding_lr=2e-2, batch_size=256), **overrides)
 
 
 class _ILEEDModel(nn.Module):
@@ -116,7 +117,7 @@ class _ILEEDModel(nn.Module):
     def __init__(self, n_demonstrators: int, config: ILEEDConfig) -> None:
         super().__init__()
         self.policy = make_mlp(2, 2, config.hidden, config.depth)
-        self.embedding = make_mlp(2, config.embed_dim, config.hidden, config.embed_depth)
+        self.embedding = make_mlp(2, config.embed_dim, config.embed_hidden, config.embed_depth)
         self.omega = nn.Parameter(torch.randn(n_demonstrators, config.embed_dim))
         self.log_std = nn.Parameter(
             torch.full((2,), math.log(config.action_std)), requires_grad=config.learn_action_std

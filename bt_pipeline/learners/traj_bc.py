@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import torch
 from numpy.typing import ArrayLike
@@ -63,9 +64,9 @@ class TrajBCConfig(TrainConfig):
             raise ConfigError(f"warmup_fraction must be in [0, 1]; got {self.warmup_fraction}")
 
     @classmethod
-    def quick(cls, **overrides: object) -> TrajBCConfig:
+    def quick(cls, **overrides: Any) -> TrajBCConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=150, lr=5e-3), **overrides)  # pyright: ignore[reportArgumentType]  # overrides are validated in __post_init__
+        return replace(cls(steps=150, lr=5e-3), **overrides)
 
     def horizon_at(self, step: int) -> int:
         """H of optimiser step `step` (the curriculum)."""

@@ -1,0 +1,117 @@
+"""``bt reproduce``: the pipeline on synthetic sets, its report, and the real ``--quick`` run."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import matplotlib.image
+import pytest
+
+from bt_pipeline.cli import main
+from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.reproduce import (
+    PAPER_ILEED_D1_GAIN,
+    Cell,
+    ReproduceConfig,
+    reproduce,
+    verdict,
+)
+from bt_pipeline.tasks import TASKS
+
+TINY = ReproduceConfig(
+    tasks=("wiping",),
+    sets=("D1",),
+    learners=("bc", "ileed"),
+    rollouts=3,
+    steps=10,
+    clean_epochs=2,
+    seeds=2,
+)
+"""The code path of ``bt reproduce`` with almost no training (plumbing, report format)."""
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("reproduce")
+    reproduce(TINY, out, progress=False)
+    return out
+
+
+def test_tiny_run_writes_every_output(tiny_run) -> None:
+    names = {p.name for p in tiny_run.iterdir()}
+    assert names == {"rewards.png", "D1.wiping.rollouts.png", "results.json", "report.md"}
+    for png in ("rewards.png", "D1.wiping.rollouts.png"):
+        assert matplotlib.image.imread(tiny_run / png).shape[0] > 300
+
+
+def test_results_json_has_every_row_of_every_seed(tiny_run) -> None:
+    document = json.loads((tiny_run / "results.json").read_text())
+    rows = document["results"]
+    assert len(rows) == 2 * 2 * 2  # seeds × learners × datasets
+    assert {(r["seed"], r["learner"], r["dataset"]) for r in rows} == {
+        (s, lr, d) for s in (0, 1) for lr in ("bc", "ileed") for d in ("noisy", "cleaned")
+    }
+    for row in rows:
+        assert row["set"] == "D1" and row["task"] == "wiping" and row["finite"]
+        assert 0.0 <= row["reward_mean"] <= 1.0
+    for job in document["cleaning"]:
+        assert job["truth_distance_raw"] > 0.0 and job["truth_distance_cleaned"] > 0.0
+
+
+def test_report_has_tables_the_paper_side_by_side_and_a_verdict(tiny_run) -> None:
+    report = (tiny_run / "report.md").read_text()
+    assert "## Cleaning quality" in report
+    assert "| wiping | ileed |" in report and "| wiping | bc |" in report
+    assert "(± " in report  # the spread over seeds, since seeds = 2
+    assert f"| wiping | {PAPER_ILEED_D1_GAIN['wiping']:+.3f} |" in report
+    assert "## Where cleaned beats noisy, and where it does not" in report
+    assert "Of 2 (set, task, learner) cells" in report
+    assert "![Fig. 11-style rewards](rewards.png)" in report
+
+
+def _cell(mean: float, std: float, count: int = 50) -> Cell:
+    return Cell(mean, std, 0.0, mean, 0.01, 0.01, 0.5, count, 1.0, True)
+
+
+def test_verdict_needs_two_standard_errors() -> None:
+    assert verdict(_cell(0.50, 0.05), _cell(0.53, 0.05)) == "cleaned"  # Δ 0.03 > 2 × 0.010
+    assert verdict(_cell(0.50, 0.05), _cell(0.51, 0.05)) == "tie"
+    assert verdict(_cell(0.50, 0.05), _cell(0.47, 0.05)) == "noisy"
+    assert verdict(_cell(0.50, 0.20, 4), _cell(0.60, 0.20, 4)) == "tie"  # few, spread rollouts
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"seeds": 0}, {"workers": 0}, {"sets": ("D3",)}, {"learners": ("gail",)}]
+)
+def test_config_rejects_bad_settings(kwargs) -> None:
+    with pytest.raises(ConfigError):
+        ReproduceConfig(**kwargs)
+
+
+def test_quick_preset_is_smaller_than_the_full_one() -> None:
+    quick, full = ReproduceConfig.preset(True), ReproduceConfig.preset(False)
+    assert quick.quick and not full.quick
+    assert quick.rollouts < full.rollouts == 50
+    assert quick.tasks == full.tasks == TASKS and quick.sets == full.sets == ("D1", "D2")
+
+
+@pytest.mark.slow
+def test_bt_reproduce_quick_end_to_end(tmp_path, capsys) -> None:
+    """The real ``bt reproduce --quick`` (D1 and D2, three tasks, four learners), 2 processes."""
+    main(["reproduce", "--quick", "--workers", "2", "--out", str(tmp_path)])
+    printed = capsys.readouterr().out.split()
+    assert {Path(p).name for p in printed} >= {"report.md", "rewards.png", "results.json"}
+    document = json.loads((tmp_path / "results.json").read_text())
+    rows = document["results"]
+    assert len(rows) == 2 * 3 * 4 * 2  # sets × tasks × learners × datasets
+    for row in rows:
+        assert row["finite"], f"{row['set']} {row['task']} {row['learner']} {row['dataset']}"
+        assert 0.0 <= row["reward_mean"] <= 1.0 and math.isfinite(row["shape_loss"])
+    report = (tmp_path / "report.md").read_text()
+    for task in TASKS:
+        assert f"| {task} | {PAPER_ILEED_D1_GAIN[task]:+.3f} |" in report
+        for set_name in ("D1", "D2"):
+            assert (tmp_path / f"{set_name}.{task}.rollouts.png").stat().st_size > 20_000
+    assert "Of 24 (set, task, learner) cells" in report
