@@ -78,16 +78,6 @@ WATCH_STATUS_JS = """() => {
     {subtree: true, childList: true, characterData: true});
   read();
 }"""
-STAMP_FRAMES_JS = """
-window.__btFrames = [];
-const NativeWebSocket = window.WebSocket;
-window.WebSocket = class extends NativeWebSocket {
-  constructor(...args) {
-    super(...args);
-    this.addEventListener('message', () => window.__btFrames.push(Date.now()));
-  }
-};
-"""
 
 
 @dataclass(frozen=True)
@@ -162,7 +152,7 @@ def server_rates(app: TeleopApp, n_tabs: int, seconds: float) -> tuple[float, fl
     finally:
         for tab in tabs:
             tab.close()
-        wait_for(lambda: not app.sessions(), 10.0)
+        wait_for(lambda: not app.sessions() and app.settled(), 10.0)
 
 
 def step_targets(ui: ClientUI, k: int) -> np.ndarray:
@@ -199,7 +189,7 @@ def server_delays(app: TeleopApp, n_tabs: int, steps: int) -> float:
     finally:
         for tab in tabs:
             tab.close()
-        wait_for(lambda: not app.sessions(), 10.0)
+        wait_for(lambda: not app.sessions() and app.settled(), 10.0)
 
 
 class PageSocket:
@@ -208,7 +198,7 @@ class PageSocket:
     def __init__(self, node: str) -> None:
         self.node = node
         self.frames = 0
-        """Frames received so far (the page stamps the same frames in ``__btFrames``)."""
+        """Websocket frames received so far."""
         self.poses: list[tuple[int, np.ndarray]] = []
         """(frame index, tool position) of every tool pose update."""
         self._zstd = zstandard.ZstdDecompressor()
@@ -236,7 +226,6 @@ def browser_numbers(app: TeleopApp, seconds: float, steps: int) -> dict[str, flo
         )
         try:
             page = browser.new_page(viewport={"width": 1000, "height": 700})
-            page.add_init_script(STAMP_FRAMES_JS)  # page-side arrival time of every frame
             sockets: list[PageSocket] = []
 
             def watch(ws: Any) -> None:
@@ -259,29 +248,22 @@ def browser_numbers(app: TeleopApp, seconds: float, steps: int) -> dict[str, flo
             page.evaluate("0")
             received = (len(socket.poses) - n0) / wall
             rendered = (len(page.evaluate("window.__bt")) - dom0) / wall
-            socket_delays, page_delays = [], []
+            page_delays = []
             for k in range(steps):
                 goal = step_targets(ui, k)
                 ui.session.set_target(goal)
                 wait_for(lambda g=goal: np.linalg.norm(ui.session.status().ee_pos - g) < 1e-3, 5)
                 time.sleep(0.5)
-                page.evaluate("0")
-                seen, dom_seen = len(socket.poses), len(page.evaluate("window.__bt"))
-                before = socket.poses[-1][1]
+                dom_seen = len(page.evaluate("window.__bt"))
                 t0_ms = time.time() * 1e3
                 ui.session.set_target(step_targets(ui, k + 1))
                 time.sleep(1.0)
-                arrivals = page.evaluate("window.__btFrames")  # also delivers the frames
-                moved = [i for i, p in socket.poses[seen:] if np.linalg.norm(p - before) > 1e-4]
-                if moved and moved[0] < len(arrivals):
-                    socket_delays.append(arrivals[moved[0]] - t0_ms)
                 shown = [t for t, _ in page.evaluate("window.__bt")[dom_seen:] if t >= t0_ms]
                 if shown:
                     page_delays.append(shown[0] - t0_ms)
             return {
                 "tool pose updates/s reaching the page (Chromium)": received,
                 "status-text updates/s rendered in the page (Chromium)": rendered,
-                "set_target → pose reaches the page [ms] (Chromium)": _median(socket_delays),
                 "set_target → pose shown in the page DOM [ms] (Chromium)": _median(page_delays),
             }
         finally:
@@ -322,7 +304,7 @@ def main(args: Args) -> None:
                 if args.browser:
                     for name, value in browser_numbers(app, args.seconds, args.steps).items():
                         rows.setdefault(name, []).append(value)
-                    wait_for(lambda: not app.sessions(), 10.0)
+                    wait_for(lambda: not app.sessions() and app.settled(), 10.0)
         finally:
             app.stop()
     print(f"\n| measurement | median of {args.runs} runs | runs |")

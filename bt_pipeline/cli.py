@@ -218,7 +218,11 @@ def evaluate(
 
 
 def reproduce(
-    quick: bool = False, out: Path = Path("reproduce"), seeds: int = 1, workers: int = 1
+    quick: bool = False,
+    out: Path = Path("reproduce"),
+    seeds: int = 1,
+    workers: int = 1,
+    oracle: bool = False,
 ) -> None:
     """Reproduce the paper's Sec. IV on synthetic D1 and D2: generate, clean, evaluate, report.
 
@@ -231,11 +235,12 @@ def reproduce(
         out: Output directory (created if missing; its files are replaced).
         seeds: Repeat with seeds 0 .. K-1 and report the spread over seeds too.
         workers: Jobs (set × task × seed) run in parallel processes; results do not change.
+        oracle: Also train on the synthetic ground truth: the upper bound of any cleaning.
     """
     from bt_pipeline.reproduce import ReproduceConfig
     from bt_pipeline.reproduce import reproduce as run
 
-    config = ReproduceConfig.preset(quick, seeds=seeds, workers=workers)
+    config = ReproduceConfig.preset(quick, seeds=seeds, workers=workers, oracle=oracle)
     for path in run(config, out):
         print(path)
 

@@ -43,8 +43,11 @@ from bt_pipeline.refine import refine_normaliser
 from bt_pipeline.scoring import Normaliser, normalised_utility, score_demos
 from bt_pipeline.tasks import Task
 
-Dataset = Literal["noisy", "cleaned"]
+Dataset = Literal["noisy", "cleaned", "truth"]
+"""What a learner was trained on: the raw demos, the cleaned ones, or (synthetic sets only, as an
+upper bound of any cleaning) the demos' ground-truth shapes."""
 DATASETS: tuple[Dataset, ...] = ("noisy", "cleaned")
+"""The datasets every evaluation compares."""
 StartRule = Literal["reference", "demo"]
 """Where rollouts start (before the noise): a random demo's first state moved onto its
 demonstrator's reference loop (bt's default), or the raw first state itself (§7 row 20)."""
@@ -366,6 +369,7 @@ def evaluate_task(
     config: EvalConfig | None = None,
     on_trained: Callable[[LearnerEval], None] | None = None,
     yardstick: Yardstick | None = None,
+    truth: Sequence[Demo] | None = None,
 ) -> list[LearnerEval]:
     """Train every learner on the noisy and on the cleaned demos of one task and measure them.
 
@@ -376,9 +380,11 @@ def evaluate_task(
         on_trained: Called after each learner is trained and measured (progress).
         yardstick: The noisy set's yardstick if already built (:func:`build_yardstick` with
             the config's seed); built here when None.
+        truth: Demos of the ground-truth shapes (synthetic sets), a third dataset measured the
+            same way: the upper bound of what cleaning can give under this protocol.
 
     Returns:
-        One :class:`LearnerEval` per (dataset, learner), noisy first.
+        One :class:`LearnerEval` per (dataset, learner): noisy, cleaned, then truth.
 
     Raises:
         DemoError: Empty sets, mixed tasks, or sets of different N.
@@ -392,8 +398,13 @@ def evaluate_task(
     overrides: dict[str, object] = {"seed": config.seed}
     if config.steps is not None:
         overrides["steps"] = config.steps
+    if truth is not None:
+        check_pair(noisy, truth)
+    datasets: list[tuple[Dataset, Sequence[Demo]]] = [("noisy", noisy), ("cleaned", cleaned)]
+    if truth is not None:
+        datasets.append(("truth", truth))
     results = []
-    for dataset, demos in (("noisy", noisy), ("cleaned", cleaned)):
+    for dataset, demos in datasets:
         positions = np.stack([d.positions for d in demos])
         demonstrators = [d.demonstrator for d in demos]
         for learner in config.learners:
@@ -410,7 +421,7 @@ def evaluate_task(
             result = LearnerEval(
                 task=task,
                 learner=learner,
-                dataset=dataset,  # type: ignore[arg-type]  # literal from DATASETS
+                dataset=dataset,
                 rollouts=rollouts,
                 metrics=rollout_metrics(rollouts, yardstick, config.reward_frame),
                 train_seconds=trained.seconds,
@@ -455,18 +466,24 @@ class TaskEvaluation:
         """Evaluated learners, in order."""
         return tuple(dict.fromkeys(r.learner for r in self.results))
 
+    @property
+    def datasets(self) -> tuple[Dataset, ...]:
+        """Evaluated datasets, in order (noisy, cleaned, and truth when given)."""
+        return tuple(dict.fromkeys(r.dataset for r in self.results))
+
 
 def evaluate_demos(
     noisy: Sequence[Demo],
     cleaned: Sequence[Demo],
     config: EvalConfig | None = None,
     on_trained: Callable[[LearnerEval], None] | None = None,
+    truth: Sequence[Demo] | None = None,
 ) -> TaskEvaluation:
     """:func:`evaluate_task`, returned with its yardstick, plane and demo duration."""
     config = config or EvalConfig()
     check_pair(noisy, cleaned)
     yardstick = build_yardstick(noisy, seed=config.seed)
-    results = evaluate_task(noisy, cleaned, config, on_trained, yardstick=yardstick)
+    results = evaluate_task(noisy, cleaned, config, on_trained, yardstick, truth)
     return TaskEvaluation(
         task=noisy[0].task,
         yardstick=yardstick,

@@ -160,7 +160,7 @@ def print_eval_table(evaluations: Sequence[TaskEvaluation], console: Console | N
     for evaluation in evaluations:
         for learner in evaluation.learners:
             noisy_mean = float(np.mean(evaluation.result(learner, "noisy").rewards))
-            for dataset in DATASETS:
+            for dataset in evaluation.datasets:
                 r = evaluation.result(learner, dataset)
                 m = r.metrics
                 delta = float(np.mean(m.rewards)) - noisy_mean
@@ -335,7 +335,7 @@ def log_evaluations(rec: rr.RecordingStream, evaluations: Sequence[TaskEvaluatio
                 rr.Points2D(r.rollouts[:, 0].astype(np.float32), radii=rr.Radius.ui_points(1.5)),
                 static=True,
             )
-        for k, dataset in enumerate(DATASETS):
+        for k, dataset in enumerate(DATASETS):  # bt evaluate has no truth set
             means = [float(np.mean(e.result(learner, dataset).rewards)) for learner in e.learners]
             rec.log(
                 f"/{e.task}/rewards/{dataset}",

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from bt_pipeline.evaluate import DATASETS, TaskEvaluation
+from bt_pipeline.evaluate import TaskEvaluation
 
-DATASET_COLORS = {"noisy": "#8c8c8c", "cleaned": "#2ca02c"}
-"""Bar colour of each dataset (grey raw, green cleaned, as in the Rerun files)."""
-_ROLLOUT_COLORS = {"noisy": "#d62728", "cleaned": "#1f77b4"}  # Paper: red noisy, blue/green ok.
+DATASET_COLORS = {"noisy": "#8c8c8c", "cleaned": "#2ca02c", "truth": "#9ecae1"}
+"""Bar colour of each dataset (grey raw, green cleaned as in the Rerun files, pale blue truth)."""
+_ROLLOUT_COLORS = {"noisy": "#d62728", "cleaned": "#1f77b4", "truth": "#7f7f7f"}
 _REFERENCE_COLOR = "#333333"
 LEARNER_TITLES = {"bc": "BC", "traj_bc": "Traj-BC", "ileed": "ILEED", "node": "NODE"}
 """Display name of each learner."""
@@ -52,7 +52,9 @@ class RewardBar:
 def plot_rollouts(
     evaluation: TaskEvaluation, path: str | os.PathLike[str], title: str = ""
 ) -> Path:
-    """Figs. 8-10: rollouts of every learner on noisy (top) and cleaned (bottom) demos.
+    """Figs. 8-10: rollouts of every learner on noisy (top) and cleaned (below) demos.
+
+    A third row shows learners trained on the ground truth when the evaluation has one.
 
     Args:
         evaluation: One task's evaluation.
@@ -70,9 +72,10 @@ def plot_rollouts(
     )
     low, high = all_points.min(axis=0), all_points.max(axis=0)
     pad = 0.05 * float(np.max(high - low))
-    fig = Figure(figsize=(3.2 * len(learners) + 0.6, 6.4), layout="constrained")
-    axes = fig.subplots(2, len(learners), squeeze=False, sharex=True, sharey=True)
-    for row, dataset in enumerate(DATASETS):
+    datasets = evaluation.datasets
+    fig = Figure(figsize=(3.2 * len(learners) + 0.6, 3.2 * len(datasets)), layout="constrained")
+    axes = fig.subplots(len(datasets), len(learners), squeeze=False, sharex=True, sharey=True)
+    for row, dataset in enumerate(datasets):
         for col, learner in enumerate(learners):
             ax = axes[row, col]
             result = evaluation.result(learner, dataset)
@@ -100,7 +103,7 @@ def plot_rollouts(
             ax.tick_params(labelsize=7)
             if col == 0:
                 ax.set_ylabel(f"{dataset}\ny [m]", fontsize=9)
-            if row == 1:
+            if row == len(datasets) - 1:
                 ax.set_xlabel("x [m]", fontsize=9)
     axes[0, 0].legend(fontsize=7, loc="upper left")
     n = evaluation.results[0].rollouts.shape[0]
@@ -124,11 +127,13 @@ def plot_reward_bars(
     groups = list(dict.fromkeys(b.group for b in bars))
     fig = Figure(figsize=(11.0, 3.6 * len(groups) + 0.4), layout="constrained")
     axes = fig.subplots(len(groups), 1, squeeze=False)[:, 0]
-    width = 0.38
+    datasets = list(dict.fromkeys(b.dataset for b in bars))
+    width = 0.76 / len(datasets)
     for ax, group in zip(axes, groups, strict=True):
         mine = [b for b in bars if b.group == group]
         slots = list(dict.fromkeys((b.task, b.learner) for b in mine))
-        for offset, dataset in ((-width / 2, "noisy"), (width / 2, "cleaned")):
+        for d, dataset in enumerate(datasets):
+            offset = (d - (len(datasets) - 1) / 2) * width
             by_slot = {(b.task, b.learner): b for b in mine if b.dataset == dataset}
             xs = [k + offset for k, slot in enumerate(slots) if slot in by_slot]
             chosen = [by_slot[slot] for slot in slots if slot in by_slot]
@@ -137,7 +142,7 @@ def plot_reward_bars(
                 [b.mean for b in chosen],
                 width,
                 yerr=[b.std for b in chosen],
-                color=DATASET_COLORS[dataset],
+                color=DATASET_COLORS.get(dataset, "#444444"),
                 capsize=2.5,
                 error_kw={"elinewidth": 0.8},
                 label=dataset,
@@ -174,7 +179,7 @@ def plot_reward_bars(
         ax.set_ylabel(f"{group + ': ' if group else ''}mean normalised reward R̄", fontsize=9)
         ax.set_ylim(0.0, 1.0)
         ax.set_xlim(-0.6, len(slots) - 0.4)
-        ax.legend(fontsize=8, loc="upper right", ncols=3)
+        ax.legend(fontsize=8, loc="upper right", ncols=len(datasets) + 1)
     fig.suptitle(title or "Mean reward R̄ of the rollouts: noisy vs cleaned (± 1 std)")
     return _save(fig, path)
 

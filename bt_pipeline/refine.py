@@ -49,11 +49,12 @@ value so only a loss of information is penalised, or not at all."""
 
 _PRESETS: dict[str, dict[str, object]] = {
     "default": {
-        "epochs": 40,
+        "epochs": 30,
         "lr": 1e-2,
-        "hidden": 32,
+        "hidden": 16,
         "beta_rate": 0.1,
         "mi_term": "floor",
+        "mi_every": 5,
         "clamp_scores": True,
         "refine_best": False,
         "condition_on_reference": True,
@@ -68,6 +69,7 @@ _PRESETS: dict[str, dict[str, object]] = {
         "hidden": 64,
         "beta_rate": 1.0,
         "mi_term": "loss",
+        "mi_every": 1,
         "clamp_scores": False,
         "refine_best": True,
         "condition_on_reference": False,
@@ -95,6 +97,7 @@ class RefineSettings:
     beta_rate: float
     weights: tuple[float, float, float, float]
     mi_term: MiTerm
+    mi_every: int
     clamp_scores: bool
     refine_best: bool
     condition_on_reference: bool
@@ -114,11 +117,11 @@ class RefineConfig:
     variant: Variant = "default"
     """Which configuration: ``"default"`` (tuned) or ``"paper"`` (as written)."""
     epochs: int | None = None
-    """K, most epochs (default 150 with early stopping; paper 300)."""
+    """K, most epochs (default 30, with early stopping on a plateau; paper 300)."""
     lr: float | None = None
     """Adam learning rate η (default 1e-2; paper 1e-3)."""
     hidden: int | None = None
-    """LSTM hidden size per direction (default 32; paper 64)."""
+    """LSTM hidden size per direction (default 16; paper 64)."""
     layers: int = 2
     """LSTM layers."""
     bidirectional: bool = True
@@ -135,8 +138,14 @@ class RefineConfig:
     """w_1..w_4 of L1 symmetry, L2 closure, L3 smoothness, L4 shape; each in [0, 1], sum 1."""
     mi_term: MiTerm | None = None
     """How the MI stand-in enters the loss (default "floor"; paper "loss")."""
+    mi_every: int | None = None
+    """With mi_term "floor", evaluate the MI guard on every this-many-th epoch only (its k-NN
+    searches are the costliest part of an epoch, and the guard is rarely active; default 5;
+    "loss" always evaluates it every epoch)."""
     clamp_scores: bool | None = None
-    """Clamp normalised scores to [0, 1] in the loss (default True; paper False)."""
+    """Bound the normalised scores in the loss: L̃1-L̃3 earn nothing below the best raw demo's
+    (0) or the reference's own value, whichever is higher, and Ĩ nothing above 1 (default True;
+    paper False: unbounded)."""
     refine_best: bool | None = None
     """Refine x_best too (default False: passed through; paper True)."""
     condition_on_reference: bool | None = None
@@ -150,7 +159,7 @@ class RefineConfig:
     """Anneal the learning rate to 0 over `epochs` on a cosine (default True; paper False)."""
     patience: int | None = None
     """Stop after this many epochs without a loss improvement > `tolerance`; 0 never stops
-    early (default 15; paper 0)."""
+    early (default 10; paper 0)."""
     tolerance: float = 1e-4
     """Smallest loss decrease that counts as progress."""
     min_epochs: int = 20
@@ -161,14 +170,20 @@ class RefineConfig:
     def __post_init__(self) -> None:
         if self.variant not in _PRESETS:
             raise ConfigError(f"variant must be one of {sorted(_PRESETS)}; got {self.variant!r}")
-        for name in ("epochs", "hidden", "layers", "threads", "min_epochs"):
+        for name, low in (
+            ("epochs", 1),
+            ("hidden", 1),
+            ("layers", 1),
+            ("threads", 1),
+            ("min_epochs", 1),
+            ("mi_every", 1),
+            ("patience", 0),
+            ("seed", 0),
+        ):
             value = getattr(self, name)
-            if value is not None and (isinstance(value, bool) or int(value) != value or value < 1):
-                raise ConfigError(f"{name} must be an integer ≥ 1; got {value!r}")
-        if self.patience is not None and (int(self.patience) != self.patience or self.patience < 0):
-            raise ConfigError(f"patience must be an integer ≥ 0; got {self.patience!r}")
-        if self.seed < 0 or int(self.seed) != self.seed:
-            raise ConfigError(f"seed must be an integer ≥ 0; got {self.seed!r}")
+            is_int = isinstance(value, int | np.integer) and not isinstance(value, bool)
+            if value is not None and not (is_int and value >= low):
+                raise ConfigError(f"{name} must be an integer ≥ {low}; got {value!r}")
         for name, low, high in (
             ("lr", 0.0, math.inf),
             ("skip_lr_scale", 0.0, math.inf),
@@ -176,18 +191,22 @@ class RefineConfig:
             ("beta_rate", 0.0, 1.0),
         ):
             value = getattr(self, name)
-            if value is not None and not (math.isfinite(value) and low < value <= high):
+            if value is not None and not (_is_real(value) and low < value <= high):
                 raise ConfigError(f"{name} must lie in ({low}, {high}]; got {value!r}")
-        if not (math.isfinite(self.beta0) and 0.0 <= self.beta0 <= 1.0):
+        if not (_is_real(self.beta0) and 0.0 <= self.beta0 <= 1.0):
             raise ConfigError(f"beta0 must lie in [0, 1]; got {self.beta0!r}")
-        w = tuple(float(v) for v in self.weights)
-        if len(w) != 4 or not all(0.0 <= v <= 1.0 for v in w) or abs(sum(w) - 1.0) > 1e-9:
+        w = tuple(self.weights)
+        if (
+            len(w) != 4
+            or not all(_is_real(v) and 0.0 <= v <= 1.0 for v in w)
+            or abs(sum(w) - 1.0) > 1e-9
+        ):
             raise ConfigError(
                 f"weights must be 4 values (L1..L4) in [0, 1] summing to 1; got {self.weights!r}"
             )
         if self.mi_term is not None and self.mi_term not in get_args(MiTerm):
             raise ConfigError(f"mi_term must be one of {get_args(MiTerm)}; got {self.mi_term!r}")
-        if not (math.isfinite(self.tolerance) and self.tolerance >= 0.0):
+        if not (_is_real(self.tolerance) and self.tolerance >= 0.0):
             raise ConfigError(f"tolerance must be finite and ≥ 0; got {self.tolerance!r}")
 
     def resolve(self) -> RefineSettings:
@@ -199,6 +218,15 @@ class RefineConfig:
         }
         values["weights"] = tuple(float(v) for v in self.weights)
         return RefineSettings(**values)  # type: ignore[arg-type]  # preset values are typed above
+
+
+def _is_real(value: object) -> bool:
+    """A finite int or float, not a bool."""
+    return (
+        isinstance(value, int | float | np.integer | np.floating)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+    )
 
 
 @dataclass(frozen=True)
@@ -366,7 +394,9 @@ def refine_demos(
         best_loss = math.inf
         for epoch in range(1, settings.epochs + 1):
             delta = model(features_t) * scale
-            loss = objective(x_t + delta, torch.as_tensor(betas[refine_mask], dtype=dtype))
+            with_mi = (epoch - 1) % settings.mi_every == 0
+            betas_t = torch.as_tensor(betas[refine_mask], dtype=dtype)
+            loss = objective(x_t + delta, betas_t, with_mi)
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
@@ -445,7 +475,8 @@ class _Objective:
         self.floor: torch.Tensor | None = None
         if settings.clamp_scores:
             with torch.no_grad():
-                self.floor = self.normalised_losses(references)[:, :3].clamp_min(0.0)
+                self.floor = self.normalised_losses(references).clamp_min(0.0)
+            self.floor[:, 3] = -math.inf  # L4: closer to the reference is always better
 
     def normalised_losses(self, out: torch.Tensor) -> torch.Tensor:
         """L̃1..L̃4 of each demo, shape (B, 4) (Eq. 7 with the frozen raw-set (min, max))."""
@@ -460,13 +491,21 @@ class _Objective:
         )
         return (losses - self.lo) * self.scale
 
-    def __call__(self, out: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
+    def __call__(self, out: torch.Tensor, betas: torch.Tensor, with_mi: bool) -> torch.Tensor:
+        """-mean_i Ũ_i; without `with_mi` a "floor" MI term is taken at its raw value."""
         norm = self.normalised_losses(out)
-        if self.floor is not None:  # L1-L3: no reward beyond the best raw demo or the reference
-            norm = torch.cat((torch.maximum(norm[:, :3], self.floor), norm[:, 3:]), dim=-1)
+        if self.floor is not None:  # no reward beyond the best raw demo or the reference
+            norm = torch.maximum(norm, self.floor)
         task_score = ((1.0 - norm) * self.weights).sum(dim=-1)  # Eq. (10)
-        utility = (1.0 - betas) * self._mi_score(out) + betas * task_score  # Eq. (8)
+        mi_score = self._mi_score(out) if with_mi else self._mi_constant(out)
+        utility = (1.0 - betas) * mi_score + betas * task_score  # Eq. (8)
         return -utility.mean()
+
+    def _mi_constant(self, out: torch.Tensor) -> torch.Tensor:
+        """The MI term between checks: the floor's cap (its value whenever it is inactive)."""
+        if self.settings.mi_term == "floor":
+            return self.mi_raw.clamp_max(1.0) if self.settings.clamp_scores else self.mi_raw
+        return self._mi_score(out)
 
     def _mi_score(self, out: torch.Tensor) -> torch.Tensor:
         """Ĩ_i of Eq. (8) as the settings' `mi_term` asks, shape (B,)."""

@@ -21,6 +21,7 @@ import logging
 import multiprocessing
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
@@ -29,12 +30,13 @@ import numpy as np
 from tqdm import tqdm
 
 from bt_pipeline.clean import CleanOptions, clean_demos
-from bt_pipeline.demo import demos_from_recording
+from bt_pipeline.demo import Demo, demos_from_recording
 from bt_pipeline.distance import distance_to_truth
-from bt_pipeline.evaluate import DATASETS, EvalConfig, TaskEvaluation, evaluate_demos
+from bt_pipeline.evaluate import DATASETS, Dataset, EvalConfig, TaskEvaluation, evaluate_demos
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.learners import LEARNERS, LearnerName
 from bt_pipeline.plots import RewardBar, plot_reward_bars, plot_rollouts
+from bt_pipeline.records import FloatArray
 from bt_pipeline.synth import make_d1, make_d2
 from bt_pipeline.tasks import TASKS, Task
 
@@ -69,6 +71,8 @@ class ReproduceConfig:
     """Override the cleaner's refinement epochs (tiny test runs); None keeps its default."""
     workers: int = 1
     """Jobs run in parallel (processes)."""
+    oracle: bool = False
+    """Also train every learner on the demos' ground-truth shapes (the upper bound of cleaning)."""
 
     def __post_init__(self) -> None:
         if self.seeds < 1:
@@ -138,7 +142,8 @@ def run_job(job: tuple[int, SetName, Task, ReproduceConfig]) -> JobResult:
     )
     clean_seconds = time.perf_counter() - start
     start = time.perf_counter()
-    evaluation = evaluate_demos(demos, cleaned, config.eval_config(seed))
+    truth = truth_demos(demos, truths) if config.oracle else None
+    evaluation = evaluate_demos(demos, cleaned, config.eval_config(seed), truth=truth)
     return JobResult(
         seed=seed,
         set_name=set_name,
@@ -150,6 +155,20 @@ def run_job(job: tuple[int, SetName, Task, ReproduceConfig]) -> JobResult:
     )
 
 
+def truth_demos(demos: Sequence[Demo], truths: Sequence[FloatArray]) -> list[Demo]:
+    """Each demo's ground-truth loop as a demo: one period from the point nearest the demo's
+    start, at the truth's own (canonical-phase) speed, N samples, closed."""
+    out = []
+    for demo, truth in zip(demos, truths, strict=True):
+        k = int(np.argmin(np.linalg.norm(truth - demo.positions[0], axis=1)))
+        loop = np.roll(truth, -k, axis=0)
+        loop = np.concatenate([loop, loop[:1]])
+        s_old, s_new = np.linspace(0.0, 1.0, len(loop)), np.linspace(0.0, 1.0, demo.n_samples)
+        positions = np.stack([np.interp(s_new, s_old, loop[:, j]) for j in range(2)], axis=1)
+        out.append(demo.with_positions(positions))
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class ReproduceRun:
     """Every job of a run, in (set, task, seed) order, and its config and wall time."""
@@ -158,6 +177,11 @@ class ReproduceRun:
     jobs: tuple[JobResult, ...]
     seconds: float
     """Wall time of the whole run [s]."""
+
+    @property
+    def datasets(self) -> tuple[Dataset, ...]:
+        """Evaluated datasets: noisy, cleaned (and truth with the oracle)."""
+        return (*DATASETS, "truth") if self.config.oracle else DATASETS
 
 
 def run_reproduce(config: ReproduceConfig, progress: bool = True) -> ReproduceRun:
@@ -221,7 +245,7 @@ def cells(run: ReproduceRun) -> dict[tuple[SetName, Task, LearnerName, str], Cel
         for task in run.config.tasks:
             jobs = [j for j in run.jobs if j.set_name == set_name and j.task == task]
             for learner in run.config.learners:
-                for dataset in DATASETS:
+                for dataset in run.datasets:
                     evals = [j.evaluation.result(learner, dataset) for j in jobs]
                     rewards = np.concatenate([e.metrics.rewards for e in evals])
                     out[(set_name, task, learner, dataset)] = Cell(
@@ -275,6 +299,7 @@ def results_json(run: ReproduceRun) -> dict[str, object]:
             "rollouts": config.rollouts,
             "steps": config.steps,
             "clean_epochs": config.clean_epochs,
+            "oracle": config.oracle,
         },
         "seconds": run.seconds,
         "results": rows,
@@ -365,13 +390,21 @@ def report_markdown(
             lines.append(f"| {set_name} | {task} | {raw:.2f} | {clean:.2f} |")
     spread = " (± std over seeds of the per-seed means)" if c.seeds > 1 else ""
     lines += ["", f"## Results: mean ± std over rollouts{spread}", ""]
+    if c.oracle:
+        lines += [
+            "*R̄ truth*: the same learner trained on the demos' ground-truth shapes, the upper "
+            "bound of what any cleaning can give under this protocol.",
+            "",
+        ]
+    oracle_head = " R̄ truth |" if c.oracle else ""
     for set_name in c.sets:
         lines += [
             f"### {set_name}",
             "",
-            "| task | learner | R̄ noisy | R̄ cleaned | Δ R̄ | verdict | R̄ paper noisy → cleaned "
-            "| L4 [mm] noisy → cleaned | shape [mm] noisy → cleaned | Ũ noisy → cleaned |",
-            "|---|---|---|---|---|---|---|---|---|---|",
+            "| task | learner | R̄ noisy | R̄ cleaned | Δ R̄ | verdict |" + oracle_head + " R̄ "
+            "paper noisy → cleaned | L4 [mm] noisy → cleaned | shape [mm] noisy → cleaned | "
+            "Ũ noisy → cleaned |",
+            "|---|---|---|---|---|---|---|---|---|---|" + ("---|" if c.oracle else ""),
         ]
         for task in c.tasks:
             ceiling = np.mean(
@@ -386,12 +419,18 @@ def report_markdown(
                 lines.append(
                     f"| {task} | {learner} | {_pm(n, c.seeds)} | {_pm(k, c.seeds)} | "
                     f"{k.mean - n.mean:+.3f} | {verdict(n, k)} | "
-                    f"{n.direct:.3f} → {k.direct:.3f} | "
+                    + (
+                        f"{_pm(table[(set_name, task, learner, 'truth')], c.seeds)} | "
+                        if c.oracle
+                        else ""
+                    )
+                    + f"{n.direct:.3f} → {k.direct:.3f} | "
                     f"{1e3 * n.shape_loss:.1f} → {1e3 * k.shape_loss:.1f} | "
                     f"{1e3 * n.shape_distance:.1f} → {1e3 * k.shape_distance:.1f} | "
                     f"{n.utility:.3f} → {k.utility:.3f} |"
                 )
-            lines.append(f"| {task} | *best raw demo (ceiling)* | {ceiling:.3f} | | | | | | | |")
+            blanks = "| " * (8 + c.oracle)
+            lines.append(f"| {task} | *best raw demo (ceiling)* | {ceiling:.3f} {blanks}|")
         lines.append("")
     lines += _paper_section(run, table) + _verdict_section(run, table) + _timing_section(run, table)
     lines += [
@@ -478,6 +517,15 @@ def _verdict_section(run: ReproduceRun, table: dict) -> list[str]:
     direct_better = sum(
         1 for key in keys if table[(*key, "cleaned")].direct > table[(*key, "noisy")].direct
     )
+    if run.config.oracle:
+        truth_gain = [table[(*key, "truth")].mean - table[(*key, "noisy")].mean for key in keys]
+        clean_gain = [table[(*key, "cleaned")].mean - table[(*key, "noisy")].mean for key in keys]
+        lines += [
+            f"- Trained on the ground truth, R̄ beats noisy by {np.mean(truth_gain):+.3f} on "
+            f"average (max {np.max(truth_gain):+.3f}); cleaned beats noisy by "
+            f"{np.mean(clean_gain):+.3f}: the room cleaning has under this protocol, and how "
+            "much of it the cleaner takes."
+        ]
     lines += [
         f"- Phase-free shape distance lower on cleaned demos in {shape_better} of {len(keys)} "
         f"cells; L4 lower in {l4_better}; R̄ paper (best frame) higher in {direct_better}.",
@@ -540,6 +588,7 @@ __all__ = [
     "results_json",
     "run_job",
     "run_reproduce",
+    "truth_demos",
     "verdict",
     "write_outputs",
 ]

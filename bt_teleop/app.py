@@ -23,8 +23,10 @@ from __future__ import annotations
 import concurrent.futures
 import logging
 import secrets
+import signal
 import threading
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -110,6 +112,11 @@ class TeleopApp:
         """Start the server, Rerun (per options) and the shared services."""
         self.options = options
         options.recordings.mkdir(parents=True, exist_ok=True)
+        # A tab's worker may publish once more between its socket closing and its close():
+        # viser warns about every such message; they are expected and harmless.
+        warnings.filterwarnings(
+            "ignore", message=r"Queued a \w+ on a closed connection", category=UserWarning
+        )
         self._lock = threading.Lock()
         self._uis: dict[int, ClientUI] = {}
         self._pending: set[int] = set()  # tabs being set up (they hold a slot)
@@ -168,6 +175,11 @@ class TeleopApp:
         """The tabs with a session, by viser client id."""
         with self._lock:
             return dict(self._uis)
+
+    def settled(self) -> bool:
+        """Whether no tab is being set up or closed (its files are final)."""
+        with self._lock:
+            return not self._pending and not self._closing
 
     def wait_for_sessions(self, n: int, timeout_s: float = 30.0) -> dict[int, ClientUI]:
         """Wait until `n` tabs have a session (tests); the tabs.
@@ -257,6 +269,11 @@ def start_app(options: AppOptions | None = None) -> TeleopApp:
 
 def serve(options: AppOptions | None = None) -> None:
     """Run the app until Ctrl-C, printing its address; then close every session cleanly."""
+    if threading.current_thread() is threading.main_thread():
+        # Ctrl-C and `kill` both stop the app cleanly (a background job may start with SIGINT
+        # ignored; SIGTERM would otherwise end the process without settling recordings).
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, _interrupt)
     app = start_app(options)
     print(f"bt teleop: open {app.url}", flush=True)
     if app.rerun.viewer_url is not None:
@@ -269,6 +286,10 @@ def serve(options: AppOptions | None = None) -> None:
         print("bt teleop: stopping; recordings in progress are settled", flush=True)
     finally:
         app.stop()
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 __all__ = ["AppOptions", "TeleopApp", "serve", "start_app"]

@@ -219,6 +219,9 @@ def test_a_single_demo_is_passed_through(data: dict[str, Any]) -> None:
         ({"weights": (0.5, 0.5, 0.5, 0.5)}, "weights"),
         ({"mi_term": "max"}, "mi_term"),
         ({"patience": -1}, "patience"),
+        ({"lr": "fast"}, "lr"),
+        ({"seed": -1}, "seed"),
+        ({"mi_every": 0}, "mi_every"),
     ],
 )
 def test_config_validation(kwargs: dict[str, Any], match: str) -> None:

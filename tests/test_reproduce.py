@@ -7,17 +7,21 @@ import math
 from pathlib import Path
 
 import matplotlib.image
+import numpy as np
 import pytest
 
 from bt_pipeline.cli import main
+from bt_pipeline.demo import demos_from_recording
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.reproduce import (
     PAPER_ILEED_D1_GAIN,
     Cell,
     ReproduceConfig,
     reproduce,
+    truth_demos,
     verdict,
 )
+from bt_pipeline.synth import make_d1
 from bt_pipeline.tasks import TASKS
 
 TINY = ReproduceConfig(
@@ -28,6 +32,7 @@ TINY = ReproduceConfig(
     steps=10,
     clean_epochs=2,
     seeds=2,
+    oracle=True,
 )
 """The code path of ``bt reproduce`` with almost no training (plumbing, report format)."""
 
@@ -49,9 +54,10 @@ def test_tiny_run_writes_every_output(tiny_run) -> None:
 def test_results_json_has_every_row_of_every_seed(tiny_run) -> None:
     document = json.loads((tiny_run / "results.json").read_text())
     rows = document["results"]
-    assert len(rows) == 2 * 2 * 2  # seeds × learners × datasets
+    assert len(rows) == 2 * 2 * 3  # seeds × learners × datasets (noisy, cleaned, truth)
+    datasets = ("noisy", "cleaned", "truth")
     assert {(r["seed"], r["learner"], r["dataset"]) for r in rows} == {
-        (s, lr, d) for s in (0, 1) for lr in ("bc", "ileed") for d in ("noisy", "cleaned")
+        (s, lr, d) for s in (0, 1) for lr in ("bc", "ileed") for d in datasets
     }
     for row in rows:
         assert row["set"] == "D1" and row["task"] == "wiping" and row["finite"]
@@ -68,6 +74,7 @@ def test_report_has_tables_the_paper_side_by_side_and_a_verdict(tiny_run) -> Non
     assert f"| wiping | {PAPER_ILEED_D1_GAIN['wiping']:+.3f} |" in report
     assert "## Where cleaned beats noisy, and where it does not" in report
     assert "Of 2 (set, task, learner) cells" in report
+    assert "R̄ truth" in report and "Trained on the ground truth" in report
     assert "![Fig. 11-style rewards](rewards.png)" in report
 
 
@@ -115,3 +122,22 @@ def test_bt_reproduce_quick_end_to_end(tmp_path, capsys) -> None:
         for set_name in ("D1", "D2"):
             assert (tmp_path / f"{set_name}.{task}.rollouts.png").stat().st_size > 20_000
     assert "Of 24 (set, task, learner) cells" in report
+
+
+def test_truth_demos_trace_the_true_loops_from_each_demos_start() -> None:
+    synth = make_d1("pick_and_place", 0)
+    demos = demos_from_recording(synth.recording, n_samples=120)
+    truths = [d.truth for d in synth.demos]
+    for demo, truth, oracle in zip(demos, truths, truth_demos(demos, truths), strict=True):
+        assert oracle.n_samples == 120 and oracle.demonstrator == demo.demonstrator
+        closed = np.concatenate([truth, truth[:1]])
+        u, dense = np.linspace(0, 1, len(closed)), np.linspace(0, 1, 20 * len(closed))
+        polyline = np.stack([np.interp(dense, u, closed[:, j]) for j in range(2)], axis=1)
+        off = np.min(np.linalg.norm(oracle.positions[:, None] - polyline[None], axis=2), axis=1)
+        assert off.max() < 1e-4  # on the true loop
+        length = np.sum(np.linalg.norm(np.diff(closed, axis=0), axis=1))
+        walked = np.sum(np.linalg.norm(np.diff(oracle.positions, axis=0), axis=1))
+        assert walked == pytest.approx(length, rel=0.02)  # all of it, once
+        np.testing.assert_allclose(oracle.positions[0], oracle.positions[-1])  # one period
+        gap = np.linalg.norm(oracle.positions[0] - demo.positions[0])
+        assert gap <= np.min(np.linalg.norm(truth - demo.positions[0], axis=1)) + 1e-12

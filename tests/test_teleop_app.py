@@ -207,7 +207,7 @@ def test_a_closed_tab_saves_its_recording_flagged_incomplete(make_app, tabs) -> 
     ui.record_button.value = True
     wait_until(lambda: ui.session.status().n_samples >= 40, what="samples")
     tab.close()
-    wait_until(lambda: not app.sessions(), what="the session to end")
+    wait_until(lambda: not app.sessions() and app.settled(), what="the session to end")
     (path,) = ui.saved
     demo = read_recording(path).demos["demo_0"]
     assert demo.ep_meta["incomplete"] is True and demo.num_samples >= 40
@@ -221,7 +221,7 @@ def test_a_closed_tab_discards_its_recording_when_configured(make_app, tabs) -> 
     ui.record_button.value = True
     wait_until(lambda: ui.session.status().n_samples >= 40, what="samples")
     tab.close()
-    wait_until(lambda: not app.sessions(), what="the session to end")
+    wait_until(lambda: not app.sessions() and app.settled(), what="the session to end")
     assert ui.saved == [] and not list(app.options.recordings.rglob("*.hdf5"))
 
 
@@ -292,8 +292,9 @@ def test_clean_runs_in_a_process_and_writes_outside_the_raw_folder(three_recordi
     progress = job.wait(240.0)
     runner.close()
     assert progress.state == "done", progress.message
-    assert progress.output == cleaned_path(three_recordings, "wiping")
-    cleaned = read_recording(progress.output)
+    output = progress.output
+    assert output is not None and output == cleaned_path(three_recordings, "wiping")
+    cleaned = read_recording(output)
     assert len(cleaned.demos) == 3 and job.result is not None
     library = load_library(three_recordings, "wiping")
     assert len(library.raw) == 3 and len(library.cleaned) == 3  # cleaned file is not raw input
@@ -385,7 +386,7 @@ def test_rerun_save_mode_writes_a_session_rrd(make_app, tabs) -> None:
     record(ui, 0.5)
     wait_until(lambda: ui.frames > 10, what="frames")
     tab.close()
-    wait_until(lambda: not app.sessions(), what="the session to end")
+    wait_until(lambda: not app.sessions() and app.settled(), what="the session to end")
     (rrd,) = (app.options.recordings / "rerun").glob("*.rrd")
     paths = {chunk.entity_path for chunk in RrdReader(rrd).stream().to_chunks()}
     assert {"/ee/position", "/joints"} <= paths
@@ -413,7 +414,11 @@ def test_session_logger_drops_instead_of_blocking() -> None:
     rec.memory_recording()
     logger = SessionLogger(rec, queue_size=1)
     release = threading.Event()
-    logger._submit(lambda _: release.wait(10.0))  # occupies the worker
+
+    def block(_: object) -> None:
+        release.wait(10.0)
+
+    logger._submit(block)  # occupies the worker
     wait_until(lambda: logger._queue.empty(), what="the worker to take the job")
     for k in range(5):  # one fits in the queue; the rest are dropped, not waited for
         logger.log_demo(f"d{k}", np.zeros((4, 3)))
