@@ -82,26 +82,31 @@ def main() -> None:
     baseline_fn = train_fn("bc", sets[4], quick=True)
 
     print(f"Training time, median of {args.repeats} (wall [s] / CPU [s] / wall ÷ baseline)\n")
-    print("| learner | preset | M = 4 | M = 20 | evaluation share [s] |")
+    print("| learner | preset | M = 4 | M = 20 | evaluation share, wall / CPU [s] |")
     print("|---|---|---|---|---|")
     totals: dict[str, float] = {}
+    totals_cpu: dict[str, float] = {}
     rollout_s: dict[str, float] = {}
     for name in args.learners:
         for preset in args.presets:
             quick = preset == "quick"
-            cells, share = [], 0.0
+            cells, share, share_cpu = [], 0.0, 0.0
             for data in sets.values():
                 baseline, _ = median_times(baseline_fn, 1)
                 wall, cpu = median_times(train_fn(name, data, quick), args.repeats)
                 cells.append(f"{wall:.2f} / {cpu:.2f} / {wall / baseline:.1f}×")
                 share += TRAININGS_PER_SIZE * wall
+                share_cpu += TRAININGS_PER_SIZE * cpu
             trained = train_learner(name, *sets[4], learner_config(name, quick=quick))
             x0 = np.repeat(sets[4][0][:, 0], N_ROLLOUTS // 4 + 1, axis=0)[:N_ROLLOUTS]
-            roll, _ = median_times(lambda p=trained.policy, x=x0: p.rollout(x, N_SAMPLES), 3)
+            roll, roll_cpu = median_times(lambda p=trained.policy, x=x0: p.rollout(x, N_SAMPLES), 3)
             rollout_s[name] = roll
             share += 2 * TRAININGS_PER_SIZE * roll
+            share_cpu += 2 * TRAININGS_PER_SIZE * roll_cpu
             totals[preset] = totals.get(preset, 0.0) + share
-            print(f"| {name} | {preset} | {cells[0]} | {cells[1]} | {share:.0f} |", flush=True)
+            totals_cpu[preset] = totals_cpu.get(preset, 0.0) + share_cpu
+            row = f"| {name} | {preset} | {cells[0]} | {cells[1]} | {share:.0f} / {share_cpu:.0f} |"
+            print(row, flush=True)
     print(f"\nBaseline (BC, quick, M = 4): {median_times(baseline_fn, 3)[0]:.2f} s wall\n")
     print(f"{N_ROLLOUTS} rollouts of N = {N_SAMPLES} (wall, median of 3)\n")
     print("| learner | rollouts [ms] |")
@@ -110,7 +115,8 @@ def main() -> None:
         print(f"| {name} | {1e3 * seconds:.0f} |")
     print("\nProjected learner time of the evaluation (3 tasks × noisy/cleaned × D1 + D2):")
     for preset, seconds in totals.items():
-        print(f"- {preset}: {seconds:.0f} s ({seconds / 60:.1f} min)")
+        cpu = totals_cpu[preset]
+        print(f"- {preset}: {seconds:.0f} s wall ({seconds / 60:.1f} min), {cpu:.0f} s CPU")
 
     if args.threads:
         print("\nThreads (full preset, M = 20, wall [s])\n")

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from bt_pipeline.alignment import shape_loss
 from bt_pipeline.canonical import Stage1Result, run_stage1
@@ -142,6 +143,9 @@ class RolloutMetrics:
     """L4 (Eq. 9, best circular shift and direction) to the nearest aligned reference [m]."""
     shape_distances: FloatArray
     """Phase-free (Chamfer) distance to the nearest aligned reference [m]."""
+    coverage: FloatArray
+    """Share of the nearest reference loop the rollout passes within V_E's bandwidth h, in
+    [0, 1]: low for a rollout that stalls or draws part of the loop (which R̄ alone rewards)."""
     utilities: FloatArray
     """Ũ (Eq. 8), in [0, 1]."""
     nearest: np.ndarray
@@ -202,6 +206,7 @@ class LearnerEval:
             "reward_nearest_std": _std(m.rewards_nearest),
             "shape_distance": _mean(m.shape_distances),
             "shape_distance_std": _std(m.shape_distances),
+            "coverage": _mean(m.coverage),
             "rollouts": int(self.rollouts.shape[0]),
             "train_seconds": self.train_seconds,
             "final_loss": self.final_loss,
@@ -261,7 +266,7 @@ def rollout_metrics(
     times = np.linspace(0.0, 1.0, n)
     references = {i: _resampled(stage1.aligned[i], n) for i in yardstick.representatives}
     columns: dict[str, list[float]] = {
-        k: [] for k in ("direct", "nearest", "l4", "chamfer", "utility", "index")
+        k: [] for k in ("direct", "nearest", "l4", "chamfer", "coverage", "utility", "index")
     }
     for rollout in rollouts:
         # The demonstrator whose loop this rollout draws: phase-free, so timing cannot pick it.
@@ -287,6 +292,8 @@ def rollout_metrics(
         columns["nearest"].append(value_map.mean_reward(stage1.to_best_frame(j, rollout)))
         columns["l4"].append(l4)
         columns["chamfer"].append(distances[j])
+        gaps, _ = cKDTree(rollout).query(references[j])
+        columns["coverage"].append(float(np.mean(gaps <= value_map.bandwidth)))
         columns["utility"].append(float(utility[0]))
         columns["index"].append(j)
     direct, nearest = np.array(columns["direct"]), np.array(columns["nearest"])
@@ -296,6 +303,7 @@ def rollout_metrics(
         rewards_nearest=nearest,
         shape_losses=np.array(columns["l4"]),
         shape_distances=np.array(columns["chamfer"]),
+        coverage=np.array(columns["coverage"]),
         utilities=np.array(columns["utility"]),
         nearest=np.array(columns["index"], dtype=np.int64),
     )

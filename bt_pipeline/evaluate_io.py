@@ -155,7 +155,7 @@ def print_eval_table(evaluations: Sequence[TaskEvaluation], console: Console | N
     )
     for column in ("task", "learner", "dataset"):
         table.add_column(column)
-    for column in ("R̄", "Δ R̄", "R̄ paper", "L4 [mm]", "shape [mm]", "Ũ", "train [s]"):
+    for column in ("R̄", "Δ R̄", "R̄ paper", "cover", "L4 [mm]", "shape [mm]", "Ũ", "train [s]"):
         table.add_column(column, justify="right")
     for evaluation in evaluations:
         for learner in evaluation.learners:
@@ -172,6 +172,7 @@ def print_eval_table(evaluations: Sequence[TaskEvaluation], console: Console | N
                     f"{np.mean(m.rewards):.3f} ± {np.std(m.rewards):.3f}",
                     "" if dataset == "noisy" else f"[{style}]{delta:+.3f}[/]",
                     f"{np.mean(m.rewards_direct):.3f}",
+                    f"{np.mean(m.coverage):.2f}",
                     f"{1e3 * np.mean(m.shape_losses):.1f} ± {1e3 * np.std(m.shape_losses):.1f}",
                     f"{1e3 * np.mean(m.shape_distances):.1f}",
                     f"{np.mean(m.utilities):.3f}",
@@ -183,7 +184,8 @@ def print_eval_table(evaluations: Sequence[TaskEvaluation], console: Console | N
         "R̄: mean V_E reward (Eq. 11 / N) in the nearest demonstrator's frame; R̄ paper: V_E read "
         "directly (best demonstrator's frame); ceiling (best raw demo): "
         + ", ".join(f"{e.task} {e.yardstick.ceiling:.3f}" for e in evaluations)
-        + ". L4: Eq. 9 to the nearest aligned reference; shape: phase-free distance to it."
+        + ". cover: share of that demonstrator's reference loop the rollout passes within V_E's "
+        "bandwidth. L4: Eq. 9 to the nearest aligned reference; shape: phase-free distance to it."
     )
 
 

@@ -47,7 +47,7 @@ MiTerm = Literal["loss", "floor", "off"]
 """How I(S; A) enters the loss: the KL stand-in as is (paper), capped at the demo's own raw
 value so only a loss of information is penalised, or not at all."""
 
-_PRESETS: dict[str, dict[str, object]] = {
+_PRESETS: dict[str, dict[str, Any]] = {
     "default": {
         "epochs": 30,
         "lr": 1e-2,
@@ -217,7 +217,7 @@ class RefineConfig:
             for f in fields(self)
         }
         values["weights"] = tuple(float(v) for v in self.weights)
-        return RefineSettings(**values)  # type: ignore[arg-type]  # preset values are typed above
+        return RefineSettings(**values)
 
 
 def _is_real(value: object) -> bool:
@@ -375,18 +375,12 @@ def refine_demos(
         features = _features(x, ref, centre, scale, settings.condition_on_reference)
         features_t = torch.as_tensor(features[refine_mask], dtype=dtype)
         model = _Refiner(features_t.shape[-1], settings)
-        groups: list[dict[str, Any]] = [
-            {"params": [*model.lstm.parameters(), *model.head.parameters()]}
+        groups: list[tuple[list[torch.Tensor], float]] = [
+            ([*model.lstm.parameters(), *model.head.parameters()], settings.lr)
         ]
         if model.skip is not None:
-            lr = settings.lr * settings.skip_lr_scale
-            groups.append({"params": model.skip.parameters(), "lr": lr})
-        optimiser = torch.optim.Adam(groups, lr=settings.lr)
-        scheduler = (
-            torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, settings.epochs)
-            if settings.cosine_lr
-            else None
-        )
+            groups.append((list(model.skip.parameters()), settings.lr * settings.skip_lr_scale))
+        optimiser = _Adam(groups)
         objective = _Objective(
             normaliser, settings, x_t, ref_t, theta_t, torch.as_tensor(x, dtype=dtype), refine_mask
         )
@@ -397,11 +391,11 @@ def refine_demos(
             with_mi = (epoch - 1) % settings.mi_every == 0
             betas_t = torch.as_tensor(betas[refine_mask], dtype=dtype)
             loss = objective(x_t + delta, betas_t, with_mi)
-            optimiser.zero_grad(set_to_none=True)
+            model.zero_grad(set_to_none=True)
             loss.backward()
-            optimiser.step()
-            if scheduler is not None:
-                scheduler.step()
+            # Cosine annealing to 0 over the epoch budget, or a constant rate.
+            anneal = 0.5 * (1.0 + math.cos(math.pi * (epoch - 1) / settings.epochs))
+            optimiser.step(anneal if settings.cosine_lr else 1.0)
 
             output = x.copy()
             output[refine_mask] += delta.detach().numpy().astype(np.float64)
@@ -516,6 +510,45 @@ class _Objective:
         if mode == "floor":  # no reward above the demo's own raw MI: only a loss is penalised
             current = torch.minimum(current, self.mi_raw)
         return current.clamp_max(1.0) if self.settings.clamp_scores else current
+
+
+class _Adam:
+    """Adam (Kingma and Ba 2015) as torch.optim.Adam computes it, without its import cost.
+
+    torch.optim's first optimiser imports torch._dynamo, which takes seconds: more than a whole
+    D1 refinement.
+    """
+
+    def __init__(
+        self,
+        groups: list[tuple[list[torch.Tensor], float]],
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-8,
+    ) -> None:
+        self.groups = groups
+        self.beta1, self.beta2 = betas
+        self.eps = eps
+        self.steps = 0
+        self.moments = [
+            [(torch.zeros_like(p), torch.zeros_like(p)) for p in params] for params, _ in groups
+        ]
+
+    @torch.no_grad()
+    def step(self, lr_factor: float = 1.0) -> None:
+        """One update of every parameter with a gradient, at `lr_factor` times each group's rate."""
+        self.steps += 1
+        correction1 = 1.0 - self.beta1**self.steps
+        correction2_sqrt = math.sqrt(1.0 - self.beta2**self.steps)
+        for (params, lr), moments in zip(self.groups, self.moments, strict=True):
+            step_size = lr * lr_factor / correction1
+            for p, (mean, square) in zip(params, moments, strict=True):
+                if p.grad is None:
+                    continue
+                mean.mul_(self.beta1).add_(p.grad, alpha=1.0 - self.beta1)
+                square.mul_(self.beta2).addcmul_(p.grad, p.grad, value=1.0 - self.beta2)
+                p.addcdiv_(
+                    mean, (square.sqrt() / correction2_sqrt).add_(self.eps), value=-step_size
+                )
 
 
 def _features(

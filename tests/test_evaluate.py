@@ -218,6 +218,16 @@ def test_a_displaced_loop_scores_lower(wiping_yardstick) -> None:
     assert metrics.utilities[1] < metrics.utilities[0]
 
 
+def test_coverage_exposes_a_rollout_that_stalls_on_the_ridge(wiping_yardstick) -> None:
+    _, yardstick = wiping_yardstick
+    loop = yardstick.stage1.aligned[yardstick.stage1.best_index]
+    peak = loop[int(np.argmax(yardstick.stage1.value_map(loop)))]
+    stalled = np.repeat(peak[None, None], loop.shape[0], axis=1)
+    metrics = rollout_metrics(np.stack([loop, stalled[0]]), yardstick)
+    assert metrics.coverage[0] == 1.0 and metrics.coverage[1] < 0.2
+    assert metrics.rewards[1] > metrics.rewards[0]  # Eq. 11 alone prefers standing still
+
+
 def test_initial_states_are_seeded_and_near_demo_starts(wiping_yardstick) -> None:
     demos, _ = wiping_yardstick
     a, b = (initial_states(demos, 40, 0.005, seed=3) for _ in range(2))

@@ -49,7 +49,8 @@ def test_uniform_random_model_also_trains() -> None:
     config = learner_config("ileed", quick=True, random_model="uniform", steps=50)
     trained = train_learner("ileed", demos, who, config)
     assert np.all(np.isfinite(trained.loss_history))
-    assert all(0.0 < v < 1.0 or v == 1.0 for v in trained.expertise.values())
+    assert set(trained.expertise) == {"clean", "noisy"}
+    assert all(0.0 <= v <= 1.0 for v in trained.expertise.values())
 
 
 def test_demonstrator_ids_group_equal_names_in_order_of_first_appearance() -> None:

@@ -7,15 +7,17 @@ from typing import Any
 
 import numpy as np
 import pytest
+import torch
 from scipy.spatial import KDTree
 
 from bt_pipeline.distance import distance_to_truth
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
-from bt_pipeline.refine import (
+from bt_pipeline.refine import (  # _Adam: refine's own Adam, checked against torch's
     EpochStats,
     RefineConfig,
     RefineResult,
+    _Adam,
     refine_demos,
     refine_normaliser,
     update_beta,
@@ -255,3 +257,23 @@ def test_refine_normaliser_adds_the_shape_column() -> None:
     assert extended.affine("shape") == pytest.approx((0.01, 50.0))
     with pytest.raises(DemoError, match="shape_losses"):
         refine_normaliser(base, [np.nan, 1.0])
+
+
+def test_adam_matches_torch_optim_with_cosine_annealing() -> None:
+    torch.manual_seed(0)
+    target = torch.randn(5, 3)
+    mine = [torch.zeros(5, 3, requires_grad=True), torch.ones(3, requires_grad=True)]
+    theirs = [p.detach().clone().requires_grad_(True) for p in mine]
+    adam = _Adam([(mine[:1], 0.1), (mine[1:], 0.5)])
+    reference = torch.optim.Adam([{"params": theirs[:1]}, {"params": theirs[1:], "lr": 0.5}], 0.1)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(reference, 8)
+    for epoch in range(1, 9):
+        for params in (mine, theirs):
+            for p in params:
+                p.grad = None
+            ((params[0] * params[1] - target) ** 2).sum().backward()
+        adam.step(0.5 * (1.0 + np.cos(np.pi * (epoch - 1) / 8)))
+        reference.step()
+        schedule.step()
+    for a, b in zip(mine, theirs, strict=True):
+        torch.testing.assert_close(a, b)

@@ -74,12 +74,24 @@ def test_report_has_tables_the_paper_side_by_side_and_a_verdict(tiny_run) -> Non
     assert f"| wiping | {PAPER_ILEED_D1_GAIN['wiping']:+.3f} |" in report
     assert "## Where cleaned beats noisy, and where it does not" in report
     assert "Of 2 (set, task, learner) cells" in report
-    assert "R̄ truth" in report and "Trained on the ground truth" in report
+    assert "R̄ truth" in report and "with the truth" in report
     assert "![Fig. 11-style rewards](rewards.png)" in report
 
 
 def _cell(mean: float, std: float, count: int = 50) -> Cell:
-    return Cell(mean, std, 0.0, mean, 0.01, 0.01, 0.5, count, 1.0, True)
+    return Cell(
+        mean=mean,
+        std=std,
+        seed_std=0.0,
+        direct=mean,
+        shape_loss=0.01,
+        shape_distance=0.01,
+        coverage=1.0,
+        utility=0.5,
+        count=count,
+        train_seconds=1.0,
+        finite=True,
+    )
 
 
 def test_verdict_needs_two_standard_errors() -> None:

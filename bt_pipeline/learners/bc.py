@@ -46,7 +46,7 @@ class BCConfig(TrainConfig):
     @classmethod
     def quick(cls, **overrides: Any) -> BCConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=300, lr=5e-3, batch_size=256), **overrides)
+        return replace(cls(steps=200, lr=5e-3, batch_size=256), **overrides)
 
 
 def train_bc(demos: ArrayLike, config: BCConfig | None = None) -> TrainedLearner:

@@ -108,7 +108,7 @@ class ILEEDConfig(TrainConfig):
     @classmethod
     def quick(cls, **overrides: Any) -> ILEEDConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=300, lr=5e-3, embedding_lr=2e-2, batch_size=256), **overrides)
+        return replace(cls(steps=200, lr=5e-3, embedding_lr=2e-2, batch_size=256), **overrides)
 
 
 class _ILEEDModel(nn.Module):

@@ -66,7 +66,7 @@ class TrajBCConfig(TrainConfig):
     @classmethod
     def quick(cls, **overrides: Any) -> TrajBCConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=150, lr=5e-3), **overrides)
+        return replace(cls(steps=100, lr=5e-3), **overrides)
 
     def horizon_at(self, step: int) -> int:
         """H of optimiser step `step` (the curriculum)."""
