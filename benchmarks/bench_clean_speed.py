@@ -70,7 +70,9 @@ def main() -> None:
             f"{split.get(key, 0.0):.2f}"
             for key in ("read", "score", "stage1", "stage2", "metrics", "write")
         )
-        print(f"| {m} | {variant} | {median:.2f} | {parts} | {median / m:.3f} | {median / base:.2f} |")
+        print(
+            f"| {m} | {variant} | {median:.2f} | {parts} | {median / m:.3f} | {median / base:.2f} |"
+        )
 
 
 if __name__ == "__main__":

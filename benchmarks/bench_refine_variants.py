@@ -163,9 +163,7 @@ def _summary(rows: list[Row]) -> None:
         )
 
 
-def time_sizes(
-    config: RefineConfig, sizes: list[int], repeats: int, task: Task = "wiping"
-) -> None:
+def time_sizes(config: RefineConfig, sizes: list[int], repeats: int, task: Task = "wiping") -> None:
     """Median wall time of scoring, Stage 1 and Stage 2 for M demos, and growth against M = 4."""
     print(f"\ntiming {config.variant} on {task} (median of {repeats}; scoring and Stage 1 once):")
     base = None

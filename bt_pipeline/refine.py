@@ -10,11 +10,15 @@ Data flow, one task, all refined demos in one batch per epoch::
         ──► Ũ_i = (1 - β_i) Ĩ_i + β_i Σ_j w_j (1 - L̃_j)  (Eq. 8) ──► loss -mean_i Ũ_i ──► Adam
         ──► R̄_i = reward_fn(x̂) (mean V_E, Eq. 11) ──► β_i ← clip(β_i + η tanh(γ ΔR̄_i), 0, 1)
 
-Two variants share this loop: ``"paper"`` is the
-paper's configuration as written (MI stand-in in the loss, unclamped scores, γ = 5 at full rate,
-lr 1e-3, 300 epochs, every demo refined, the LSTM sees the demo only); ``"default"`` keeps that
-structure but is built to make demos measurably closer to their true shape, fast
-(docs/algorithms.md §8 lists the traps it avoids).
+Two variants share this loop. ``"paper"`` is the paper's configuration as written: the LSTM sees
+the demo only, the MI stand-in I_KL is maximised in the loss, normalised scores are unbounded,
+β takes the full step with γ = 5, Adam at 1e-3 for 300 epochs, every demo refined.
+``"default"`` keeps that structure and answers each trap measured on it (docs/algorithms.md §8):
+the network also sees the pull x_i^aligned - x_i, which a 2x2 linear map adds to Δ (trap 4,
+slow convergence: 30 epochs instead of 1000); L̃1-L̃3 earn nothing below the best raw demo's or
+the reference's own value (trap 3, tiny ranges); I_KL is only a floor at the demo's own raw
+value, checked every 5th epoch (trap 1, gamed MI); β moves at η_β = 0.1 (trap 2, swings); the
+best demo is passed through (trap 5); the learning rate is annealed on a cosine.
 """
 
 from __future__ import annotations
@@ -430,6 +434,8 @@ def refine_normaliser(normaliser: Normaliser, shape_losses: ArrayLike) -> Normal
     Returns:
         A normaliser with the extra column ``"shape"``.
     """
+    if "shape" in normaliser.names:
+        raise ConfigError(f"the normaliser already has a shape column: {normaliser.names}")
     values = np.asarray(shape_losses, dtype=np.float64)
     if values.ndim != 1 or values.size == 0 or not np.all(np.isfinite(values)):
         raise DemoError(f"shape_losses must be finite with shape (M,); got {values.shape}")

@@ -257,6 +257,8 @@ def test_refine_normaliser_adds_the_shape_column() -> None:
     assert extended.affine("shape") == pytest.approx((0.01, 50.0))
     with pytest.raises(DemoError, match="shape_losses"):
         refine_normaliser(base, [np.nan, 1.0])
+    with pytest.raises(ConfigError, match="shape column"):
+        refine_normaliser(extended, [0.01, 0.03])
 
 
 def test_adam_matches_torch_optim_with_cosine_annealing() -> None:

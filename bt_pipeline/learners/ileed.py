@@ -89,8 +89,8 @@ class ILEEDConfig(TrainConfig):
     max_action_std: float = 10.0
     """Cap of a learned σ_a, in standardised velocity units."""
     random_model: RandomModel = "gaussian"
-    """The random-action density: uniform on the observed velocity box, or N(μ_v, Σ_v) of all
-    observed velocities (N(0, I) in standardised units)."""
+    """The random-action density: uniform on the observed velocity box, or N(μ_v, diag s_v²) of
+    all observed velocities (N(0, I) in standardised units)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -99,10 +99,14 @@ class ILEEDConfig(TrainConfig):
                 raise ConfigError(f"{name} must be >= 1; got {getattr(self, name)}")
         if not self.embedding_lr > 0.0:
             raise ConfigError(f"embedding_lr must be > 0; got {self.embedding_lr}")
-        if not 0.0 < self.min_action_std <= self.action_std:
+        if not 0.0 < self.min_action_std <= self.action_std <= self.max_action_std:
             raise ConfigError(
-                "need 0 < min_action_std <= action_std; got "
-                f"min_action_std={self.min_action_std}, action_std={self.action_std}"
+                "need 0 < min_action_std <= action_std <= max_action_std; got "
+                f"{self.min_action_std}, {self.action_std}, {self.max_action_std}"
+            )
+        if self.random_model not in ("uniform", "gaussian"):
+            raise ConfigError(
+                f"random_model must be 'uniform' or 'gaussian'; got {self.random_model!r}"
             )
 
     @classmethod
@@ -124,7 +128,6 @@ class _ILEEDModel(nn.Module):
         )
         self.min_log_std = math.log(config.min_action_std)
         self.max_log_std = math.log(config.max_action_std)
-        self.random_model = config.random_model
 
     def competence_logit(self, states: torch.Tensor, who: torch.Tensor) -> torch.Tensor:
         """⟨f_θ(s), ω_i⟩, shape (B,), for states (B, 2) of demonstrators `who` (B,)."""
@@ -135,17 +138,15 @@ class _ILEEDModel(nn.Module):
         states: torch.Tensor,
         actions: torch.Tensor,
         who: torch.Tensor,
-        log_uniform: float | torch.Tensor,
+        log_random: torch.Tensor,
     ) -> torch.Tensor:
-        """log p_i(a | s) of the mixture, shape (B,)."""
+        """log p_i(a | s) of the mixture, shape (B,), given log p_rand(a) (B,)."""
         log_std = self.log_std.clamp(min=self.min_log_std, max=self.max_log_std)
         residual = (actions - self.policy(states)) / log_std.exp()
         log_gauss = -0.5 * residual.pow(2).sum(-1) - log_std.sum() - math.log(2.0 * math.pi)
         logit = self.competence_logit(states, who)
-        if self.random_model == "gaussian":
-            log_uniform = -0.5 * actions.pow(2).sum(-1) - math.log(2.0 * math.pi)
         return torch.logaddexp(
-            functional.logsigmoid(logit) + log_gauss, functional.logsigmoid(-logit) + log_uniform
+            functional.logsigmoid(logit) + log_gauss, functional.logsigmoid(-logit) + log_random
         )
 
 
@@ -164,6 +165,14 @@ def demonstrator_ids(
         raise ConfigError(f"need one demonstrator name per demo ({n_demos}); got {len(names)}")
     distinct = list(dict.fromkeys(names))
     return distinct, np.array([distinct.index(n) for n in names], dtype=np.int64)
+
+
+def _log_random_density(actions: torch.Tensor, model: RandomModel) -> torch.Tensor:
+    """log p_rand of every standardised action (B, 2), shape (B,)."""
+    if model == "gaussian":  # N(0, I) in standardised units
+        return -0.5 * actions.pow(2).sum(-1) - math.log(2.0 * math.pi)
+    extent = (actions.max(dim=0).values - actions.min(dim=0).values).clamp(min=1e-6)
+    return torch.full((actions.shape[0],), -float(torch.log(extent).sum()))  # 1 / box area
 
 
 def train_ileed(
@@ -193,17 +202,16 @@ def train_ileed(
     states = data.z[:, :-1].reshape(-1, 2)
     actions = data.v.reshape(-1, 2)
     who = torch.as_tensor(np.repeat(demo_who, data.n_samples - 1))
-    extent = (actions.max(dim=0).values - actions.min(dim=0).values).clamp(min=1e-6)
-    log_uniform = -float(torch.log(extent).sum())  # U_box: 1 / area of the observed velocity box
+    log_random = _log_random_density(actions, config.random_model)
     with torch_session(config.seed, config.threads) as generator:
         model = _ILEEDModel(len(names), config)
 
         def loss_fn(_: int) -> torch.Tensor:
             index = sample_indices(generator, states.shape[0], config.batch_size)
             if index is None:
-                return -model.log_likelihood(states, actions, who, log_uniform).mean()
+                return -model.log_likelihood(states, actions, who, log_random).mean()
             return -model.log_likelihood(
-                states[index], actions[index], who[index], log_uniform
+                states[index], actions[index], who[index], log_random[index]
             ).mean()
 
         networks = [*model.policy.parameters(), *model.embedding.parameters()]
