@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from bt_pipeline.alignment import shape_loss
 from bt_pipeline.canonical import Stage1Result, run_stage1
@@ -292,7 +292,7 @@ def rollout_metrics(
         columns["nearest"].append(value_map.mean_reward(stage1.to_best_frame(j, rollout)))
         columns["l4"].append(l4)
         columns["chamfer"].append(distances[j])
-        gaps, _ = cKDTree(rollout).query(references[j])
+        gaps, _ = KDTree(rollout).query(references[j])
         columns["coverage"].append(float(np.mean(gaps <= value_map.bandwidth)))
         columns["utility"].append(float(utility[0]))
         columns["index"].append(j)
