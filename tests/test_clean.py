@@ -1,0 +1,154 @@
+"""The cleaner end to end over files (``bt clean``): outputs, edge cases and bad input."""
+
+from __future__ import annotations
+
+import logging
+
+import h5py
+import numpy as np
+import pytest
+
+from bt_pipeline.clean import CleanOptions, clean_demos
+from bt_pipeline.clean_io import clean_paths
+from bt_pipeline.demo import demos_from_recording
+from bt_pipeline.distance import distance_to_truth
+from bt_pipeline.exceptions import DemoError, RecordingError
+from bt_pipeline.recording import read_recording, write_recording
+from bt_pipeline.records import Recording
+from bt_pipeline.synth import make_d1, make_demo_set
+
+FAST = CleanOptions(epochs=2, progress=False, write_rrd=False)
+CLEANED_ATTRS = {
+    "cleaned_from",
+    "utility_raw",
+    "utility_cleaned",
+    "mutual_information",
+    "loss_symmetry",
+    "loss_closure",
+    "loss_smoothness",
+    "loss_shape",
+    "beta_final",
+}
+
+
+def subset(recording: Recording, names: list[str]) -> Recording:
+    """`recording` with only the demos `names`."""
+    return Recording(
+        task=recording.task,
+        plane=recording.plane,
+        demos={name: recording.demos[name] for name in names},
+        env_args=recording.env_args,
+    )
+
+
+def test_output_is_format_v1_with_the_cleaner_attrs(tmp_path) -> None:
+    source = write_recording(tmp_path / "in.hdf5", make_d1("weaving", 2).recording)
+    (summary,) = clean_paths([source], tmp_path / "out", FAST)
+    cleaned = read_recording(summary.output)
+    assert summary.output == tmp_path / "out" / "weaving.cleaned.hdf5"
+    assert list(cleaned.demos) == ["demo_0", "demo_1", "demo_2", "demo_3"]
+    assert cleaned.attrs["best_file"] == str(source)
+    assert cleaned.attrs["best_demo"] == summary.best_demo
+    for name, demo in cleaned.demos.items():
+        assert set(demo.attrs) >= CLEANED_ATTRS
+        assert demo.attrs["cleaned_from"] == f"{source}:{name}"
+        assert demo.num_samples == 300
+        # Back in 3-D on the task plane of the input.
+        assert np.allclose(cleaned.plane.to_world(cleaned.plane.to_plane(demo.ee_pos)), demo.ee_pos)
+
+
+def test_cleaning_moves_naive_demos_toward_their_true_shape() -> None:
+    synth = make_d1("wiping", 3)
+    demos = demos_from_recording(synth.recording)
+    result = clean_demos(demos, CleanOptions(progress=False, seed=3))
+    for i, demo in enumerate(synth.demos):
+        before = distance_to_truth(demos[i].positions, demo.truth)
+        after = distance_to_truth(result.positions[i], demo.truth)
+        if demo.is_expert:
+            assert after <= 1.1 * before
+        else:
+            assert after < 0.4 * before, f"{demo.name}: {before * 1e3:.1f} → {after * 1e3:.1f} mm"
+
+
+def test_a_task_with_one_demo_is_cleaned_against_itself(tmp_path) -> None:
+    recording = make_d1("pick_and_place", 0).recording
+    source = write_recording(tmp_path / "one.hdf5", subset(recording, ["demo_1"]))
+    (summary,) = clean_paths([source], tmp_path / "out", FAST)
+    assert len(read_recording(summary.output).demos) == 1
+    assert any("only demo" in note for note in summary.notes)
+
+
+def test_same_demo_names_in_several_files_are_renumbered(tmp_path) -> None:
+    recording = make_d1("wiping", 0).recording
+    files = [
+        write_recording(tmp_path / f"take{k}.hdf5", subset(recording, [name]))
+        for k, name in enumerate(["demo_0", "demo_1", "demo_2"])
+    ]
+    # Each file holds one demo; rename them all demo_0, as the teleop app writes them.
+    for path in files:
+        with h5py.File(path, "r+") as f:
+            (name,) = list(f["data"])
+            if name != "demo_0":
+                f["data"].move(name, "demo_0")
+    (summary,) = clean_paths([tmp_path], tmp_path / "out", FAST)
+    cleaned = read_recording(summary.output)
+    assert list(cleaned.demos) == ["demo_0", "demo_1", "demo_2"]
+    sources = {demo.attrs["cleaned_from"] for demo in cleaned.demos.values()}
+    assert sources == {f"{path}:demo_0" for path in files}
+
+
+def test_a_demo_that_does_not_move_is_named_and_nothing_is_written(tmp_path) -> None:
+    recording = make_d1("wiping", 0).recording
+    record = recording.demos["demo_2"]
+    still = np.repeat(record.ee_pos[:1], record.num_samples, axis=0)
+    demos = dict(recording.demos)
+    demos["demo_2"] = type(record)(**{**record.__dict__, "ee_pos": still, "actions": None})
+    source = write_recording(
+        tmp_path / "still.hdf5", Recording(recording.task, recording.plane, demos)
+    )
+    with pytest.raises(DemoError, match="demo_2 does not move"):
+        clean_paths([source], tmp_path / "out", FAST)
+    assert not (tmp_path / "out").exists()
+
+
+def test_unreadable_files_are_skipped_unless_strict(tmp_path, caplog) -> None:
+    good = write_recording(tmp_path / "good.hdf5", make_d1("wiping", 0).recording)
+    bad = tmp_path / "bad.hdf5"
+    bad.write_bytes(good.read_bytes()[:2000])  # truncated copy
+    with pytest.raises(RecordingError, match=r"bad\.hdf5"):
+        clean_paths(
+            [tmp_path], tmp_path / "strict", CleanOptions(**{**FAST.__dict__, "strict": True})
+        )
+    assert not (tmp_path / "strict").exists()
+    with caplog.at_level(logging.WARNING, logger="bt"):
+        (summary,) = clean_paths([tmp_path], tmp_path / "lenient", FAST)
+    assert "bad.hdf5" in caplog.text
+    assert len(read_recording(summary.output).demos) == 4
+
+
+def test_nan_in_a_recording_is_an_error_naming_it(tmp_path) -> None:
+    path = write_recording(tmp_path / "nan.hdf5", make_d1("wiping", 0).recording)
+    with h5py.File(path, "r+") as f:
+        f["data/demo_1/obs/ee_pos"][5, 0] = np.nan
+    with pytest.raises(RecordingError, match="demo_1"):
+        clean_paths([path], tmp_path / "out", CleanOptions(**{**FAST.__dict__, "strict": True}))
+
+
+def test_an_output_may_not_overwrite_an_input(tmp_path) -> None:
+    path = write_recording(tmp_path / "wiping.cleaned.hdf5", make_d1("wiping", 0).recording)
+    with pytest.raises(Exception, match="also an input"):
+        clean_paths([path], tmp_path, FAST)
+
+
+def test_tasks_are_cleaned_in_parallel_workers(tmp_path) -> None:
+    for task in ("wiping", "weaving"):
+        write_recording(tmp_path / "in" / f"{task}.hdf5", make_demo_set(task, 3, seed=1).recording)
+    options = CleanOptions(**{**FAST.__dict__, "workers": 2})
+    summaries = clean_paths([tmp_path / "in"], tmp_path / "out", options)
+    serial = clean_paths([tmp_path / "in"], tmp_path / "serial", FAST)
+    assert [s.task for s in summaries] == [s.task for s in serial]
+    for parallel_summary, serial_summary in zip(summaries, serial, strict=True):
+        a = read_recording(parallel_summary.output)
+        b = read_recording(serial_summary.output)
+        for name in a.demos:
+            assert np.allclose(a.demos[name].ee_pos, b.demos[name].ee_pos)  # deterministic
