@@ -87,9 +87,11 @@ def test_same_demo_names_in_several_files_are_renumbered(tmp_path) -> None:
     # Each file holds one demo; rename them all demo_0, as the teleop app writes them.
     for path in files:
         with h5py.File(path, "r+") as f:
-            (name,) = list(f["data"])
+            data = f["data"]
+            assert isinstance(data, h5py.Group)
+            (name,) = list(data.keys())
             if name != "demo_0":
-                f["data"].move(name, "demo_0")
+                data.move(name, "demo_0")
     (summary,) = clean_paths([tmp_path], tmp_path / "out", FAST)
     cleaned = read_recording(summary.output)
     assert list(cleaned.demos) == ["demo_0", "demo_1", "demo_2"]
@@ -129,7 +131,9 @@ def test_unreadable_files_are_skipped_unless_strict(tmp_path, caplog) -> None:
 def test_nan_in_a_recording_is_an_error_naming_it(tmp_path) -> None:
     path = write_recording(tmp_path / "nan.hdf5", make_d1("wiping", 0).recording)
     with h5py.File(path, "r+") as f:
-        f["data/demo_1/obs/ee_pos"][5, 0] = np.nan
+        ee_pos = f["data/demo_1/obs/ee_pos"]
+        assert isinstance(ee_pos, h5py.Dataset)
+        ee_pos[5, 0] = np.nan
     with pytest.raises(RecordingError, match="demo_1"):
         clean_paths([path], tmp_path / "out", CleanOptions(**{**FAST.__dict__, "strict": True}))
 
