@@ -1,4 +1,4 @@
-"""bt_teleop: the teleoperation app's simulation core (MuJoCo + mink), and later its web UI.
+"""bt_teleop: the teleoperation web app (viser) on a simulated FR3 (MuJoCo + mink).
 
 One concept per module:
 
@@ -11,4 +11,10 @@ One concept per module:
 * :mod:`bt_teleop.session`: one session's fixed-rate loop (target -> IK -> actuators -> physics
   -> recorder), in real time in a thread or stepped synchronously.
 * :mod:`bt_teleop.script`: the scripted operator (JSON waypoints -> a recorded demo).
+* :mod:`bt_teleop.app`: the viser server: one session per browser tab, start/stop, Ctrl-C.
+* :mod:`bt_teleop.ui`: one tab's GUI (task, θ/ρ, record, recordings, clean, replay).
+* :mod:`bt_teleop.viewer`: drawing the MuJoCo model, trails and paths into a tab's own scene.
+* :mod:`bt_teleop.replay`: playing raw or cleaned demos on the robot through IK.
+* :mod:`bt_teleop.cleaning`: the Clean job (the cleaner in a background process).
+* :mod:`bt_teleop.rerun_live`: live Rerun streaming off the control loop.
 """
