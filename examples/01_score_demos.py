@@ -1,6 +1,6 @@
 """Score a synthetic mixed-skill demo set and check that selection finds the expert-like demo.
 
-    python examples/01_score_demos.py --task weaving --seed 3
+python examples/01_score_demos.py --task weaving --seed 3
 """
 
 from __future__ import annotations
