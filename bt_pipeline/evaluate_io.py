@@ -16,7 +16,6 @@ Outputs are written only after every task has been evaluated, each atomically.
 from __future__ import annotations
 
 import hashlib
-import os
 import sys
 import uuid
 from collections.abc import Sequence
@@ -43,6 +42,7 @@ from bt_pipeline.learners import LearnerName, parse_learner
 from bt_pipeline.plots import LEARNER_TITLES, RewardBar, plot_reward_bars, plot_rollouts
 from bt_pipeline.recording import write_recording
 from bt_pipeline.records import DemoRecord, Recording, forward_difference_actions
+from bt_pipeline.rerun_log import save_rrd
 from bt_pipeline.tasks import Task
 
 APP_ID = "bt_evaluate"
@@ -398,26 +398,12 @@ def save_eval_rrd(evaluations: Sequence[TaskEvaluation], path: str | Path) -> Pa
     for e in evaluations:
         for r in e.results:
             digest.update(np.ascontiguousarray(r.rollouts).tobytes())
-    recording_id = str(uuid.UUID(bytes=digest.digest()[:16]))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
-    rec = rr.RecordingStream(APP_ID, recording_id=recording_id, send_properties=False)
-    if not rec.is_enabled():
-        raise ConfigError("Rerun logging is disabled (RERUN=off); unset RERUN or drop --rrd")
-    try:
-        try:
-            rec.set_log_time_enabled(False)
-            rec.save(tmp)
-            rec.send_recording_name("bt evaluate: " + ", ".join(e.task for e in evaluations))
-            rec.send_blueprint(eval_blueprint(evaluations), make_active=True, make_default=True)
-            log_evaluations(rec, evaluations)
-            rec.flush()
-        finally:
-            rec.disconnect()  # Closes the file sink and writes the footer.
-        with open(tmp, "rb") as written:
-            os.fsync(written.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return save_rrd(
+        path,
+        app_id=APP_ID,
+        recording_id=str(uuid.UUID(bytes=digest.digest()[:16])),
+        name="bt evaluate: " + ", ".join(e.task for e in evaluations),
+        blueprint=eval_blueprint(evaluations),
+        log=lambda rec: log_evaluations(rec, evaluations),
+        disabled_hint="drop --rrd",
+    )

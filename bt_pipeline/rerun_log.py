@@ -22,7 +22,7 @@ import hashlib
 import os
 import re
 import uuid
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -182,18 +182,48 @@ def save_clean_rrd(
     if path.suffix != ".rrd":
         raise ConfigError(f"a Rerun recording must end in .rrd; got {path}")
     blueprint = clean_blueprint([result.task] if blueprint_tasks is None else blueprint_tasks)
+    return save_rrd(
+        path,
+        app_id=APP_ID,
+        recording_id=recording_id(result),
+        name=f"bt clean: {result.task}",
+        blueprint=blueprint,
+        log=lambda rec: log_clean_result(rec, result),
+        disabled_hint="pass --no-rrd",
+    )
+
+
+def save_rrd(
+    path: Path,
+    *,
+    app_id: str,
+    recording_id: str,
+    name: str,
+    blueprint: rrb.Blueprint,
+    log: Callable[[rr.RecordingStream], None],
+    disabled_hint: str,
+) -> Path:
+    """Log into a new deterministic stream and save it to `path` (.rrd), atomically.
+
+    The stream has no wall-clock ``log_time`` timeline. It is written to a temporary file beside
+    `path`, closed (footer written), fsynced, then moved into place; on any failure the
+    temporary file is removed and `path` is left as it was.
+
+    Raises:
+        ConfigError: Rerun is disabled (RERUN=off); the message ends with `disabled_hint`.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
-    rec = rr.RecordingStream(APP_ID, recording_id=recording_id(result), send_properties=False)
+    rec = rr.RecordingStream(app_id, recording_id=recording_id, send_properties=False)
     if not rec.is_enabled():
-        raise ConfigError("Rerun logging is disabled (RERUN=off); unset RERUN or pass --no-rrd")
+        raise ConfigError(f"Rerun logging is disabled (RERUN=off); unset RERUN or {disabled_hint}")
     try:
         try:
             rec.set_log_time_enabled(False)
             rec.save(tmp)
-            rec.send_recording_name(f"bt clean: {result.task}")
+            rec.send_recording_name(name)
             rec.send_blueprint(blueprint, make_active=True, make_default=True)
-            log_clean_result(rec, result)
+            log(rec)
             rec.flush()
         finally:
             rec.disconnect()  # Closes the file sink and writes the footer.
