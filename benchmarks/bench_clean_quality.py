@@ -25,12 +25,12 @@ from collections import defaultdict
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from bt_pipeline.clean import CleanOptions, clean_demos
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.distance import distance_to_truth
-from bt_pipeline.losses import closure_loss, smoothness_loss
-from bt_pipeline.synth import make_d1, make_d2
-from bt_pipeline.tasks import TASKS
+from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.synth import make_d1, make_d2
+from bt_pipeline.data.tasks import TASKS
+from bt_pipeline.evaluate.distance import distance_to_truth
+from bt_pipeline.score.losses import closure_loss, smoothness_loss
 
 ROWS = ("default", "paper", "stage1", "smooth")
 

@@ -17,10 +17,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from bt_pipeline.clean import CleanOptions
-from bt_pipeline.clean_io import clean_paths
-from bt_pipeline.recording import write_recording
-from bt_pipeline.synth import make_demo_set
+from bt_pipeline.clean.driver import clean_paths
+from bt_pipeline.clean.pipeline import CleanOptions
+from bt_pipeline.data.recording import write_recording
+from bt_pipeline.data.synth import make_demo_set
 
 
 def run(path: Path, out: Path, options: CleanOptions) -> tuple[float, dict[str, float]]:

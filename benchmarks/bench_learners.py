@@ -2,7 +2,7 @@
 
 Run: ``python benchmarks/bench_learners.py [--repeats 3] [--presets quick full] [--threads]``.
 Prints Markdown tables of medians over `--repeats` runs on synthetic wiping sets of the paper's
-sizes (D1: M = 4, D2: M = 20 demos of N = 300 samples, :mod:`bt_pipeline.synth`):
+sizes (D1: M = 4, D2: M = 20 demos of N = 300 samples, :mod:`bt_pipeline.data.synth`):
 
 * wall time [s] of ``train_learner`` per learner, preset and M, with the CPU time of the process
   beside it (on a busy machine the wall time grows, the CPU time much less), and the ratio of the
@@ -31,9 +31,9 @@ import numpy as np
 # Let `python benchmarks/bench_learners.py` run from a plain checkout (package not installed).
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.learners import LEARNERS, LearnerName, learner_config, train_learner
-from bt_pipeline.synth import make_demo_set
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.synth import make_demo_set
+from bt_pipeline.evaluate.learners import LEARNERS, LearnerName, learner_config, train_learner
 
 N_SAMPLES = 300
 N_ROLLOUTS = 50

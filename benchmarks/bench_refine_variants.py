@@ -26,16 +26,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bt_pipeline.alignment import shape_loss
-from bt_pipeline.canonical import run_stage1
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.distance import distance_to_truth
-from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
-from bt_pipeline.mi import mutual_information
-from bt_pipeline.refine import RefineConfig, refine_demos, refine_normaliser
-from bt_pipeline.scoring import normalised_utility, score_demos
-from bt_pipeline.synth import make_demo_set
-from bt_pipeline.tasks import TASKS, Task
+from bt_pipeline.clean.stage1.alignment import shape_loss
+from bt_pipeline.clean.stage1.extract import run_stage1
+from bt_pipeline.clean.stage2.config import RefineConfig
+from bt_pipeline.clean.stage2.refiner import refine_demos, refine_normaliser
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.synth import make_demo_set
+from bt_pipeline.data.tasks import TASKS, Task
+from bt_pipeline.evaluate.distance import distance_to_truth
+from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
+from bt_pipeline.score.mi import mutual_information
+from bt_pipeline.score.utility import normalised_utility, score_demos
 
 
 @dataclass(frozen=True)

@@ -23,10 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.learners import LEARNERS, learner_config, train_learner
-from bt_pipeline.reproduce import ReproduceConfig, run_reproduce, write_outputs
-from bt_pipeline.synth import make_d1
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.synth import make_d1
+from bt_pipeline.evaluate.learners import LEARNERS, learner_config, train_learner
+from bt_pipeline.evaluate.reproduce import write_outputs
+from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig, run_reproduce
 
 
 def cpu_seconds() -> float:

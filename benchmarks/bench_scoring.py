@@ -29,10 +29,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sklearn.feature_selection._mutual_info import _compute_mi_cc
 
-from bt_pipeline.demo import Demo
-from bt_pipeline.mi import _mutual_information_bruteforce, mutual_information
-from bt_pipeline.scoring import score_demos
-from bt_pipeline.tasks import default_plane
+from bt_pipeline.data.demo import Demo
+from bt_pipeline.data.tasks import default_plane
+from bt_pipeline.score.mi import _mutual_information_bruteforce, mutual_information
+from bt_pipeline.score.utility import score_demos
 
 N_SAMPLES = 300
 

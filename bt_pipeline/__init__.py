@@ -1,10 +1,15 @@
 """bt_pipeline: score and clean mixed-skill demonstrations ("Beyond the Teacher").
 
 Pure numerics with HDF5 and Rerun I/O at the edges; never imports viser. Torch-based modules
-(:mod:`bt_pipeline.refine`, :mod:`bt_pipeline.clean`) are imported on use, so scoring stays light.
+(:mod:`bt_pipeline.clean.stage2.refiner`, :mod:`bt_pipeline.clean.pipeline`) are imported on use, so
+scoring stays light.
 """
 
-from bt_pipeline.demo import DEFAULT_SAMPLES, Demo, group_by_task, load_demos
+from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo, group_by_task, load_demos
+from bt_pipeline.data.plane import TaskPlane
+from bt_pipeline.data.recording import read_recording, write_recording
+from bt_pipeline.data.records import DemoRecord, Recording
+from bt_pipeline.data.tasks import TASKS, Task
 from bt_pipeline.exceptions import (
     BtError,
     ConfigError,
@@ -12,13 +17,9 @@ from bt_pipeline.exceptions import (
     RecordingError,
     UnknownTaskError,
 )
-from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
-from bt_pipeline.mi import mutual_information
-from bt_pipeline.plane import TaskPlane
-from bt_pipeline.recording import read_recording, write_recording
-from bt_pipeline.records import DemoRecord, Recording
-from bt_pipeline.scoring import ScoreConfig, TaskScores, score_demos, select_best
-from bt_pipeline.tasks import TASKS, Task
+from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
+from bt_pipeline.score.mi import mutual_information
+from bt_pipeline.score.utility import ScoreConfig, TaskScores, score_demos, select_best
 
 __all__ = [
     "DEFAULT_SAMPLES",

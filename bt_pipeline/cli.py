@@ -30,9 +30,9 @@ def score(paths: tyro.conf.Positional[Paths], json: bool = False, samples: int =
         json: Print one JSON object on stdout instead of tables.
         samples: N, samples per demo after resampling uniformly in time.
     """
-    from bt_pipeline.demo import group_by_task, load_demos
-    from bt_pipeline.report import print_score_tables, score_json
-    from bt_pipeline.scoring import score_demos
+    from bt_pipeline.data.demo import group_by_task, load_demos
+    from bt_pipeline.score.utility import score_demos
+    from bt_pipeline.viz.tables import print_score_tables, score_json
 
     demos = load_demos(paths, n_samples=samples)
     results = [score_demos(group) for group in group_by_task(demos).values()]
@@ -61,9 +61,9 @@ def synth(
         seed: Random seed; the same seed gives the same file.
         overwrite: Replace `out` if it exists.
     """
-    from bt_pipeline.recording import write_recording
-    from bt_pipeline.synth import make_demo_set
-    from bt_pipeline.tasks import parse_task
+    from bt_pipeline.data.recording import write_recording
+    from bt_pipeline.data.synth import make_demo_set
+    from bt_pipeline.data.tasks import parse_task
 
     synth_set = make_demo_set(parse_task(task), n_demos=demos, seed=seed)
     path = write_recording(out, synth_set.recording, overwrite=overwrite)
@@ -95,9 +95,9 @@ def clean(
         strict: Stop at the first unreadable file instead of skipping it with a warning.
         json: Print one JSON summary on stdout instead of tables.
     """
-    from bt_pipeline.clean import CleanOptions
-    from bt_pipeline.clean_io import clean_paths
-    from bt_pipeline.report import clean_json, print_clean_summary
+    from bt_pipeline.clean.driver import clean_paths
+    from bt_pipeline.clean.pipeline import CleanOptions
+    from bt_pipeline.viz.tables import clean_json, print_clean_summary
 
     options = CleanOptions(
         seed=seed, epochs=epochs, variant=variant, write_rrd=rrd, workers=workers, strict=strict
@@ -186,16 +186,16 @@ def evaluate(
         samples: N, samples per demo after resampling uniformly in time.
         steps: Override every learner's optimiser steps (smoke tests; results are not meaningful).
     """
-    from bt_pipeline.evaluate import EvalConfig
-    from bt_pipeline.evaluate_io import (
+    from bt_pipeline.evaluate.driver import (
         eval_json,
         evaluate_paths,
         parse_learners,
         print_eval_table,
-        save_eval_rrd,
         write_plots,
         write_rollouts,
     )
+    from bt_pipeline.evaluate.protocol import EvalConfig
+    from bt_pipeline.viz.rerun_eval import save_eval_rrd
 
     if rrd is not None and rrd.suffix != ".rrd":
         raise ConfigError(f"--rrd must end in .rrd; got {rrd}")
@@ -237,8 +237,8 @@ def reproduce(
         workers: Jobs (set × task × seed) run in parallel processes; results do not change.
         oracle: Also train on the synthetic ground truth: the upper bound of any cleaning.
     """
-    from bt_pipeline.reproduce import ReproduceConfig
-    from bt_pipeline.reproduce import reproduce as run
+    from bt_pipeline.evaluate.reproduce import reproduce as run
+    from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig
 
     config = ReproduceConfig.preset(quick, seeds=seeds, workers=workers, oracle=oracle)
     for path in run(config, out):

@@ -32,9 +32,9 @@ from pathlib import Path
 
 import viser
 
-from bt_pipeline.clean import CleanOptions
+from bt_pipeline.clean.pipeline import CleanOptions
+from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.tasks import Task, parse_task
 from bt_teleop.cleaning import CleanRunner
 from bt_teleop.rerun_live import RERUN_MODES, RerunHub, RerunMode
 from bt_teleop.scene import Robot, parse_robot

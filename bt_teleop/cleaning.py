@@ -7,7 +7,7 @@ Where files go::
     <recordings>/.cleaned/<task>.rrd           the cleaning result for the Rerun viewer
 
 The output folder is hidden on purpose: every directory scan of bt
-(:func:`bt_pipeline.recording.expand_paths`) skips hidden folders, so neither the app's list of
+(:func:`bt_pipeline.data.recording.expand_paths`) skips hidden folders, so neither the app's list of
 raw recordings nor ``bt score recordings`` / ``bt clean recordings`` ever takes cleaned demos for
 raw input. Each clean replaces the task's previous output, atomically.
 
@@ -33,9 +33,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
-from bt_pipeline.clean import CleanOptions, TaskCleanResult, clean_demos
+from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
+from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError, ConfigError, DemoError
-from bt_pipeline.tasks import Task, parse_task
 
 CLEANED_DIRNAME = ".cleaned"
 """Folder under the recordings root that holds cleaned output (hidden: never scanned as input)."""
@@ -297,9 +297,10 @@ def clean_task(
         RecordingError: No readable recordings.
         DemoError: No demos, or a demo that cannot be cleaned.
     """
-    from bt_pipeline.clean_io import cleaned_recording
-    from bt_pipeline.demo import demos_from_recording
-    from bt_pipeline.recording import expand_paths, read_recordings, write_recording
+    from bt_pipeline.clean.driver import cleaned_recording
+    from bt_pipeline.data.demo import demos_from_recording
+    from bt_pipeline.data.paths import expand_paths
+    from bt_pipeline.data.recording import read_recordings, write_recording
 
     options = options or CleanOptions(progress=False)
     parsed = parse_task(task)
@@ -329,7 +330,7 @@ def clean_task(
         overwrite=True,
     )
     if options.write_rrd:
-        from bt_pipeline.rerun_log import save_clean_rrd
+        from bt_pipeline.viz.rerun_clean import save_clean_rrd
 
         save_clean_rrd(result, output.with_name(f"{parsed}.rrd"))
     return output, result

@@ -25,8 +25,8 @@ import mink
 import mujoco
 import numpy as np
 
+from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.records import FloatArray
 from bt_teleop.scene import ARM_JOINTS, EE_SITE, HOME_KEY, TABLE_GEOM, SceneModel
 
 FR3_MAX_JOINT_VELOCITY: tuple[float, ...] = (2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26)

@@ -14,8 +14,8 @@ import unicodedata
 from datetime import UTC, datetime
 from pathlib import Path
 
+from bt_pipeline.data.tasks import parse_task
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.tasks import parse_task
 
 MAX_NAME_CHARS = 32
 """Longest demonstrator name in a file name."""

@@ -1,10 +1,10 @@
 """The demo recorder: samples of one demo at a fixed rate on simulation time, saved as format v1.
 
 A session adds one sample every ``1 / record_hz`` seconds of simulation time while recording.
-Stop & save turns the samples into a :class:`~bt_pipeline.records.DemoRecord` (actions by
-forward difference), wraps it in a one-demo :class:`~bt_pipeline.records.Recording` with the
+Stop & save turns the samples into a :class:`~bt_pipeline.data.records.DemoRecord` (actions by
+forward difference), wraps it in a one-demo :class:`~bt_pipeline.data.records.Recording` with the
 scene's task plane and model, and writes it atomically with
-:func:`bt_pipeline.recording.write_recording` to a fresh file per demo, so concurrent sessions
+:func:`bt_pipeline.data.recording.write_recording` to a fresh file per demo, so concurrent sessions
 never share a file.
 """
 
@@ -23,15 +23,15 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from bt_pipeline.exceptions import ConfigError, RecordingError
-from bt_pipeline.recording import DEFAULT_ENV_TYPE, write_recording
-from bt_pipeline.records import (
+from bt_pipeline.data.recording import DEFAULT_ENV_TYPE, write_recording
+from bt_pipeline.data.records import (
     MIN_SAMPLES,
     DemoRecord,
     FloatArray,
     Recording,
     forward_difference_actions,
 )
+from bt_pipeline.exceptions import ConfigError, RecordingError
 from bt_teleop.naming import clean_demonstrator, demo_path
 from bt_teleop.scene import SCENES_DIR, SceneModel
 
@@ -127,7 +127,7 @@ class DemoRecorder:
             ep_meta: Episode metadata to store (a copy is stored).
 
         Raises:
-            RecordingError: Fewer than :data:`~bt_pipeline.records.MIN_SAMPLES` samples.
+            RecordingError: Fewer than :data:`~bt_pipeline.data.records.MIN_SAMPLES` samples.
         """
         if self.n_samples < MIN_SAMPLES:
             raise RecordingError(

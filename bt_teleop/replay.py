@@ -3,7 +3,7 @@
 :func:`load_library` reads ``<recordings>/<task>/`` (raw, one file per demo) and
 ``<recordings>/.cleaned/<task>.cleaned.hdf5`` (see :mod:`bt_teleop.cleaning`) into
 :class:`ReplayTrack` records: the end-effector path in the world frame with its timestamps, the
-demonstrator's preference and the utility score Ũ (raw demos: :func:`bt_pipeline.scoring.
+demonstrator's preference and the utility score Ũ (raw demos: :func:`bt_pipeline.score.utility.
 score_demos` over the task's raw demos; cleaned demos: the score the cleaner stored).
 
 Replaying feeds the track to the session as its target, so the FR3 tracks it through the same
@@ -29,9 +29,9 @@ from typing import Literal
 
 import numpy as np
 
+from bt_pipeline.data.records import FloatArray, Recording
+from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError, ConfigError
-from bt_pipeline.records import FloatArray, Recording
-from bt_pipeline.tasks import Task, parse_task
 from bt_teleop.cleaning import cleaned_path, task_dir
 from bt_teleop.session import Session
 
@@ -110,7 +110,8 @@ class TaskLibrary:
 
 def load_library(recordings_dir: str | Path, task: str) -> TaskLibrary:
     """Read `task`'s raw and cleaned demos (unreadable files are skipped with a warning)."""
-    from bt_pipeline.recording import expand_paths, read_recording, read_recordings
+    from bt_pipeline.data.paths import expand_paths
+    from bt_pipeline.data.recording import read_recording, read_recordings
 
     parsed = parse_task(task)
     folder = task_dir(recordings_dir, parsed)
@@ -132,8 +133,8 @@ def load_library(recordings_dir: str | Path, task: str) -> TaskLibrary:
 
 
 def _raw_tracks(recordings: list[Recording]) -> tuple[ReplayTrack, ...]:
-    from bt_pipeline.demo import demos_from_recording
-    from bt_pipeline.scoring import score_demos
+    from bt_pipeline.data.demo import demos_from_recording
+    from bt_pipeline.score.utility import score_demos
 
     tracks: list[ReplayTrack] = []
     demos = []

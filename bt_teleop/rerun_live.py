@@ -18,7 +18,7 @@ events, which only enqueue; a worker thread does the Rerun calls::
 Entities of a session's recording (timeline ``sim_time``, simulation seconds of the session):
 ``/ee/position`` (Points3D) and ``/joints`` (Scalars, fr3_joint1..7), sent as columns;
 ``/demos/<file stem>`` (static LineStrips3D) when a demo is saved; and after Clean everything
-:func:`bt_pipeline.rerun_log.log_clean_result` logs under ``/<task>``.
+:func:`bt_pipeline.viz.rerun_clean.log_clean_result` logs under ``/<task>``.
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ from typing import Literal, get_args
 import numpy as np
 import rerun as rr
 
-from bt_pipeline.clean import TaskCleanResult
+from bt_pipeline.clean.pipeline import TaskCleanResult
+from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.records import FloatArray
 from bt_teleop.naming import utc_stamp
 
 RerunMode = Literal["serve", "save", "off"]
@@ -102,7 +102,7 @@ class SessionLogger:
 
     def log_clean_result(self, result: TaskCleanResult) -> None:
         """Queue a Clean job's result (scores, value map, aligned references, cleaned demos)."""
-        from bt_pipeline.rerun_log import log_clean_result
+        from bt_pipeline.viz.rerun_clean import log_clean_result
 
         self._submit(lambda rec: log_clean_result(rec, result))
 

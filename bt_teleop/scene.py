@@ -31,10 +31,10 @@ from typing import Literal, get_args
 import mujoco
 import numpy as np
 
+from bt_pipeline.data.plane import TaskPlane
+from bt_pipeline.data.records import FloatArray
+from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.plane import TaskPlane
-from bt_pipeline.records import FloatArray
-from bt_pipeline.tasks import Task, parse_task
 from bt_teleop.workspace import Workspace
 
 Robot = Literal["light", "menagerie"]

@@ -25,10 +25,10 @@ from typing import Any, Literal, get_args
 
 import numpy as np
 
+from bt_pipeline.data.plane import TaskPlane
+from bt_pipeline.data.records import MIN_SAMPLES, FloatArray
+from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.plane import TaskPlane
-from bt_pipeline.records import MIN_SAMPLES, FloatArray
-from bt_pipeline.tasks import Task, parse_task
 from bt_teleop.scene import Robot, SceneModel, load_scene, parse_robot
 from bt_teleop.session import Session, SessionConfig
 

@@ -36,8 +36,8 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
+from bt_pipeline.data.records import MIN_SAMPLES, FloatArray
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.records import MIN_SAMPLES, FloatArray
 from bt_teleop.ik import IkController
 from bt_teleop.recorder import DemoInfo, DemoRecorder, finish_demo, site_quat, take_sample
 from bt_teleop.scene import HOME_KEY, SceneModel, load_scene

@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.records import FloatArray
 from bt_teleop.ik import IkSettings
 
 

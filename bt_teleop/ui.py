@@ -32,9 +32,9 @@ from typing import Any
 
 import viser
 
+from bt_pipeline.data.records import FloatArray
+from bt_pipeline.data.tasks import TASKS, Task, parse_task
 from bt_pipeline.exceptions import BtError
-from bt_pipeline.records import FloatArray
-from bt_pipeline.tasks import TASKS, Task, parse_task
 from bt_teleop.cleaning import CleanJob, CleanRunner
 from bt_teleop.replay import (
     ReplayPlayer,

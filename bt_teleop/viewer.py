@@ -29,8 +29,8 @@ import trimesh
 import viser
 from numpy.typing import ArrayLike
 
-from bt_pipeline.records import FloatArray
-from bt_pipeline.shapes import canonical_loop, similarity_transform
+from bt_pipeline.data.records import FloatArray
+from bt_pipeline.data.shapes import canonical_loop, similarity_transform
 from bt_teleop.scene import SceneModel
 
 VISIBLE_GROUPS = (0, 1, 2)
@@ -200,7 +200,7 @@ def guide_loop_world(scene: SceneModel, theta_deg: float, rho: float, n: int = 2
     """The task's canonical shape under the preference (θ [deg], ρ) on the task plane, (n, 3) [m].
 
     The shape (centred at the task-plane origin) is rotated by θ and scaled by ρ
-    (:func:`bt_pipeline.shapes.similarity_transform`), then mapped to the world.
+    (:func:`bt_pipeline.data.shapes.similarity_transform`), then mapped to the world.
     """
     loop = similarity_transform(canonical_loop(scene.task, n), theta_deg, rho)
     return scene.plane.to_world(loop)

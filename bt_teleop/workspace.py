@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from bt_pipeline.data.plane import TaskPlane
+from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.plane import TaskPlane
-from bt_pipeline.records import FloatArray
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly

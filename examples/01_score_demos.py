@@ -10,10 +10,10 @@ from dataclasses import dataclass
 import tyro
 
 from bt_pipeline import score_demos
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.report import print_score_tables
-from bt_pipeline.synth import make_d2
-from bt_pipeline.tasks import Task
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.synth import make_d2
+from bt_pipeline.data.tasks import Task
+from bt_pipeline.viz.tables import print_score_tables
 
 
 @dataclass

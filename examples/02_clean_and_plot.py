@@ -17,11 +17,11 @@ matplotlib.use("Agg")  # Files only; no display needed.
 import matplotlib.pyplot as plt
 import tyro
 
-from bt_pipeline.clean import CleanOptions, clean_demos
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.distance import distance_to_truth
-from bt_pipeline.synth import make_d1
-from bt_pipeline.tasks import TASKS
+from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.synth import make_d1
+from bt_pipeline.data.tasks import TASKS
+from bt_pipeline.evaluate.distance import distance_to_truth
 
 
 @dataclass

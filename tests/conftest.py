@@ -1,7 +1,7 @@
 """Shared fixtures: small valid recordings in memory and on disk.
 
 * ``make_recording(task="wiping", n_demos=3, n_samples=50, seed=0, ...)`` returns a valid
-  :class:`~bt_pipeline.records.Recording` of circles drawn in the task's default plane.
+  :class:`~bt_pipeline.data.records.Recording` of circles drawn in the task's default plane.
 * ``write_example_file(directory, name="example.hdf5", **make_recording_kwargs)`` writes one to
   ``directory / name`` and returns the path.
 """
@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bt_pipeline.recording import write_recording
-from bt_pipeline.records import DemoRecord, Recording, Source
-from bt_pipeline.tasks import Task, default_plane
+from bt_pipeline.data.recording import write_recording
+from bt_pipeline.data.records import DemoRecord, Recording, Source
+from bt_pipeline.data.tasks import Task, default_plane
 
 RADIUS_M = 0.08
 """Radius of the example circles [m]."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bt_pipeline.alignment import (
+from bt_pipeline.clean.stage1.alignment import (
     apply_preference,
     estimate_preference,
     phase_align,

@@ -8,14 +8,14 @@ import h5py
 import numpy as np
 import pytest
 
-from bt_pipeline.clean import CleanOptions, clean_demos
-from bt_pipeline.clean_io import clean_paths
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.distance import distance_to_truth
+from bt_pipeline.clean.driver import clean_paths
+from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.recording import read_recording, write_recording
+from bt_pipeline.data.records import Recording
+from bt_pipeline.data.synth import make_d1, make_demo_set
+from bt_pipeline.evaluate.distance import distance_to_truth
 from bt_pipeline.exceptions import DemoError, RecordingError
-from bt_pipeline.recording import read_recording, write_recording
-from bt_pipeline.records import Recording
-from bt_pipeline.synth import make_d1, make_demo_set
 
 FAST = CleanOptions(epochs=2, progress=False, write_rrd=False)
 CLEANED_ATTRS = {

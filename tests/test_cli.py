@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from bt_pipeline.cli import main
-from bt_pipeline.recording import read_recording
+from bt_pipeline.data.recording import read_recording
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bt_pipeline.distance import chamfer_distance, distance_to_truth
+from bt_pipeline.data.shapes import canonical_loop
+from bt_pipeline.evaluate.distance import chamfer_distance, distance_to_truth
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.shapes import canonical_loop
 
 
 def test_zero_for_identical_curves() -> None:

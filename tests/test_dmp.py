@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from bt_pipeline.canonical import canonical_reference
-from bt_pipeline.dmp import DmpConfig, estimate_period, fit_periodic_dmp, loop_size
+from bt_pipeline.clean.stage1.dmp import DmpConfig, fit_periodic_dmp
+from bt_pipeline.clean.stage1.extract import canonical_reference
+from bt_pipeline.clean.stage1.period import estimate_period, loop_size
 from bt_pipeline.exceptions import ConfigError, DemoError
 
 N = 300

@@ -1,5 +1,5 @@
-"""Tests of bt_pipeline.learners: every learner fits a clean loop, stays finite, bounded and
-deterministic; the shared policy integrates correctly; configs and inputs are validated."""
+"""Tests of bt_pipeline.evaluate.learners: every learner fits a clean loop, stays finite, bounded
+and deterministic; the shared policy integrates correctly; configs and inputs are validated."""
 
 from __future__ import annotations
 
@@ -12,9 +12,10 @@ import pytest
 import torch
 from torch import nn
 
-from bt_pipeline.distance import chamfer_distance
-from bt_pipeline.exceptions import ConfigError, DemoError
-from bt_pipeline.learners import (
+from bt_pipeline.data.shapes import canonical_shape, similarity_transform
+from bt_pipeline.data.tasks import Task
+from bt_pipeline.evaluate.distance import chamfer_distance
+from bt_pipeline.evaluate.learners import (
     LEARNERS,
     BCConfig,
     LearnerConfig,
@@ -25,9 +26,8 @@ from bt_pipeline.learners import (
     parse_learner,
     train_learner,
 )
-from bt_pipeline.learners.common import Integrator, Standardiser, prepare_demos
-from bt_pipeline.shapes import canonical_shape, similarity_transform
-from bt_pipeline.tasks import Task
+from bt_pipeline.evaluate.learners.common import Integrator, Standardiser, prepare_demos
+from bt_pipeline.exceptions import ConfigError, DemoError
 
 N = 300
 

@@ -1,13 +1,13 @@
-"""Tests of ILEED's learned expertise (bt_pipeline.learners.ileed)."""
+"""Tests of ILEED's learned expertise (bt_pipeline.evaluate.learners.ileed)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.learners import learner_config, train_learner
-from bt_pipeline.learners.ileed import demonstrator_ids
-from bt_pipeline.synth import make_d1
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.synth import make_d1
+from bt_pipeline.evaluate.learners import learner_config, train_learner
+from bt_pipeline.evaluate.learners.ileed import demonstrator_ids
 
 N = 300
 

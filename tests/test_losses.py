@@ -1,4 +1,4 @@
-"""Tests of the task-intention losses L1-L3 (bt_pipeline.losses)."""
+"""Tests of the task-intention losses L1-L3 (bt_pipeline.score.losses)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bt_pipeline.exceptions import ConfigError, DemoError
-from bt_pipeline.losses import closure_loss, smoothness_loss, symmetry_loss
+from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
 
 N = 400
 

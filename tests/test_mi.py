@@ -1,4 +1,4 @@
-"""Tests of the KSG-1 mutual-information estimator (bt_pipeline.mi)."""
+"""Tests of the KSG-1 mutual-information estimator (bt_pipeline.score.mi)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from sklearn.feature_selection._mutual_info import _compute_mi_cc
 
 from bt_pipeline.exceptions import ConfigError, DemoError
-from bt_pipeline.mi import _mutual_information_bruteforce, mutual_information
+from bt_pipeline.score.mi import _mutual_information_bruteforce, mutual_information
 
 
 def correlated_pairs(

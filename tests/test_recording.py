@@ -1,4 +1,5 @@
-"""Tests of bt_pipeline.recording: format v1 round trip, atomic writes, every malformed input."""
+"""Tests of bt_pipeline.data.recording: format v1 round trip, atomic writes, every malformed
+input."""
 
 from __future__ import annotations
 
@@ -21,16 +22,17 @@ import h5py
 import numpy as np
 import pytest
 
-import bt_pipeline.recording
+import bt_pipeline.data.recording
+from bt_pipeline.data.paths import expand_paths
+from bt_pipeline.data.recording import read_recording, read_recordings, write_recording
+from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_actions
 from bt_pipeline.exceptions import RecordingError
-from bt_pipeline.recording import expand_paths, read_recording, read_recordings, write_recording
-from bt_pipeline.records import DemoRecord, Recording, forward_difference_actions
 
 MakeRecording = Callable[..., Recording]
 WriteExample = Callable[..., Path]
 Editor = Callable[[h5py.File], object]
 """Edits a valid file in place to make it malformed."""
-REPO_ROOT = Path(bt_pipeline.recording.__file__).resolve().parents[1]
+REPO_ROOT = Path(bt_pipeline.data.recording.__file__).resolve().parents[1]
 
 
 def _array(group: h5py.Group, key: str) -> np.ndarray:
@@ -285,7 +287,7 @@ def test_failed_rename_leaves_no_temp_file(
 WRITER_SCRIPT = """
 import os, pickle, sys, time
 import h5py
-from bt_pipeline.recording import write_recording
+from bt_pipeline.data.recording import write_recording
 
 recording_file, destination, stall_at, overwrite = sys.argv[1:]
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.scoring import select_best
-from bt_pipeline.synth import make_d1, make_d2
-from bt_pipeline.tasks import TASKS
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.synth import make_d1, make_d2
+from bt_pipeline.data.tasks import TASKS
+from bt_pipeline.score.utility import select_best
 
 SEEDS = range(20)
 

@@ -5,16 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bt_pipeline.distance import chamfer_distance
-from bt_pipeline.exceptions import ConfigError, UnknownTaskError
-from bt_pipeline.shapes import (
+from bt_pipeline.data.shapes import (
     SHAPE_SIZE,
     canonical_loop,
     canonical_shape,
     rotation_matrix,
     similarity_transform,
 )
-from bt_pipeline.tasks import TASKS
+from bt_pipeline.data.tasks import TASKS
+from bt_pipeline.evaluate.distance import chamfer_distance
+from bt_pipeline.exceptions import ConfigError, UnknownTaskError
 
 
 @pytest.mark.parametrize("task", TASKS)

@@ -7,13 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bt_pipeline.demo import demos_from_recording
-from bt_pipeline.distance import distance_to_truth
-from bt_pipeline.exceptions import ConfigError, UnknownTaskError
-from bt_pipeline.recording import read_recording, write_recording
-from bt_pipeline.records import MIN_SAMPLES, forward_difference_actions
-from bt_pipeline.shapes import canonical_loop, similarity_transform
-from bt_pipeline.synth import (
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.recording import read_recording, write_recording
+from bt_pipeline.data.records import MIN_SAMPLES, forward_difference_actions
+from bt_pipeline.data.shapes import canonical_loop, similarity_transform
+from bt_pipeline.data.synth import (
     DEFECTS,
     DEMONSTRATORS,
     NOISE_DEFECTS,
@@ -23,7 +21,9 @@ from bt_pipeline.synth import (
     make_d2,
     make_demo_set,
 )
-from bt_pipeline.tasks import TASKS, default_plane
+from bt_pipeline.data.tasks import TASKS, default_plane
+from bt_pipeline.evaluate.distance import distance_to_truth
+from bt_pipeline.exceptions import ConfigError, UnknownTaskError
 
 SEEDS = range(6)
 

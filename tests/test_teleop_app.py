@@ -23,9 +23,9 @@ import viser
 import zstandard
 from websockets.sync.client import connect
 
-from bt_pipeline.clean import CleanOptions
+from bt_pipeline.clean.pipeline import CleanOptions
+from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.recording import read_recording
 from bt_teleop.app import AppOptions, TeleopApp, start_app
 from bt_teleop.cleaning import CleanRunner, cleaned_path
 from bt_teleop.replay import load_library, replay_sync

@@ -20,7 +20,7 @@ import pytest
 from PIL import Image
 from playwright.sync_api import Page, expect, sync_playwright
 
-from bt_pipeline.recording import read_recording
+from bt_pipeline.data.recording import read_recording
 from bt_teleop.app import AppOptions, TeleopApp, start_app
 from bt_teleop.ui import ClientUI
 

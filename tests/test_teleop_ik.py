@@ -11,8 +11,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.tasks import TASKS
 from bt_teleop import ik as ik_module
 from bt_teleop.ik import IkController, IkSettings
 from bt_teleop.scene import ARM_JOINTS, SceneModel, load_scene

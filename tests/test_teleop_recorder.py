@@ -14,9 +14,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from bt_pipeline.data.recording import read_recording
+from bt_pipeline.data.records import MIN_SAMPLES
 from bt_pipeline.exceptions import ConfigError, RecordingError
-from bt_pipeline.recording import read_recording
-from bt_pipeline.records import MIN_SAMPLES
 from bt_teleop.recorder import STATE_SIGNATURE, DemoInfo, DemoRecorder, env_args, save_demo
 from bt_teleop.scene import SceneModel, load_scene
 

@@ -13,8 +13,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from bt_pipeline.data.tasks import TASKS, default_plane
 from bt_pipeline.exceptions import ConfigError, UnknownTaskError
-from bt_pipeline.tasks import TASKS, default_plane
 from bt_teleop.scene import ARM_JOINTS, EE_SITE, load_scene, robot_model
 
 SHARED_MENAGERIE = Path(__file__).resolve().parents[2] / "shared" / "menagerie"

@@ -15,8 +15,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import ConfigError, UnknownTaskError
-from bt_pipeline.recording import read_recording
 from bt_teleop.recorder import STATE_SIGNATURE
 from bt_teleop.scene import load_scene
 from bt_teleop.script import load_script, parse_script, run_script

@@ -15,9 +15,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from bt_pipeline.data.recording import read_recording
+from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError, RecordingError
-from bt_pipeline.recording import read_recording
-from bt_pipeline.tasks import TASKS
 from bt_teleop import ik as ik_module
 from bt_teleop.recorder import STATE_SIGNATURE
 from bt_teleop.scene import SceneModel, load_scene

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bt_pipeline.data.tasks import TASKS, Task, default_plane
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.tasks import TASKS, Task, default_plane
 from bt_teleop.workspace import (
     Workspace,
     project_onto_plane,

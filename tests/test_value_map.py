@@ -5,16 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bt_pipeline.canonical import canonical_reference
-from bt_pipeline.dmp import fit_periodic_dmp, loop_size
-from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.value_map import (
+from bt_pipeline.clean.stage1.dmp import fit_periodic_dmp
+from bt_pipeline.clean.stage1.extract import canonical_reference
+from bt_pipeline.clean.stage1.period import loop_size
+from bt_pipeline.clean.stage1.value_map import (
     ValueMap,
     ValueMapConfig,
     build_value_map,
     rollout_states,
     value_map_from_states,
 )
+from bt_pipeline.exceptions import ConfigError
 
 N = 300
 

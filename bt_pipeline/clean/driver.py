@@ -1,0 +1,279 @@
+"""``bt clean`` over files: read recordings, clean every task, write HDF5 and Rerun outputs.
+
+Outputs are written only after every task has been cleaned, each atomically, so an error (or
+Ctrl-C) leaves no partial output file. Inputs are opened read-only and never modified.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+import multiprocessing
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
+from bt_pipeline.clean.stage2.config import EpochStats
+from bt_pipeline.data.demo import Demo, demos_from_recording, group_by_task
+from bt_pipeline.data.paths import expand_paths
+from bt_pipeline.data.recording import read_recordings, write_recording
+from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_actions
+from bt_pipeline.data.tasks import Task
+from bt_pipeline.exceptions import ConfigError, DemoError
+
+log = logging.getLogger("bt")
+
+
+@dataclass(frozen=True)
+class DemoCleanSummary:
+    """One demo's line in the summary."""
+
+    file: str
+    demo: str
+    output_demo: str
+    demonstrator: str
+    utility_raw: float
+    utility_cleaned: float
+    shape_loss_raw: float
+    shape_loss_cleaned: float
+    beta_final: float
+
+
+@dataclass(frozen=True)
+class TaskCleanSummary:
+    """What ``bt clean`` did for one task (printed as a table or as JSON)."""
+
+    task: Task
+    best_file: str
+    best_demo: str
+    output: Path
+    rrd: Path | None
+    seconds: float
+    """Wall time for the task, reading to writing [s]."""
+    stage_seconds: dict[str, float]
+    """Split: ``read``, ``score``, ``stage1``, ``stage2``, ``metrics``, ``write`` [s]."""
+    demos: tuple[DemoCleanSummary, ...]
+    notes: tuple[str, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        """The task's entry of the ``bt clean --json`` document."""
+        return {
+            "task": self.task,
+            "best": {"file": self.best_file, "demo": self.best_demo},
+            "output": str(self.output),
+            "rrd": None if self.rrd is None else str(self.rrd),
+            "seconds": self.seconds,
+            "stage_seconds": self.stage_seconds,
+            "demos": [
+                {
+                    "file": d.file,
+                    "demo": d.demo,
+                    "output_demo": d.output_demo,
+                    "demonstrator": d.demonstrator,
+                    "utility_raw": d.utility_raw,
+                    "utility_cleaned": d.utility_cleaned,
+                    "shape_loss_raw": d.shape_loss_raw,
+                    "shape_loss_cleaned": d.shape_loss_cleaned,
+                    "beta_final": d.beta_final,
+                }
+                for d in self.demos
+            ],
+            "notes": list(self.notes),
+        }
+
+
+def output_names(demos: Sequence[Demo]) -> list[str]:
+    """Names of the cleaned demos: the input names when unique, else ``demo_0..demo_{M-1}``.
+
+    Teleop writes one file per demo, each holding ``demo_0``; their cleaned versions share one
+    file, so they are renumbered (``cleaned_from`` names each source).
+    """
+    names = [demo.name for demo in demos]
+    return names if len(set(names)) == len(names) else [f"demo_{k}" for k in range(len(demos))]
+
+
+def cleaned_recording(
+    result: TaskCleanResult,
+    records: dict[tuple[str, str], DemoRecord],
+    sources: dict[str, Recording],
+    options: CleanOptions,
+) -> Recording:
+    """The format-v1 recording of a task's cleaned demos (mapped back to 3-D)."""
+    best = result.demos[result.best_index]
+    plane = best.plane
+    out: dict[str, DemoRecord] = {}
+    for i, (demo, name) in enumerate(zip(result.demos, output_names(result.demos), strict=True)):
+        record = records[(demo.file, demo.name)]
+        ee_pos = plane.to_world(result.positions[i])
+        timestamps = np.linspace(0.0, demo.duration_s, demo.n_samples)
+        raw, cleaned = result.raw[i], result.cleaned[i]
+        out[name] = DemoRecord(
+            ee_pos=ee_pos,
+            timestamps=timestamps,
+            actions=forward_difference_actions(ee_pos, timestamps),
+            demonstrator=demo.demonstrator,
+            theta_deg=float(result.stage1.thetas[i]),
+            rho=float(result.stage1.rhos[i]),
+            source=record.source,
+            created=record.created,
+            ep_meta=record.ep_meta,
+            attrs={
+                "cleaned_from": f"{demo.file}:{demo.name}",
+                "preference_estimated": bool(result.stage1.estimated[i]),
+                "utility_raw": raw.utility,
+                "utility_cleaned": cleaned.utility,
+                "mutual_information": cleaned.mutual_information,
+                "mutual_information_raw": raw.mutual_information,
+                "loss_symmetry": cleaned.symmetry,
+                "loss_closure": cleaned.closure,
+                "loss_smoothness": cleaned.smoothness,
+                "loss_shape": cleaned.shape,
+                "loss_shape_raw": raw.shape,
+                "beta_final": float(result.refine.betas[i]),
+            },
+        )
+    env_args = sources[best.file].env_args
+    return Recording(
+        task=result.task,
+        plane=plane,
+        demos=out,
+        env_args=env_args,
+        attrs={
+            "best_file": best.file,
+            "best_demo": best.name,
+            "cleaned_variant": result.refine.variant,
+            "cleaned_seed": options.seed,
+            "cleaned_epochs": result.refine.epochs,
+        },
+    )
+
+
+def _clean_task(task_demos: tuple[int, list[Demo], CleanOptions]) -> TaskCleanResult:
+    """Clean one task with a progress bar (runs in a worker process when ``workers > 1``)."""
+    position, demos, options = task_demos
+    settings = options.refine_config().resolve()
+    with tqdm(
+        total=settings.epochs,
+        desc=f"clean {demos[0].task}",
+        unit="epoch",
+        position=position,
+        leave=True,
+        disable=not options.progress,
+        file=sys.stderr,
+    ) as bar:
+
+        def on_epoch(stats: EpochStats) -> None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{stats.loss:.3f}", beta=f"{float(np.mean(stats.betas)):.2f}")
+
+        return clean_demos(demos, options, on_epoch=on_epoch)
+
+
+def clean_paths(
+    paths: Sequence[str | Path], out_dir: str | Path, options: CleanOptions | None = None
+) -> list[TaskCleanSummary]:
+    """Clean every task found under `paths` and write the outputs into `out_dir`.
+
+    Raises:
+        RecordingError: No recordings found, or an unreadable file when strict.
+        DemoError: No demos, or a demo that cannot be cleaned (named).
+        ConfigError: An output would overwrite an input.
+    """
+    options = options or CleanOptions()
+    out_dir = Path(out_dir)
+    start = time.perf_counter()
+    files = expand_paths(paths)
+    recordings = read_recordings(files, strict=options.strict)
+    sources: dict[str, Recording] = {}
+    records: dict[tuple[str, str], DemoRecord] = {}
+    demos: list[Demo] = []
+    for recording in recordings:
+        label = str(recording.path) if recording.path else ""
+        sources[label] = recording
+        records.update({(label, name): record for name, record in recording.demos.items()})
+        demos.extend(demos_from_recording(recording, options.n_samples, file=label))
+    if not demos:
+        raise DemoError(f"no demos found in {', '.join(str(p) for p in paths)}")
+    groups = group_by_task(demos)
+    read_seconds = time.perf_counter() - start
+    inputs = {f.resolve() for f in files}
+    for task in groups:
+        for suffix in (".cleaned.hdf5", ".rrd"):
+            if (out_dir / f"{task}{suffix}").resolve() in inputs:
+                raise ConfigError(
+                    f"output {out_dir / (task + suffix)} is also an input; choose another --out"
+                )
+
+    jobs = [(k, group, options) for k, group in enumerate(groups.values())]
+    if options.workers > 1 and len(jobs) > 1:
+        context = multiprocessing.get_context("spawn")
+        with concurrent.futures.ProcessPoolExecutor(
+            max_workers=min(options.workers, len(jobs)), mp_context=context
+        ) as pool:
+            results = list(pool.map(_clean_task, jobs))
+    else:
+        results = [_clean_task(job) for job in jobs]
+
+    # Every task succeeded: only now write outputs, each atomically.
+    out_dir.mkdir(parents=True, exist_ok=True)
+    summaries = []
+    for result in results:
+        write_start = time.perf_counter()
+        output = write_recording(
+            out_dir / f"{result.task}.cleaned.hdf5",
+            cleaned_recording(result, records, sources, options),
+            overwrite=True,
+        )
+        rrd = None
+        if options.write_rrd:
+            from bt_pipeline.viz.rerun_clean import save_clean_rrd
+
+            # Rerun keeps one layout per app id: every file carries a tab for each task of
+            # the run, so opening several of them together shows all tasks.
+            rrd = save_clean_rrd(
+                result,
+                out_dir / f"{result.task}.rrd",
+                blueprint_tasks=[r.task for r in results],
+            )
+        write_seconds = time.perf_counter() - write_start
+        best = result.demos[result.best_index]
+        stage_seconds = {"read": read_seconds / len(results), **result.seconds}
+        stage_seconds["write"] = write_seconds
+        summaries.append(
+            TaskCleanSummary(
+                task=result.task,
+                best_file=best.file,
+                best_demo=best.name,
+                output=output,
+                rrd=rrd,
+                seconds=sum(stage_seconds.values()),
+                stage_seconds=stage_seconds,
+                demos=tuple(
+                    DemoCleanSummary(
+                        file=demo.file,
+                        demo=demo.name,
+                        output_demo=name,
+                        demonstrator=demo.demonstrator,
+                        utility_raw=result.raw[i].utility,
+                        utility_cleaned=result.cleaned[i].utility,
+                        shape_loss_raw=result.raw[i].shape,
+                        shape_loss_cleaned=result.cleaned[i].shape,
+                        beta_final=float(result.refine.betas[i]),
+                    )
+                    for i, (demo, name) in enumerate(
+                        zip(result.demos, output_names(result.demos), strict=True)
+                    )
+                ),
+                notes=result.notes,
+            )
+        )
+        for note in result.notes:
+            log.info("%s: %s", result.task, note)
+    return summaries

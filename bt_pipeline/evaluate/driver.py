@@ -1,0 +1,290 @@
+"""``bt evaluate`` over files: read both sets, pair them by task, evaluate, and write the outputs.
+
+Data flow (I/O at the edges of :mod:`bt_pipeline.evaluate.protocol`)::
+
+    --noisy PATH... ──load_demos──┐
+                                  ├─pair_by_task─▶ per task: evaluate_demos ─▶ TaskEvaluation
+    --cleaned PATH... ─load_demos─┘                   (progress bar on stderr)
+        ──▶ table (rich, stdout) or JSON (stdout, alone)
+        ──▶ --plots DIR: <task>.rollouts.png (Figs. 8-10), rewards.png (Fig. 11)
+        ──▶ --rrd FILE: rollouts, references and the table in one Rerun recording
+        ──▶ --rollouts-out DIR: <task>.<learner>.<dataset>.rollouts.hdf5, format v1, replayable
+
+Outputs are written only after every task has been evaluated, each atomically.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+from tqdm import tqdm
+
+from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo, group_by_task, load_demos
+from bt_pipeline.data.recording import write_recording
+from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_actions
+from bt_pipeline.data.tasks import Task
+from bt_pipeline.evaluate.learners import LearnerName, parse_learner
+from bt_pipeline.evaluate.protocol import (
+    DATASETS,
+    EvalConfig,
+    LearnerEval,
+    TaskEvaluation,
+    evaluate_demos,
+)
+from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.viz.plots import LEARNER_TITLES, RewardBar, plot_reward_bars, plot_rollouts
+
+"""Rerun application id of evaluation recordings."""
+ROLLOUT_ENV_NAME = "bt_rollouts"
+"""``env_args["env_name"]`` of rollout recordings."""
+_GYM_TYPE = 2  # robomimic's EnvType.GYM_TYPE: the closest to "no simulator" (as bt synth).
+
+
+def parse_learners(text: str) -> tuple[LearnerName, ...]:
+    """``"bc,ileed"`` as learner names, in the given order.
+
+    Raises:
+        ConfigError: Empty, unknown (the message lists the valid ones) or repeated names.
+    """
+    names = [part.strip() for part in text.split(",") if part.strip()]
+    if not names:
+        raise ConfigError("--learners is empty; give e.g. bc,traj_bc,ileed,node")
+    learners: tuple[LearnerName, ...] = tuple(parse_learner(name) for name in names)
+    if len(set(learners)) != len(learners):
+        raise ConfigError(f"--learners names a learner twice: {text}")
+    return learners
+
+
+def pair_by_task(
+    noisy: Sequence[Demo], cleaned: Sequence[Demo]
+) -> dict[Task, tuple[list[Demo], list[Demo]]]:
+    """Noisy and cleaned demos grouped by task, tasks in the noisy set's order.
+
+    Raises:
+        ConfigError: A task has demos in one set only (named), or a set is empty.
+    """
+    by_noisy, by_cleaned = group_by_task(noisy), group_by_task(cleaned)
+    if not by_noisy or not by_cleaned:
+        raise ConfigError("give demos with both --noisy and --cleaned")
+    for task in by_noisy:
+        if task not in by_cleaned:
+            raise ConfigError(
+                f"task {task} has noisy demos but no cleaned ones; add its cleaned file "
+                f"(bt clean writes {task}.cleaned.hdf5) to --cleaned, or drop its noisy files"
+            )
+    for task in by_cleaned:
+        if task not in by_noisy:
+            raise ConfigError(
+                f"task {task} has cleaned demos but no noisy ones; add its raw recordings to "
+                "--noisy, or drop its cleaned file"
+            )
+    return {task: (by_noisy[task], by_cleaned[task]) for task in by_noisy}
+
+
+def evaluate_pairs(
+    pairs: dict[Task, tuple[list[Demo], list[Demo]]],
+    config: EvalConfig,
+    progress: bool = True,
+    label: str = "evaluate",
+) -> list[TaskEvaluation]:
+    """Evaluate every task of `pairs`, with one progress bar (stderr) over all trainings."""
+    total = len(pairs) * len(DATASETS) * len(config.learners)
+    evaluations = []
+    with tqdm(total=total, desc=label, unit="model", file=sys.stderr, disable=not progress) as bar:
+        for task, (noisy, cleaned) in pairs.items():
+            bar.set_postfix_str(task)
+
+            def on_trained(result: LearnerEval) -> None:
+                bar.update(1)
+                bar.set_postfix_str(
+                    f"{result.task} {result.learner}/{result.dataset} "
+                    f"R̄ {np.mean(result.rewards):.3f}"
+                )
+
+            evaluations.append(evaluate_demos(noisy, cleaned, config, on_trained))
+    return evaluations
+
+
+def evaluate_paths(
+    noisy: Sequence[str | Path],
+    cleaned: Sequence[str | Path],
+    config: EvalConfig,
+    n_samples: int = DEFAULT_SAMPLES,
+    progress: bool = True,
+) -> list[TaskEvaluation]:
+    """Read both sets (files, directories or globs), pair them by task and evaluate each task.
+
+    Raises:
+        RecordingError: A path matches no recording or a file is not format v1.
+        ConfigError: A task in one set only.
+    """
+    pairs = pair_by_task(load_demos(noisy, n_samples), load_demos(cleaned, n_samples))
+    return evaluate_pairs(pairs, config, progress)
+
+
+def eval_json(evaluations: Sequence[TaskEvaluation]) -> dict[str, Any]:
+    """The ``bt evaluate --json`` document: one row per (task, learner, dataset)."""
+    rows = []
+    for evaluation in evaluations:
+        for result in evaluation.results:
+            rows.append({**result.to_json(), "reward_ceiling": evaluation.yardstick.ceiling})
+    return {"results": rows}
+
+
+def print_eval_table(evaluations: Sequence[TaskEvaluation], console: Console | None = None) -> None:
+    """One table: task × learner × dataset with R̄, L4, Ũ, training time; Δ on cleaned rows."""
+    console = console or Console(width=max(Console().width, 130))
+    table = Table(
+        title="Learners trained on noisy vs cleaned demos (mean ± std over rollouts)",
+        title_justify="left",
+    )
+    for column in ("task", "learner", "dataset"):
+        table.add_column(column)
+    for column in ("R̄", "Δ R̄", "R̄ paper", "cover", "L4 [mm]", "shape [mm]", "Ũ", "train [s]"):
+        table.add_column(column, justify="right")
+    for evaluation in evaluations:
+        for learner in evaluation.learners:
+            noisy_mean = float(np.mean(evaluation.result(learner, "noisy").rewards))
+            for dataset in evaluation.datasets:
+                r = evaluation.result(learner, dataset)
+                m = r.metrics
+                delta = float(np.mean(m.rewards)) - noisy_mean
+                style = "" if dataset == "noisy" else ("green" if delta > 0 else "red")
+                table.add_row(
+                    evaluation.task,
+                    LEARNER_TITLES.get(learner, learner),
+                    dataset + ("" if r.finite else " (non-finite!)"),
+                    f"{np.mean(m.rewards):.3f} ± {np.std(m.rewards):.3f}",
+                    "" if dataset == "noisy" else f"[{style}]{delta:+.3f}[/]",
+                    f"{np.mean(m.rewards_direct):.3f}",
+                    f"{np.mean(m.coverage):.2f}",
+                    f"{1e3 * np.mean(m.shape_losses):.1f} ± {1e3 * np.std(m.shape_losses):.1f}",
+                    f"{1e3 * np.mean(m.shape_distances):.1f}",
+                    f"{np.mean(m.utilities):.3f}",
+                    f"{r.train_seconds:.1f}",
+                )
+        table.add_section()
+    console.print(table)
+    console.print(
+        "R̄: mean V_E reward (Eq. 11 / N) in the nearest demonstrator's frame; R̄ paper: V_E read "
+        "directly (best demonstrator's frame); ceiling (best raw demo): "
+        + ", ".join(f"{e.task} {e.yardstick.ceiling:.3f}" for e in evaluations)
+        + ". cover: share of that demonstrator's reference loop the rollout passes within V_E's "
+        "bandwidth. L4: Eq. 9 to the nearest aligned reference; shape: phase-free distance to it."
+    )
+
+
+def reward_bars(evaluations: Sequence[TaskEvaluation], group: str = "") -> list[RewardBar]:
+    """Fig. 11 bars (mean ± std of R̄ over rollouts) of every evaluated pair."""
+    return [
+        RewardBar(
+            group=group,
+            task=e.task,
+            learner=r.learner,
+            dataset=r.dataset,
+            mean=float(np.mean(r.rewards)),
+            std=float(np.std(r.rewards)),
+            ceiling=e.yardstick.ceiling,
+        )
+        for e in evaluations
+        for r in e.results
+    ]
+
+
+def write_plots(evaluations: Sequence[TaskEvaluation], out_dir: str | Path) -> list[Path]:
+    """``<task>.rollouts.png`` per task (Figs. 8-10) and ``rewards.png`` (Fig. 11) in `out_dir`."""
+    out = Path(out_dir)
+    paths = [plot_rollouts(e, out / f"{e.task}.rollouts.png") for e in evaluations]
+    paths.append(plot_reward_bars(reward_bars(evaluations), out / "rewards.png"))
+    return paths
+
+
+def rollout_recording(evaluation: TaskEvaluation, result: LearnerEval, seed: int) -> Recording:
+    """One learner's rollouts as a format-v1 recording, mapped to 3-D by the noisy set's plane.
+
+    Rollout k becomes ``demo_<k>``: ee_pos = plane.to_world(rollout), timestamps uniform over
+    the noisy demos' mean duration, source "import", demonstrator ``<learner>-<dataset>``, θ/ρ
+    unknown (NaN), ``ep_meta["rollout_of"]`` naming what it is a rollout of, and its metrics as
+    attrs. The teleop app's replay plays it on the simulated FR3 like any demo.
+    """
+    n = result.rollouts.shape[1]
+    timestamps = np.linspace(0.0, evaluation.duration_s, n)
+    m = result.metrics
+    demos: dict[str, DemoRecord] = {}
+    for k, rollout in enumerate(result.rollouts):
+        ee_pos = evaluation.plane.to_world(rollout)
+        demos[f"demo_{k}"] = DemoRecord(
+            ee_pos=ee_pos,
+            timestamps=timestamps,
+            demonstrator=f"{result.learner}-{result.dataset}",
+            theta_deg=float("nan"),
+            rho=float("nan"),
+            source="import",
+            actions=forward_difference_actions(ee_pos, timestamps),
+            ep_meta={
+                "rollout_of": {
+                    "task": result.task,
+                    "learner": result.learner,
+                    "dataset": result.dataset,
+                    "seed": seed,
+                    "rollout": k,
+                }
+            },
+            attrs={
+                "reward": float(m.rewards[k]),
+                "reward_direct": float(m.rewards_direct[k]),
+                "shape_loss": float(m.shape_losses[k]),
+                "utility": float(m.utilities[k]),
+            },
+        )
+    return Recording(
+        task=result.task,
+        plane=evaluation.plane,
+        demos=demos,
+        env_args={
+            "env_name": ROLLOUT_ENV_NAME,
+            "type": _GYM_TYPE,
+            "env_kwargs": {"task": result.task, "learner": result.learner, "seed": seed},
+        },
+        attrs={"rollouts_of": f"{result.learner} trained on {result.dataset} {result.task} demos"},
+    )
+
+
+def write_rollouts(
+    evaluations: Sequence[TaskEvaluation], out_dir: str | Path, seed: int = 0
+) -> list[Path]:
+    """``<task>.<learner>.<dataset>.rollouts.hdf5`` per evaluated pair in `out_dir` (replaced)."""
+    out = Path(out_dir)
+    return [
+        write_recording(
+            out / f"{e.task}.{r.learner}.{r.dataset}.rollouts.hdf5",
+            rollout_recording(e, r, seed),
+            overwrite=True,
+        )
+        for e in evaluations
+        for r in e.results
+    ]
+
+
+def markdown_table(evaluations: Sequence[TaskEvaluation]) -> str:
+    """The evaluation table as Markdown (for Rerun's text view)."""
+    lines = [
+        "| task | learner | dataset | R̄ | R̄ paper | L4 [mm] | Ũ | train [s] |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for e in evaluations:
+        for r in e.results:
+            m = r.metrics
+            lines.append(
+                f"| {e.task} | {LEARNER_TITLES.get(r.learner, r.learner)} | {r.dataset} | "
+                f"{np.mean(m.rewards):.3f} ± {np.std(m.rewards):.3f} | "
+                f"{np.mean(m.rewards_direct):.3f} | {1e3 * np.mean(m.shape_losses):.1f} | "
+                f"{np.mean(m.utilities):.3f} | {r.train_seconds:.1f} |"
+            )
+    return "\n".join(lines)

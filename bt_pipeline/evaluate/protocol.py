@@ -1,0 +1,313 @@
+"""The paper's evaluation (Sec. IV, Figs. 8-11): imitation learners on noisy vs cleaned demos.
+
+For one task (pure core, :func:`evaluate_task`)::
+
+    noisy demos ──score──> best ──Stage 1──> V_E, x_i^aligned, frozen normaliser   (the yardstick)
+    for dataset in (noisy, cleaned):
+        for learner in (bc, traj_bc, ileed, node):
+            train on the dataset ──> R rollouts of N steps from perturbed initial states
+            per rollout: nearest demonstrator j* (phase-free distance to its reference), then
+                R̄ (Eq. 11 / N: V_E in j*'s frame), L4 to j*'s aligned reference (Eq. 9),
+                Ũ (Eq. 8 with L1-L4, the frozen normaliser, β = 0.5), and for comparison
+                R̄ with V_E read directly (the paper's literal protocol) and the phase-free
+                distance itself
+
+The yardstick comes from the noisy set only, so both datasets are measured by the same V_E,
+references, normaliser and initial states (docs/algorithms.md §7 row 20). docs/evaluation.md
+explains every protocol choice, in particular why R̄ is read in the nearest demonstrator's frame:
+V_E is a thin ridge along the *best* demonstrator's loop (its θ, ρ), so read directly it scores a
+perfect loop of another demonstrator 0.2-0.4 against 0.6-0.7 for the best one's, whatever the
+quality; a learner trained on all demonstrators draws some loop among theirs and is then
+measured by its distance to the best demonstrator's preference, not by its quality.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from bt_pipeline.data.demo import Demo
+from bt_pipeline.data.plane import TaskPlane
+from bt_pipeline.data.records import FloatArray
+from bt_pipeline.data.tasks import Task
+from bt_pipeline.evaluate.learners import LEARNERS, LearnerName, learner_config, train_learner
+from bt_pipeline.evaluate.metrics import (
+    RewardFrame,
+    RolloutMetrics,
+    Yardstick,
+    build_yardstick,
+    initial_states,
+    mean_of,
+    rollout_metrics,
+    std_of,
+)
+from bt_pipeline.exceptions import ConfigError, DemoError
+
+Dataset = Literal["noisy", "cleaned", "truth"]
+"""What a learner was trained on: the raw demos, the cleaned ones, or (synthetic sets only, as an
+upper bound of any cleaning) the demos' ground-truth shapes."""
+DATASETS: tuple[Dataset, ...] = ("noisy", "cleaned")
+"""The datasets every evaluation compares."""
+StartRule = Literal["reference", "demo"]
+"""Where rollouts start (before the noise): a random demo's first state moved onto its
+demonstrator's reference loop (bt's default), or the raw first state itself (§7 row 20)."""
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Settings of the evaluation protocol."""
+
+    learners: tuple[LearnerName, ...] = LEARNERS
+    """Learners to train."""
+    rollouts: int = 50
+    """Rollouts per trained learner (paper: 50)."""
+    init_noise: float = 0.02
+    """Std of the initial-state perturbation, as a fraction of the loop size (§7 row 20)."""
+    quick: bool = False
+    """Use each learner's CI-sized preset."""
+    seed: int = 0
+    """Seed of training and of the initial states."""
+    reward_frame: RewardFrame = "nearest"
+    """Frame in which V_E reads a rollout for the headline R̄ (both are always reported)."""
+    starts: StartRule = "reference"
+    """Where rollouts start before the perturbation."""
+    steps: int | None = None
+    """Override every learner's optimiser steps (tiny test runs); None keeps the presets."""
+
+    def __post_init__(self) -> None:
+        if not self.learners:
+            raise ConfigError("give at least one learner")
+        for name in self.learners:
+            if name not in LEARNERS:
+                raise ConfigError(
+                    f"unknown learner {name!r}; valid learners: {', '.join(LEARNERS)}"
+                )
+        if len(set(self.learners)) != len(self.learners):
+            raise ConfigError(f"each learner may be given once; got {', '.join(self.learners)}")
+        if self.rollouts < 1:
+            raise ConfigError(f"--rollouts must be ≥ 1; got {self.rollouts}")
+        if not 0.0 <= self.init_noise < 1.0:
+            raise ConfigError(f"init_noise must lie in [0, 1); got {self.init_noise}")
+        if self.seed < 0:
+            raise ConfigError(f"--seed must be ≥ 0; got {self.seed}")
+        if self.reward_frame not in ("nearest", "best"):
+            raise ConfigError(
+                f"reward_frame must be 'nearest' or 'best'; got {self.reward_frame!r}"
+            )
+        if self.starts not in ("reference", "demo"):
+            raise ConfigError(f"starts must be 'reference' or 'demo'; got {self.starts!r}")
+        if self.steps is not None and self.steps < 1:
+            raise ConfigError(f"steps must be ≥ 1 or None; got {self.steps}")
+
+
+@dataclass(frozen=True, eq=False)
+class LearnerEval:
+    """One learner trained on one dataset of one task, and its rollouts' metrics."""
+
+    task: Task
+    learner: LearnerName
+    dataset: Dataset
+    rollouts: FloatArray
+    """Rollout states, shape (R, N, 2), in task coordinates [m]."""
+    metrics: RolloutMetrics
+    """Per-rollout metrics."""
+    train_seconds: float
+    """Wall time of the learner's optimiser loop [s] (its own measure: no one-off set-up)."""
+    expertise: dict[str, float]
+    """ILEED's learned expertise per demonstrator (empty for other learners)."""
+    finite: bool
+    """Training never produced a non-finite loss and every rollout is finite."""
+    final_loss: float
+    """Mean training loss over the last 5 % of the steps (learner-specific units)."""
+
+    @property
+    def rewards(self) -> FloatArray:
+        """Headline R̄ of each rollout, shape (R,)."""
+        return self.metrics.rewards
+
+    @property
+    def shape_losses(self) -> FloatArray:
+        """L4 of each rollout [m], shape (R,)."""
+        return self.metrics.shape_losses
+
+    @property
+    def utilities(self) -> FloatArray:
+        """Ũ of each rollout, shape (R,)."""
+        return self.metrics.utilities
+
+    def to_json(self) -> dict[str, object]:
+        """One row of ``bt evaluate --json``."""
+        m = self.metrics
+        return {
+            "task": self.task,
+            "learner": self.learner,
+            "dataset": self.dataset,
+            "reward_mean": mean_of(m.rewards),
+            "reward_std": std_of(m.rewards),
+            "shape_loss": mean_of(m.shape_losses),
+            "shape_loss_std": std_of(m.shape_losses),
+            "utility": mean_of(m.utilities),
+            "utility_std": std_of(m.utilities),
+            "reward_direct_mean": mean_of(m.rewards_direct),
+            "reward_direct_std": std_of(m.rewards_direct),
+            "reward_nearest_mean": mean_of(m.rewards_nearest),
+            "reward_nearest_std": std_of(m.rewards_nearest),
+            "shape_distance": mean_of(m.shape_distances),
+            "shape_distance_std": std_of(m.shape_distances),
+            "coverage": mean_of(m.coverage),
+            "rollouts": int(self.rollouts.shape[0]),
+            "train_seconds": self.train_seconds,
+            "final_loss": self.final_loss,
+            "finite": self.finite,
+            "expertise": self.expertise,
+        }
+
+
+def check_pair(noisy: Sequence[Demo], cleaned: Sequence[Demo]) -> tuple[Task, int]:
+    """The task and N shared by a noisy and a cleaned demo set.
+
+    Raises:
+        DemoError: Empty sets, mixed tasks, or sets of different N.
+    """
+    if not noisy or not cleaned:
+        raise DemoError("evaluation needs both noisy and cleaned demos of the task")
+    tasks = {d.task for d in (*noisy, *cleaned)}
+    if len(tasks) != 1:
+        raise DemoError(f"evaluate one task at a time; got demos of {sorted(tasks)}")
+    lengths = {d.n_samples for d in (*noisy, *cleaned)}
+    if len(lengths) != 1:
+        raise DemoError(f"noisy and cleaned demos must have the same N; got {sorted(lengths)}")
+    return noisy[0].task, noisy[0].n_samples
+
+
+def evaluate_task(
+    noisy: Sequence[Demo],
+    cleaned: Sequence[Demo],
+    config: EvalConfig | None = None,
+    on_trained: Callable[[LearnerEval], None] | None = None,
+    yardstick: Yardstick | None = None,
+    truth: Sequence[Demo] | None = None,
+) -> list[LearnerEval]:
+    """Train every learner on the noisy and on the cleaned demos of one task and measure them.
+
+    Args:
+        noisy: The raw demos (they also define the yardstick and the initial states).
+        cleaned: The cleaned demos of the same task (any number, same N).
+        config: Protocol settings.
+        on_trained: Called after each learner is trained and measured (progress).
+        yardstick: The noisy set's yardstick if already built (:func:`build_yardstick` with
+            the config's seed); built here when None.
+        truth: Demos of the ground-truth shapes (synthetic sets), a third dataset measured the
+            same way: the upper bound of what cleaning can give under this protocol.
+
+    Returns:
+        One :class:`LearnerEval` per (dataset, learner): noisy, cleaned, then truth.
+
+    Raises:
+        DemoError: Empty sets, mixed tasks, or sets of different N.
+    """
+    config = config or EvalConfig()
+    task, n = check_pair(noisy, cleaned)
+    yardstick = yardstick or build_yardstick(noisy, seed=config.seed)
+    references = yardstick.stage1.aligned if config.starts == "reference" else None
+    noise_m = config.init_noise * yardstick.size
+    x0 = initial_states(noisy, config.rollouts, noise_m, config.seed, references)
+    overrides: dict[str, object] = {"seed": config.seed}
+    if config.steps is not None:
+        overrides["steps"] = config.steps
+    if truth is not None:
+        check_pair(noisy, truth)
+    datasets: list[tuple[Dataset, Sequence[Demo]]] = [("noisy", noisy), ("cleaned", cleaned)]
+    if truth is not None:
+        datasets.append(("truth", truth))
+    results = []
+    for dataset, demos in datasets:
+        positions = np.stack([d.positions for d in demos])
+        demonstrators = [d.demonstrator for d in demos]
+        for learner in config.learners:
+            trained = train_learner(
+                learner,
+                positions,
+                demonstrators,
+                learner_config(learner, quick=config.quick, **overrides),
+            )
+            rollouts = trained.policy.rollout(x0, n_samples=n)
+            finite = bool(np.all(np.isfinite(rollouts))) and trained.skipped_steps == 0
+            history = trained.loss_history[np.isfinite(trained.loss_history)]
+            tail = history[-max(1, len(history) // 20) :] if history.size else np.array([np.nan])
+            result = LearnerEval(
+                task=task,
+                learner=learner,
+                dataset=dataset,
+                rollouts=rollouts,
+                metrics=rollout_metrics(rollouts, yardstick, config.reward_frame),
+                train_seconds=trained.seconds,
+                expertise=dict(trained.expertise),
+                finite=finite,
+                final_loss=float(np.mean(tail)),
+            )
+            results.append(result)
+            if on_trained is not None:
+                on_trained(result)
+    return results
+
+
+@dataclass(frozen=True, eq=False)
+class TaskEvaluation:
+    """Every learner's evaluation on one task, with what it was measured against."""
+
+    task: Task
+    """The task."""
+    yardstick: Yardstick
+    """The noisy set's yardstick."""
+    results: tuple[LearnerEval, ...]
+    """One per (dataset, learner), noisy first."""
+    plane: TaskPlane
+    """The noisy set's task plane (maps rollouts to 3-D)."""
+    duration_s: float
+    """Mean duration of the noisy demos [s] (a rollout spans one demo)."""
+
+    def result(self, learner: str, dataset: str) -> LearnerEval:
+        """The evaluation of `learner` on `dataset`.
+
+        Raises:
+            ConfigError: No such pair was evaluated.
+        """
+        for r in self.results:
+            if r.learner == learner and r.dataset == dataset:
+                return r
+        raise ConfigError(f"{learner} on {dataset} {self.task} was not evaluated")
+
+    @property
+    def learners(self) -> tuple[LearnerName, ...]:
+        """Evaluated learners, in order."""
+        return tuple(dict.fromkeys(r.learner for r in self.results))
+
+    @property
+    def datasets(self) -> tuple[Dataset, ...]:
+        """Evaluated datasets, in order (noisy, cleaned, and truth when given)."""
+        return tuple(dict.fromkeys(r.dataset for r in self.results))
+
+
+def evaluate_demos(
+    noisy: Sequence[Demo],
+    cleaned: Sequence[Demo],
+    config: EvalConfig | None = None,
+    on_trained: Callable[[LearnerEval], None] | None = None,
+    truth: Sequence[Demo] | None = None,
+) -> TaskEvaluation:
+    """:func:`evaluate_task`, returned with its yardstick, plane and demo duration."""
+    config = config or EvalConfig()
+    check_pair(noisy, cleaned)
+    yardstick = build_yardstick(noisy, seed=config.seed)
+    results = evaluate_task(noisy, cleaned, config, on_trained, yardstick, truth)
+    return TaskEvaluation(
+        task=noisy[0].task,
+        yardstick=yardstick,
+        results=tuple(results),
+        plane=noisy[0].plane,
+        duration_s=float(np.mean([d.duration_s for d in noisy])),
+    )

@@ -1,0 +1,65 @@
+"""Shared Rerun helpers: an atomic, deterministic .rrd writer and the per-demo palette."""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from bt_pipeline.exceptions import ConfigError
+
+_TAB10 = "1f77b4 ff7f0e 2ca02c d62728 9467bd 8c564b e377c2 7f7f7f bcbd22 17becf"
+_PALETTE = np.array([list(bytes.fromhex(c)) for c in _TAB10.split()], dtype=np.uint8)  # (10, 3)
+
+
+def save_rrd(
+    path: Path,
+    *,
+    app_id: str,
+    recording_id: str,
+    name: str,
+    blueprint: rrb.Blueprint,
+    log: Callable[[rr.RecordingStream], None],
+    disabled_hint: str,
+) -> Path:
+    """Log into a new deterministic stream and save it to `path` (.rrd), atomically.
+
+    The stream has no wall-clock ``log_time`` timeline. It is written to a temporary file beside
+    `path`, closed (footer written), fsynced, then moved into place; on any failure the
+    temporary file is removed and `path` is left as it was.
+
+    Raises:
+        ConfigError: Rerun is disabled (RERUN=off); the message ends with `disabled_hint`.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    rec = rr.RecordingStream(app_id, recording_id=recording_id, send_properties=False)
+    if not rec.is_enabled():
+        raise ConfigError(f"Rerun logging is disabled (RERUN=off); unset RERUN or {disabled_hint}")
+    try:
+        try:
+            rec.set_log_time_enabled(False)
+            rec.save(tmp)
+            rec.send_recording_name(name)
+            rec.send_blueprint(blueprint, make_active=True, make_default=True)
+            log(rec)
+            rec.flush()
+        finally:
+            rec.disconnect()  # Closes the file sink and writes the footer.
+        with open(tmp, "rb") as written:
+            os.fsync(written.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def demo_colors(n_demos: int) -> np.ndarray:
+    """One RGB colour per demo (tab10, cycled), shape (M, 3), uint8."""
+    return _PALETTE[np.arange(n_demos) % len(_PALETTE)]

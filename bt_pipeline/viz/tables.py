@@ -1,0 +1,139 @@
+"""Tables (rich, on stdout) and JSON documents of scores and cleaning summaries."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+if TYPE_CHECKING:
+    from bt_pipeline.clean.driver import TaskCleanSummary
+    from bt_pipeline.score.utility import TaskScores
+
+
+def _console() -> Console:
+    """A stdout console at least 120 columns wide, even when stdout is a pipe."""
+    console = Console()
+    if console.width < 120:
+        console = Console(width=120)
+    return console
+
+
+def _short(file: str, demo: str) -> str:
+    """``<file name>:<demo>`` (the directory is in the JSON output)."""
+    return f"{Path(file).name}:{demo}" if file else demo
+
+
+def _fmt_pref(value: float | None, digits: int) -> str:
+    return "?" if value is None or math.isnan(value) else f"{value:.{digits}f}"
+
+
+def score_json(results: Sequence[TaskScores]) -> dict[str, Any]:
+    """The ``bt score --json`` document."""
+    tasks = []
+    for result in results:
+        best = result.best.demo
+        tasks.append(
+            {
+                "task": result.task,
+                "best": {"file": best.file, "demo": best.name},
+                "demos": [
+                    {
+                        "file": s.demo.file,
+                        "demo": s.demo.name,
+                        "demonstrator": s.demo.demonstrator,
+                        "theta_deg": s.demo.theta_deg,
+                        "rho": s.demo.rho,
+                        "mutual_information": s.mutual_information,
+                        "symmetry": s.symmetry,
+                        "closure": s.closure,
+                        "smoothness": s.smoothness,
+                        "utility": s.utility,
+                        "rank": s.rank,
+                    }
+                    for s in result.scores
+                ],
+            }
+        )
+    return {"tasks": tasks}
+
+
+def print_score_tables(results: Sequence[TaskScores], console: Console | None = None) -> None:
+    """One table per task: demo, demonstrator, θ, ρ, MI, L1, L2, L3, Ũ, rank; best marked ★."""
+    console = console or _console()
+    for result in results:
+        files = {s.demo.file for s in result.scores}
+        one_file = len(files) == 1
+
+        def label(file: str, demo: str, one_file: bool = one_file) -> str:
+            return demo if one_file else _short(file, demo)
+
+        where = f" in {next(iter(files))}" if one_file else f" from {len(files)} files"
+        table = Table(
+            title=(
+                f"{result.task}: {len(result.scores)} demos{where}, best = "
+                f"{label(result.best.demo.file, result.best.demo.name)} ★"
+            ),
+            title_justify="left",
+        )
+        for column in ("", "demo", "demonstrator", "θ [°]", "ρ"):
+            table.add_column(escape(column))
+        for column in ("MI [nats]", "L1 sym [mm]", "L2 close [mm]", "L3 smooth", "Ũ", "rank"):
+            table.add_column(escape(column), justify="right")
+        for index, s in enumerate(result.scores):
+            table.add_row(
+                "★" if index == result.best_index else "",
+                label(s.demo.file, s.demo.name),
+                s.demo.demonstrator,
+                _fmt_pref(s.demo.theta_deg, 1),
+                _fmt_pref(s.demo.rho, 2),
+                f"{s.mutual_information:.3f}",
+                f"{1e3 * s.symmetry:.2f}",
+                f"{1e3 * s.closure:.2f}",
+                f"{s.smoothness:.3g}",
+                f"{s.utility:.3f}",
+                str(s.rank),
+            )
+        console.print(table)
+
+
+def clean_json(summaries: Sequence[TaskCleanSummary]) -> dict[str, Any]:
+    """The ``bt clean --json`` document."""
+    return {"tasks": [summary.to_json() for summary in summaries]}
+
+
+def print_clean_summary(
+    summaries: Sequence[TaskCleanSummary], console: Console | None = None
+) -> None:
+    """One table per cleaned task: Ũ and L4 before and after, β, and the output files."""
+    console = console or _console()
+    for summary in summaries:
+        table = Table(
+            title=(
+                f"{summary.task}: best = {summary.best_file}:{summary.best_demo}, "
+                f"{summary.seconds:.1f} s → {summary.output}"
+            ),
+            title_justify="left",
+        )
+        for column in ("demo", "demonstrator"):
+            table.add_column(column)
+        for column in ("Ũ raw", "Ũ cleaned", "L4 raw [mm]", "L4 cleaned [mm]", "β final"):
+            table.add_column(escape(column), justify="right")
+        for demo in summary.demos:
+            table.add_row(
+                _short(demo.file, demo.demo),
+                demo.demonstrator,
+                f"{demo.utility_raw:.3f}",
+                f"{demo.utility_cleaned:.3f}",
+                f"{1e3 * demo.shape_loss_raw:.2f}",
+                f"{1e3 * demo.shape_loss_cleaned:.2f}",
+                f"{demo.beta_final:.2f}",
+            )
+        console.print(table)
+        for note in summary.notes:
+            console.print(f"note: {note}")
