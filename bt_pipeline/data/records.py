@@ -18,6 +18,8 @@ from bt_pipeline.data.tasks import Task
 
 FloatArray = NDArray[np.float64]
 Source = Literal["teleop", "synthetic", "import"]
+TakeFlag = Literal["too_short", "no_motion", "incomplete", "closed_mid_take"]
+"""Why a take failed the app's checks (demo attr ``flags``; docs/recording-format.md)."""
 MIN_SAMPLES = 16
 """Fewest samples a demo may have."""
 
@@ -74,6 +76,22 @@ class DemoRecord:
     def num_samples(self) -> int:
         """Number of samples T."""
         return int(self.ee_pos.shape[0])
+
+    @property
+    def flags(self) -> tuple[str, ...]:
+        """Take-check flags of this demo (attr ``flags``, comma-separated; see the format doc).
+
+        ``ep_meta["incomplete"]`` (a tab closed mid-take, as older app versions wrote it) counts as
+        the flag ``closed_mid_take``. A flagged demo is never the best demo, and scoring and
+        cleaning skip it with a note naming it.
+        """
+        raw = self.attrs.get("flags", "")
+        if isinstance(raw, bytes):
+            raw = raw.decode("utf-8", "replace")
+        found = [f.strip() for f in str(raw).split(",") if f.strip()]
+        if self.ep_meta.get("incomplete") is True and "closed_mid_take" not in found:
+            found.append("closed_mid_take")
+        return tuple(found)
 
     def resolved_actions(self) -> FloatArray:
         """The stored actions, or the forward difference of ee_pos when none are stored."""
