@@ -1,8 +1,8 @@
 """The jobs of ``bt reproduce``: each (seed, set, task) generates, cleans and evaluates.
 
-One job per (seed, set, task), run in parallel with ``workers`` (see :mod:`bt_pipeline.evaluate.
-reproduce` for the data flow and the outputs). Results depend only on the config and seeds, not
-on ``workers``.
+One job per (seed, set, task), run in parallel with ``workers``; the data flow and the outputs
+are in :mod:`bt_pipeline.evaluate.reproduce`. Results depend only on the config and seeds, not on
+``workers``.
 """
 
 from __future__ import annotations
