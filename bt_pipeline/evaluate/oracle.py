@@ -14,6 +14,8 @@ one loop over the demo, N samples uniform in normalised time. Nothing in them wa
   demonstrator; each rollout is compared with the loop of the demonstrator whose demo it started
   from, with the nearest of the four loops, and with the *mean-preference* loop (θ, ρ averaged).
   A policy that averages preferences lies nearer the mean loop than its own.
+* **Attraction** (both checks): rollouts from points 1-3 cm off the true loop (along its normal,
+  either side) must end, one canonical period (N samples) later, within 2 mm of the loop.
 """
 
 from __future__ import annotations
@@ -30,7 +32,12 @@ from bt_pipeline.data.shapes import canonical_loop, canonical_shape, similarity_
 from bt_pipeline.data.synth import DEMONSTRATORS, TRUTH_SAMPLES, Demonstrator
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.evaluate.distance import chamfer_distance
-from bt_pipeline.evaluate.learners import LearnerName, learner_config, train_learner
+from bt_pipeline.evaluate.learners import (
+    LearnedPolicy,
+    LearnerName,
+    learner_config,
+    train_learner,
+)
 
 COVERAGE_TOLERANCE_M = 0.005
 """A true-loop point is covered when a rollout passes within this distance [m]."""
@@ -38,6 +45,8 @@ COVERAGE_PASS = 0.9
 """Coverage a competent learner reaches."""
 SHAPE_RATIO_PASS = 2.0
 """A competent learner's shape error is at most this multiple of the demos' own."""
+CONVERGED_M = 0.002
+"""A rollout from 1-3 cm off the loop has converged when it ends this close to it [m]."""
 OWN_ERROR_FLOOR_M = 0.001
 """Floor of the demos' own shape error in the pass rule [m] (perfect demos have ~0.1 mm)."""
 
@@ -116,6 +125,11 @@ class CompetenceRow:
     """Share of rollouts whose nearest true loop is their own demonstrator's (four only)."""
     mean_loop_error_m: float
     """Mean phase-free distance of the rollouts to the mean-preference loop [m] (four only)."""
+    converged: float
+    """Share of rollouts from 1-3 cm off the own loop that end one period later within 2 mm
+    of it."""
+    final_gap_m: float
+    """Largest distance to the own loop after one period from those starts [m]."""
 
     @property
     def passed(self) -> bool:
@@ -133,6 +147,8 @@ class CompetenceRow:
             "demos_error": self.demos_error_m,
             "nearest_own": self.nearest_own,
             "mean_loop_error": self.mean_loop_error_m,
+            "converged": self.converged,
+            "final_gap": self.final_gap_m,
             "passed": self.passed,
         }
 
@@ -146,11 +162,19 @@ def competence(
     quick: bool = False,
     seed: int = 0,
     init_noise: float = 0.02,
+    steps: int | None = None,
 ) -> CompetenceRow:
-    """Train `learner` on perfect demos of `teachers` and measure its rollouts (module doc)."""
+    """Train `learner` on perfect demos of `teachers` and measure its rollouts (module doc).
+
+    `steps` overrides the learner's optimiser steps (tiny test runs only).
+    """
     data = perfect_demos(task, teachers, per_teacher, seed=seed)
+    overrides: dict[str, object] = {"seed": seed} | ({"steps": steps} if steps else {})
     trained = train_learner(
-        learner, data.positions, list(data.demonstrators), learner_config(learner, quick, seed=seed)
+        learner,
+        data.positions,
+        list(data.demonstrators),
+        learner_config(learner, quick, **overrides),
     )
     size = float(np.ptp(data.positions.reshape(-1, 2), axis=0).max())
     x0, demo = perturbed_starts(data.positions, rollouts, init_noise * size, seed)
@@ -187,18 +211,44 @@ def competence(
         ),
         nearest_own=float(np.mean(nearest_own)),
         mean_loop_error_m=float(np.mean([chamfer_distance(r, mean_loop) for r in states])),
+        **_convergence(trained.policy, data, rollouts, seed),
     )
 
 
-def one_demonstrator_check(
-    task: Task, learner: LearnerName, quick: bool = False, seed: int = 0, rollouts: int = 20
-) -> CompetenceRow:
-    """Competence on four perfect demos of demonstrator A (teacher_a)."""
-    return competence(task, learner, DEMONSTRATORS[:1], 4, rollouts, quick, seed)
+def _convergence(policy: LearnedPolicy, data: PerfectSet, count: int, seed: int) -> dict[str, float]:
+    """Roll out one period from `count` points 1-3 cm off the true loops (along the normal, either
+    side) and measure the final distance to the own loop."""
+    rng = np.random.default_rng(seed + 7)
+    names = list(data.truths)
+    who = rng.integers(0, len(names), size=count)
+    finals = []
+    starts = []
+    for w in who:
+        loop = data.truths[names[w]]
+        k = int(rng.integers(0, loop.shape[0]))
+        tangent = loop[(k + 1) % loop.shape[0]] - loop[k - 1]
+        normal = np.array([-tangent[1], tangent[0]]) / max(float(np.linalg.norm(tangent)), 1e-12)
+        starts.append(loop[k] + normal * rng.choice([-1.0, 1.0]) * rng.uniform(0.01, 0.03))
+    ends = policy.rollout(np.stack(starts), data.positions.shape[1])[:, -1]
+    for end, w in zip(ends, who, strict=True):
+        gap, _ = KDTree(data.truths[names[w]]).query(end)
+        finals.append(float(gap))
+    return {
+        "converged": float(np.mean(np.array(finals) <= CONVERGED_M)),
+        "final_gap_m": float(np.max(finals)),
+    }
 
 
-def four_demonstrator_check(
-    task: Task, learner: LearnerName, quick: bool = False, seed: int = 0, rollouts: int = 20
+def competence_check(
+    check: str,
+    task: Task,
+    learner: LearnerName,
+    quick: bool = False,
+    seed: int = 0,
+    rollouts: int = 20,
+    steps: int | None = None,
 ) -> CompetenceRow:
-    """Competence on one perfect demo of each D1 demonstrator (teachers a-d)."""
-    return competence(task, learner, DEMONSTRATORS, 1, rollouts, quick, seed)
+    """The one-demonstrator (``"one"``: 4 perfect demos of teacher_a) or four-demonstrator
+    (``"four"``: one perfect demo of each D1 demonstrator) check (module doc)."""
+    teachers, per_teacher = (DEMONSTRATORS[:1], 4) if check == "one" else (DEMONSTRATORS, 1)
+    return competence(task, learner, teachers, per_teacher, rollouts, quick, seed, steps=steps)
