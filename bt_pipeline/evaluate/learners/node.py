@@ -90,7 +90,7 @@ class NODEConfig(TrainConfig):
     @classmethod
     def quick(cls, **overrides: Any) -> NODEConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=80, lr=1e-2, max_segment=0.1), **overrides)
+        return replace(cls(steps=160, lr=1e-2, max_segment=0.1), **overrides)
 
     def segment_steps(self, step: int, n_intervals: int) -> int:
         """Solver steps per segment at optimiser step `step` (the curriculum), >= 1."""
