@@ -220,7 +220,7 @@ def evaluate(
 def reproduce(
     quick: bool = False,
     out: Path = Path("reproduce"),
-    seeds: int = 1,
+    seeds: int | None = None,
     workers: int = 1,
     oracle: bool = False,
 ) -> None:
@@ -233,14 +233,18 @@ def reproduce(
     Args:
         quick: The CI-sized run (learners' quick presets, 20 rollouts) instead of the full one.
         out: Output directory (created if missing; its files are replaced).
-        seeds: Repeat with seeds 0 .. K-1 and report the spread over seeds too.
+        seeds: Repeat with seeds 0 .. K-1 and report the spread over seeds too (default: 3 for
+            the full run, 1 with --quick).
         workers: Jobs (set × task × seed) run in parallel processes; results do not change.
         oracle: Also train on the synthetic ground truth: the upper bound of any cleaning.
     """
     from bt_pipeline.evaluate.reproduce import reproduce as run
     from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig
 
-    config = ReproduceConfig.preset(quick, seeds=seeds, workers=workers, oracle=oracle)
+    overrides: dict[str, object] = {"workers": workers, "oracle": oracle}
+    if seeds is not None:
+        overrides["seeds"] = seeds
+    config = ReproduceConfig.preset(quick, **overrides)
     for path in run(config, out):
         print(path)
 

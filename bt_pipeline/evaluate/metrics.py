@@ -30,8 +30,8 @@ from bt_pipeline.score.mi import mutual_information
 from bt_pipeline.score.utility import Normaliser, normalised_utility, score_demos
 
 RewardFrame = Literal["nearest", "best"]
-"""Where V_E reads a rollout: mapped from its nearest demonstrator's frame into the best one's
-(bt's default), or as it is, in the best demonstrator's frame (the paper's literal protocol)."""
+"""Where V_E reads a rollout: as it is, in the best demonstrator's frame (the paper's reading,
+the default), or mapped from its nearest demonstrator's frame into the best one's."""
 UTILITY_WEIGHTS = (0.2, 0.2, 0.2, 0.4)
 """w_1..w_4 of Ũ for rollouts (the refinement weights, docs/algorithms.md §7 row 8)."""
 UTILITY_BETA = 0.5
@@ -85,7 +85,7 @@ def build_yardstick(
 
 
 def rollout_metrics(
-    rollouts: FloatArray, yardstick: Yardstick, reward_frame: RewardFrame = "nearest"
+    rollouts: FloatArray, yardstick: Yardstick, reward_frame: RewardFrame = "best"
 ) -> RolloutMetrics:
     """R̄ (both frames), L4, phase-free distance and Ũ of every rollout (module doc).
 

@@ -94,8 +94,9 @@ class ReproduceConfig:
 
     @classmethod
     def preset(cls, quick: bool, **overrides: object) -> ReproduceConfig:
-        """The full run, or the CI-sized one (`quick`: 20 rollouts, quick learner presets)."""
-        base = cls(quick=True, rollouts=20) if quick else cls()
+        """The full run (3 seeds, 50 rollouts), or the CI-sized one (`quick`: one seed, 20
+        rollouts, quick learner presets)."""
+        base = cls(quick=True, rollouts=20) if quick else cls(seeds=3)
         return replace(base, **overrides)  # pyright: ignore[reportArgumentType]  # validated
 
     def eval_config(self, seed: int) -> EvalConfig:
