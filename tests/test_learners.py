@@ -19,10 +19,10 @@ from bt_pipeline.evaluate.distance import chamfer_distance
 from bt_pipeline.evaluate.learners import (
     LEARNERS,
     BCConfig,
+    LearnedPolicy,
     LearnerConfig,
     NODEConfig,
     TrajBCConfig,
-    LearnedPolicy,
     learner_config,
     parse_learner,
     train_learner,

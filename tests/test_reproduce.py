@@ -116,7 +116,7 @@ def test_verdict_is_welchs_t_test_over_rollouts_or_seeds() -> None:
     n = _cell(0.50, 0.01, seeds=(0.49, 0.50, 0.51))
     assert verdict(n, _cell(0.60, 0.01, seeds=(0.59, 0.60, 0.61))) == "cleaned"
     assert verdict(n, _cell(0.55, 0.01, seeds=(0.35, 0.60, 0.70))) == "tie"
-    word, test, p = verdict_test(n, _cell(0.60, 0.01, seeds=(0.59, 0.60, 0.61)))
+    _word, test, p = verdict_test(n, _cell(0.60, 0.01, seeds=(0.59, 0.60, 0.61)))
     assert test == "Welch t, seeds" and p < 0.01
 
 

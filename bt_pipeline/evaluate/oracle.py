@@ -90,7 +90,9 @@ def perfect_demos(
     return PerfectSet(np.stack(positions), tuple(names), truths)
 
 
-def coverage(rollout: FloatArray, truth: FloatArray, tolerance_m: float = COVERAGE_TOLERANCE_M) -> float:
+def coverage(
+    rollout: FloatArray, truth: FloatArray, tolerance_m: float = COVERAGE_TOLERANCE_M
+) -> float:
     """Share of the true loop's points (K, 2) within `tolerance_m` of a rollout (N, 2) [m]."""
     gaps, _ = KDTree(rollout).query(truth)
     return float(np.mean(gaps <= tolerance_m))
@@ -163,13 +165,17 @@ def competence(
     seed: int = 0,
     init_noise: float = 0.02,
     steps: int | None = None,
+    paper: bool = False,
 ) -> CompetenceRow:
     """Train `learner` on perfect demos of `teachers` and measure its rollouts (module doc).
 
-    `steps` overrides the learner's optimiser steps (tiny test runs only).
+    `steps` overrides the learner's optimiser steps (tiny test runs only); `paper` trains the
+    learner as the paper wrote it (2-D position state, no corrective data).
     """
     data = perfect_demos(task, teachers, per_teacher, seed=seed)
     overrides: dict[str, object] = {"seed": seed} | ({"steps": steps} if steps else {})
+    if paper:
+        overrides |= {"state": "position", "dart_fraction": 0.0}
     trained = train_learner(
         learner,
         data.positions,
@@ -215,7 +221,9 @@ def competence(
     )
 
 
-def _convergence(policy: LearnedPolicy, data: PerfectSet, count: int, seed: int) -> dict[str, float]:
+def _convergence(
+    policy: LearnedPolicy, data: PerfectSet, count: int, seed: int
+) -> dict[str, float]:
     """Roll out one period from `count` points 1-3 cm off the true loops (along the normal, either
     side) and measure the final distance to the own loop."""
     rng = np.random.default_rng(seed + 7)
@@ -247,8 +255,11 @@ def competence_check(
     seed: int = 0,
     rollouts: int = 20,
     steps: int | None = None,
+    paper: bool = False,
 ) -> CompetenceRow:
     """The one-demonstrator (``"one"``: 4 perfect demos of teacher_a) or four-demonstrator
     (``"four"``: one perfect demo of each D1 demonstrator) check (module doc)."""
     teachers, per_teacher = (DEMONSTRATORS[:1], 4) if check == "one" else (DEMONSTRATORS, 1)
-    return competence(task, learner, teachers, per_teacher, rollouts, quick, seed, steps=steps)
+    return competence(
+        task, learner, teachers, per_teacher, rollouts, quick, seed, steps=steps, paper=paper
+    )

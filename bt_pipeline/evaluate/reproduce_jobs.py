@@ -79,6 +79,8 @@ class ReproduceConfig:
     """Also train every learner on the demos' ground-truth shapes (the upper bound of cleaning)."""
     competence: bool = True
     """Run the competence checks (perfect demos of one and of four demonstrators) as oracle rows."""
+    paper_learners: bool = False
+    """The learners as the paper wrote them: 2-D position state, no corrective data."""
 
     def __post_init__(self) -> None:
         if self.seeds < 1:
@@ -107,6 +109,8 @@ class ReproduceConfig:
             quick=self.quick,
             seed=seed,
             steps=self.steps,
+            state="position" if self.paper_learners else "phase",
+            corrective=not self.paper_learners,
         )
 
 
@@ -204,7 +208,9 @@ def run_competence(job: CompetenceJob) -> CompetenceRow:
     """One competence check, seed 0 (runs in a worker when workers > 1)."""
     check, task, learner, config = job
     rollouts = min(20, config.rollouts)
-    return competence_check(check, task, learner, config.quick, 0, rollouts, config.steps)
+    return competence_check(
+        check, task, learner, config.quick, 0, rollouts, config.steps, config.paper_learners
+    )
 
 
 def _run_any(job: tuple) -> JobResult | CompetenceRow:

@@ -124,9 +124,9 @@ def train_learner(
 
 __all__ = [
     "LEARNERS",
+    "STATES",
     "BCConfig",
     "ILEEDConfig",
-    "STATES",
     "LearnedPolicy",
     "LearnerConfig",
     "LearnerName",

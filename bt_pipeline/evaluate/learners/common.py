@@ -260,7 +260,9 @@ def phase_features(z: torch.Tensor, phase: torch.Tensor, state: StateRep) -> tor
     return torch.cat([z, torch.cos(phase)[:, None], torch.sin(phase)[:, None]], dim=1)
 
 
-def prepare_demos(demos: ArrayLike, config: TrainConfig, min_samples: int = MIN_SAMPLES) -> DemoData:
+def prepare_demos(
+    demos: ArrayLike, config: TrainConfig, min_samples: int = MIN_SAMPLES
+) -> DemoData:
     """Validate demos (M, N, 2) [m] (uniform on t ∈ [0, 1]), estimate phases and standardise.
 
     Raises:
@@ -315,6 +317,7 @@ def prepare_demos(demos: ArrayLike, config: TrainConfig, min_samples: int = MIN_
         fraction=config.dart_fraction,
         anchors=rows[::step].copy(),
     )
+
 
 @dataclass(frozen=True, eq=False)
 class TrainedLearner:

@@ -80,7 +80,9 @@ class LearnedPolicy:
         x = _points(np.atleast_2d(np.asarray(x0, dtype=np.float64)), "x0")
         if self.state == "position" or self.anchors is None:
             return np.zeros(x.shape[0])
-        return nearest_phase(np.clip(x, self.box[0], self.box[1]), self.anchors[:, :2], self.anchors[:, 2])
+        return nearest_phase(
+            np.clip(x, self.box[0], self.box[1]), self.anchors[:, :2], self.anchors[:, 2]
+        )
 
     def velocity(self, positions: ArrayLike, phases: ArrayLike | None = None) -> FloatArray:
         """π(x, φ) [m per unit normalised time], shape (B, 2), at positions (B, 2) [m] and phases
@@ -89,7 +91,9 @@ class LearnedPolicy:
         x = _points(positions, "positions")
         phi = self.initial_phase(x) if phases is None else np.asarray(phases, dtype=np.float64)
         with torch_threads(self.threads), torch.no_grad():
-            z = torch.as_tensor((x - self.positions.mean) / self.positions.scale, dtype=torch.float32)
+            z = torch.as_tensor(
+                (x - self.positions.mean) / self.positions.scale, dtype=torch.float32
+            )
             out = self.net(phase_features(z, torch.as_tensor(phi, dtype=torch.float32), self.state))
             v = out[:, :2].double().numpy()
         return v * self.velocities.scale + self.velocities.mean
@@ -141,9 +145,9 @@ class LearnedPolicy:
                     z = states[-1]
                     k = len(states) - 1
                     continue
-                z = (z + step * _increment(rate, z, phase, step, self.omega, self.integrator)).clamp(
-                    lo, hi
-                )
+                z = (
+                    z + step * _increment(rate, z, phase, step, self.omega, self.integrator)
+                ).clamp(lo, hi)
                 states.append(z)
                 k += 1
             out = torch.stack(states, dim=1).double().numpy()
