@@ -111,7 +111,8 @@ def verdict_test(noisy: Cell, cleaned: Cell) -> tuple[str, str, float]:
         a, b, test = cleaned.rewards, noisy.rewards, "Welch t, rollouts"
     if np.ptp(np.concatenate([a, b])) < 1e-12:
         return "tie", test, 1.0
-    p = float(stats.ttest_ind(a, b, equal_var=False)[1])  # (statistic, p-value)
+    result = stats.ttest_ind(a, b, equal_var=False)
+    p = float(result.pvalue)  # pyright: ignore[reportAttributeAccessIssue]  # missing from the stub
     if not np.isfinite(p):
         p = 1.0
     if p < 0.05:

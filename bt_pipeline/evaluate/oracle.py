@@ -173,7 +173,9 @@ def competence(
     learner as the paper wrote it (2-D position state, no corrective data).
     """
     data = perfect_demos(task, teachers, per_teacher, seed=seed)
-    overrides: dict[str, object] = {"seed": seed} | ({"steps": steps} if steps else {})
+    overrides: dict[str, object] = {"seed": seed}
+    if steps:
+        overrides["steps"] = steps
     if paper:
         overrides |= {"state": "position", "dart_fraction": 0.0}
     trained = train_learner(

@@ -65,7 +65,7 @@ def train_bc(demos: ArrayLike, config: BCConfig | None = None) -> TrainedLearner
 
         def loss_fn(_: int) -> torch.Tensor:
             rows = sample_rows(generator, pairs, config.batch_size)
-            z, _, labels = data.perturbed(rows, generator)
+            z, _delta, labels = data.perturbed(rows, generator)
             return torch.mean((net(data.features(z, data.phase[rows])) - labels) ** 2)
 
         result = fit([{"params": list(net.parameters())}], loss_fn, config)

@@ -213,7 +213,7 @@ def train_ileed(
 
         def loss_fn(_: int) -> torch.Tensor:
             rows = sample_rows(generator, pairs, config.batch_size)
-            z, _, labels = data.perturbed(rows, generator)
+            z, _delta, labels = data.perturbed(rows, generator)
             features = data.features(z, data.phase[rows])
             log_random = _log_random_density(labels, config.random_model)
             return -model.log_likelihood(features, labels, who[rows], log_random).mean()

@@ -67,7 +67,7 @@ def _smooth(x: FloatArray) -> FloatArray:
     """x (N, 2) smoothed by a cubic Savitzky-Golay filter over ~N/30 samples."""
     n = x.shape[0]
     window = min(max(5, (n // 30) | 1), n if n % 2 else n - 1)
-    return savgol_filter(x, window, 3, axis=0) if window > 3 else x
+    return np.asarray(savgol_filter(x, window, 3, axis=0), dtype=np.float64) if window > 3 else x
 
 
 def _arc_length(smooth: FloatArray) -> FloatArray:

@@ -90,7 +90,7 @@ def train_traj_bc(demos: ArrayLike, config: TrajBCConfig | None = None) -> Train
 
         def loss_fn(_: int) -> torch.Tensor:
             rows = sample_rows(generator, windows, config.batch_size)
-            z, delta_z, _ = data.perturbed(rows, generator)
+            z, delta_z, _labels = data.perturbed(rows, generator)
             decay = torch.exp(-data.gain * times)[None, :, None]  # (1, H, 1)
             targets = data.z[rows[:, None] + offsets] + delta_z[:, None] * decay  # (B, H, 2)
             # standardised mean velocity over j steps, as the net predicts it
