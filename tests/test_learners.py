@@ -272,3 +272,13 @@ def test_invalid_inputs_raise_errors_naming_the_problem() -> None:
         train_learner("bc", np.ones((2, 50, 2)), config=tiny("bc"))
     with pytest.raises(ConfigError, match="one demonstrator name per demo"):
         train_learner("ileed", demos, ["a"], config=tiny("ileed"))
+
+
+def test_a_still_demo_among_moving_ones_keeps_the_phase_bounded() -> None:
+    demos = ellipse_loops(n_demos=3)
+    demos[1] = demos[1, :1] + 1e-6 * np.random.default_rng(0).standard_normal((N, 2))
+    fit = estimate_phases(demos)
+    spans = (fit.phases[:, -1] - fit.phases[:, 0]) / (2 * math.pi)
+    assert np.all(np.isfinite(fit.phases)) and spans.max() < N / 8 + 1
+    trained = train_learner("bc", demos, config=tiny("bc"))
+    assert np.all(np.isfinite(trained.policy.rollout(demos[:, 0], 20)))

@@ -120,9 +120,10 @@ def estimate_phases(demos: FloatArray) -> PhaseFit:
         smooth = _smooth(x)
         s = _arc_length(smooth)
         guess = max(s[-1] * min(estimate_period(x), 1.0), 1e-12)
-        perimeter = max(_loop_length(smooth, s, guess), 1e-12)
-        periods[i] = perimeter / max(s[-1], 1e-12)
-        phases[i] = 2.0 * math.pi * s / perimeter
+        # at least 8 samples per loop, at most one loop per demo: a still or jittering demo
+        # cannot blow the phase up
+        periods[i] = np.clip(_loop_length(smooth, s, guess) / max(s[-1], 1e-12), 8.0 / n, 1.0)
+        phases[i] = 2.0 * math.pi * s / max(s[-1] * periods[i], 1e-12)
     grid = 2.0 * math.pi * np.arange(TEMPLATE_PHASES) / TEMPLATE_PHASES
     loops = np.stack([_loop_at(x, p, grid) for x, p in zip(demos, phases, strict=True)])
     template = loops[0]
