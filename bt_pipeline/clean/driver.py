@@ -165,7 +165,7 @@ def _clean_task(task_demos: tuple[int, list[Demo], CleanOptions]) -> TaskCleanRe
         unit="epoch",
         position=position,
         leave=True,
-        disable=not options.progress,
+        disable=None if options.progress else True,  # None: off when stderr is no TTY
         file=sys.stderr,
     ) as bar:
 

@@ -196,7 +196,13 @@ def run_reproduce(config: ReproduceConfig, progress: bool = True) -> ReproduceRu
         for task in config.tasks
         for seed in range(config.seeds)
     ]
-    bar = tqdm(total=len(jobs), desc="reproduce", unit="job", file=sys.stderr, disable=not progress)
+    bar = tqdm(
+        total=len(jobs),
+        desc="reproduce",
+        unit="job",
+        file=sys.stderr,
+        disable=None if progress else True,
+    )
     results: list[JobResult] = []
     with bar:
         if config.workers > 1 and len(jobs) > 1:

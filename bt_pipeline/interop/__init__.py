@@ -1,1 +1,1 @@
-"""Interoperability at the edges: export to LeRobot and robomimic, import their files (docs/interop.md)."""
+"""Interop at the edges: export to LeRobot and robomimic, import their files (docs/interop.md)."""
