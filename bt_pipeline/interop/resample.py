@@ -11,8 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
+from bt_pipeline.data.carry import slerp_wxyz
 from bt_pipeline.data.records import DemoRecord, FloatArray, forward_difference_actions
 from bt_pipeline.exceptions import ConfigError
 
@@ -63,17 +63,6 @@ def resample_fixed_rate(record: DemoRecord, fps: float) -> FixedRateDemo:
         joint_pos=None if record.joint_pos is None else _interp(t, t_raw, record.joint_pos),
         gripper=None if record.gripper is None else _interp(t, t_raw, record.gripper),
     )
-
-
-def slerp_wxyz(t_new: FloatArray, t: FloatArray, quat_wxyz: FloatArray) -> FloatArray:
-    """Spherical interpolation of unit quaternions (w, x, y, z) from times `t` to `t_new`.
-
-    Returns:
-        Unit quaternions w, x, y, z with w ≥ 0, shape (len(t_new), 4).
-    """
-    rotations = Rotation.from_quat(np.asarray(quat_wxyz)[:, [1, 2, 3, 0]])
-    xyzw = Slerp(t, rotations)(np.clip(t_new, t[0], t[-1])).as_quat(canonical=True)
-    return xyzw[:, [3, 0, 1, 2]]
 
 
 def _interp(t_new: FloatArray, t: FloatArray, values: FloatArray) -> FloatArray:
