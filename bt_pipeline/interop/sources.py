@@ -74,16 +74,21 @@ def load_export_tasks(
     """
     recordings = read_recordings(expand_paths(paths), strict=True)
     grouped: dict[Task, list[tuple[Recording, str, DemoRecord, Demo]]] = {}
+    flagged = 0
     for recording in recordings:
         label = str(recording.path) if recording.path else ""
         views = demos_from_recording(recording, n_samples, file=label)
         for (name, record), view in zip(recording.demos.items(), views, strict=True):
             if record.flags:
                 log.info("skipping %s:%s (flags: %s)", label, name, ", ".join(record.flags))
+                flagged += 1
                 continue
             grouped.setdefault(recording.task, []).append((recording, name, record, view))
     if not grouped:
-        raise DemoError(f"no demos to export in {', '.join(str(p) for p in paths)}")
+        raise DemoError(
+            f"no demos to export in {', '.join(str(p) for p in paths)} ({flagged} flagged "
+            "takes skipped)"
+        )
     tasks = []
     for task, items in grouped.items():
         scores = score_demos([view for *_, view in items])
