@@ -12,8 +12,9 @@ through the bundled ``rerun`` CLI, whose ``--bind`` keeps it on 127.0.0.1.
 from __future__ import annotations
 
 import hashlib
+import os
+import signal
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Sequence
@@ -113,8 +114,14 @@ def save_view_rrd(
 
 
 def rerun_binary() -> str:
-    """The ``rerun`` executable bundled with rerun-sdk (beside this Python)."""
-    candidate = Path(sys.executable).with_name("rerun")
+    """The ``rerun`` executable bundled with rerun-sdk (package ``rerun_cli``).
+
+    The real binary, not the ``bin/rerun`` Python wrapper: stopping the wrapper would leave its
+    child, the server, running.
+    """
+    import rerun_cli
+
+    candidate = Path(rerun_cli.__file__).with_name("rerun")
     return str(candidate) if candidate.exists() else "rerun"
 
 
@@ -131,7 +138,22 @@ def start_server(rrd: Path, port: int, web_port: int) -> subprocess.Popen[bytes]
         str(web_port),
         str(rrd),
     ]
-    return subprocess.Popen(command, stdin=subprocess.DEVNULL)
+    # Own process group: stop_server ends the server and anything it started, nothing else.
+    return subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True)
+
+
+def stop_server(process: subprocess.Popen[bytes]) -> None:
+    """Stop a server from :func:`start_server` (its whole process group) and reap it."""
+    if process.poll() is None:
+        try:
+            os.killpg(process.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
 
 
 def serve_view(
@@ -147,8 +169,7 @@ def serve_view(
             while process.poll() is None:
                 time.sleep(0.5)
         finally:
-            process.terminate()
-            process.wait(timeout=10)
+            stop_server(process)
 
 
 def open_viewer(paths: Sequence[str | Path], n_samples: int = DEFAULT_SAMPLES) -> None:
