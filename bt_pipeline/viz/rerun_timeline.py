@@ -108,7 +108,8 @@ def log_timeline(
             static=True,
         )
         rows = "\n".join(
-            f"| {i} | {d.group} | {_md(d.name)} | {d.utility:.3f} |" for i, d in enumerate(scored)
+            f"| {i} | {_md(d.group)} | {_md(d.name)} | {d.utility:.3f} |"
+            for i, d in enumerate(scored)
         )
         rec.log(
             f"{root}/scores/table",
