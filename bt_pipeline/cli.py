@@ -256,7 +256,7 @@ def export(
     format: Annotated[Literal["lerobot", "robomimic"], Required],
     out: Annotated[Path, Required],
     fps: int = 50,
-    task_text: Annotated[list[str], tyro.conf.arg(help_behavior_hint="(default: built-in)")] = [],  # noqa: B006, E501
+    task_text: Annotated[list[str], tyro.conf.arg(help_behavior_hint="(default: built-in)")] = [],  # noqa: B006
     valid_fraction: float = 0.1,
     top_k: list[int] = [3],  # noqa: B006  # tyro reads the default; never mutated
     seed: int = 0,

@@ -17,10 +17,10 @@ from pathlib import Path
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-from lerobot.datasets.compute_stats import compute_episode_stats  # noqa: E402
-from lerobot.datasets.lerobot_dataset import LeRobotDataset  # noqa: E402
+import numpy as np
+import torch
+from lerobot.datasets.compute_stats import compute_episode_stats
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 
 def main(root: Path) -> dict:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -14,6 +15,22 @@ from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.interop.export_robomimic import GYM_ENV_TYPE, export_robomimic
 from tests.test_export_lerobot import full_recording
+
+
+def _ds(file: h5py.File, key: str) -> np.ndarray:
+    item = file[key]
+    assert isinstance(item, h5py.Dataset), key
+    return np.asarray(item[()])
+
+
+def _attrs(file: h5py.File, key: str) -> dict[str, Any]:
+    return dict(file[key].attrs)
+
+
+def _demo_names(file: h5py.File) -> list[str]:
+    data = file["data"]
+    assert isinstance(data, h5py.Group)
+    return list(data.keys())
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +49,7 @@ def test_actions_in_unit_box_and_scale_undoes_them(synth_export) -> None:
         scale = f["data"].attrs["action_scale"]
         peak = 0.0
         for k, record in enumerate(raw.values()):
-            actions = f[f"data/demo_{k}/actions"][()]
+            actions = _ds(f, f"data/demo_{k}/actions")
             assert np.all(np.abs(actions) <= 1.0)
             peak = max(peak, float(np.abs(actions).max()))
             np.testing.assert_allclose(actions * scale, record.resolved_actions(), atol=1e-12)
@@ -43,16 +60,19 @@ def test_rewards_dones_next_obs(synth_export) -> None:
     _, out, expert = synth_export
     with h5py.File(out) as f:
         means = {}
-        for name in f["data"]:
-            demo = f[f"data/{name}"]
-            n = int(demo.attrs["num_samples"])
-            rewards, dones = demo["rewards"][()], demo["dones"][()]
+        for name in _demo_names(f):
+            attrs = _attrs(f, f"data/{name}")
+            n = int(attrs["num_samples"])
+            rewards, dones = _ds(f, f"data/{name}/rewards"), _ds(f, f"data/{name}/dones")
             assert rewards.shape == (n,) and np.all(rewards >= 0.0)
             assert dones[-1] == 1 and dones[:-1].sum() == 0
-            obs, nxt = demo["obs/robot0_eef_pos"][()], demo["next_obs/robot0_eef_pos"][()]
+            obs, nxt = (
+                _ds(f, f"data/{name}/obs/robot0_eef_pos"),
+                _ds(f, f"data/{name}/next_obs/robot0_eef_pos"),
+            )
             np.testing.assert_array_equal(nxt[:-1], obs[1:])
-            np.testing.assert_array_equal(obs, demo["obs/ee_pos"][()])
-            means[demo.attrs["source_demo"]] = float(rewards.mean())
+            np.testing.assert_array_equal(obs, _ds(f, f"data/{name}/obs/ee_pos"))
+            means[attrs["source_demo"]] = float(rewards.mean())
         # The generator's expert-like demo draws the canonical motion: V_E rewards it most.
         assert max(means, key=means.__getitem__) == expert
 
@@ -60,9 +80,10 @@ def test_rewards_dones_next_obs(synth_export) -> None:
 def test_masks_split_best_and_top_k(synth_export) -> None:
     _, out, _ = synth_export
     with h5py.File(out) as f:
-        masks = {k: [n.decode() for n in v[()]] for k, v in f["mask"].items()}
-        utility = {n: float(f[f"data/{n}"].attrs["utility"]) for n in f["data"]}
-        env = json.loads(f["data"].attrs["env_args"])
+        keys = ["train", "valid", "best", "top_1", "top_3"]
+        masks = {k: [n.decode() for n in _ds(f, f"mask/{k}")] for k in keys}
+        utility = {n: float(_attrs(f, f"data/{n}")["utility"]) for n in _demo_names(f)}
+        env = json.loads(_attrs(f, "data")["env_args"])
     assert env["type"] == GYM_ENV_TYPE and isinstance(env["env_kwargs"], dict)
     assert sorted(masks["train"] + masks["valid"]) == sorted(utility)
     assert not set(masks["train"]) & set(masks["valid"]) and len(masks["valid"]) == 2
@@ -82,11 +103,15 @@ def test_quaternion_alias_is_xyzw(tmp_path) -> None:
     quat = np.array([0.5, 0.5, -0.5, 0.5])  # w, x, y, z
     record = read_recording(src).demos["demo_0"]
     with h5py.File(src, "r+") as f:  # a copy made in this test: give it a real orientation
-        f["data/demo_0/obs/ee_quat"][...] = np.tile(quat, (record.num_samples, 1))
+        stored = f["data/demo_0/obs/ee_quat"]
+        assert isinstance(stored, h5py.Dataset)
+        stored[...] = np.tile(quat, (record.num_samples, 1))
     out = export_robomimic([src], tmp_path / "r.hdf5").path
     with h5py.File(out) as f:
-        np.testing.assert_allclose(f["data/demo_0/obs/robot0_eef_quat"][0], [0.5, -0.5, 0.5, 0.5])
-        assert f["data/demo_0/obs/robot0_joint_pos"].shape == (record.num_samples, 7)
+        np.testing.assert_allclose(
+            _ds(f, "data/demo_0/obs/robot0_eef_quat")[0], [0.5, -0.5, 0.5, 0.5]
+        )
+        assert _ds(f, "data/demo_0/obs/robot0_joint_pos").shape == (record.num_samples, 7)
 
 
 def test_one_task_per_file_and_no_overwrite(tmp_path) -> None:

@@ -75,11 +75,13 @@ def parse_task_texts(items: Sequence[str], tasks: Sequence[Task]) -> dict[Task, 
     Raises:
         ConfigError: A TASK that is not exported, or a bare TEXT with several tasks.
     """
-    texts = {task: DEFAULT_TASK_TEXT[task] for task in tasks}
+    texts: dict[Task, str] = {task: DEFAULT_TASK_TEXT[task] for task in tasks}
+    by_name: dict[str, Task] = {task: task for task in tasks}
     for item in items:
         name, sep, text = item.partition("=")
-        if sep and name.strip() in tasks:
-            texts[name.strip()] = text.strip()  # type: ignore[index]  # checked: a Task
+        named = by_name.get(name.strip()) if sep else None
+        if named is not None:
+            texts[named] = text.strip()
         elif len(tasks) == 1 and not (sep and name.strip().isidentifier()):
             texts[tasks[0]] = item.strip()
         else:

@@ -90,17 +90,17 @@ def _demo(group: Any, label: str, hz: float, ee_key: str | None) -> DemoRecord:
             f"(found {', '.join(obs.keys()) or 'none'}); name one with --ee-key"
         )
     used = {keys[0]}
-    ee_pos = np.asarray(obs[keys[0]][()], dtype=np.float64)
+    ee_pos = _array(obs, keys[0])
     if ee_pos.ndim != 2 or ee_pos.shape[1] != 3:
         raise RecordingError(f"{label}: obs/{keys[0]} has shape {ee_pos.shape}; expected (T, 3)")
     n = ee_pos.shape[0]
     quat = joints = None
-    if "robot0_eef_quat" in obs and obs["robot0_eef_quat"].shape == (n, 4):
-        quat = np.asarray(obs["robot0_eef_quat"][()], dtype=np.float64)[:, [3, 0, 1, 2]]
+    if _array(obs, "robot0_eef_quat").shape == (n, 4):
+        quat = _array(obs, "robot0_eef_quat")[:, [3, 0, 1, 2]]
         quat /= np.linalg.norm(quat, axis=1, keepdims=True)
         used.add("robot0_eef_quat")
-    if "robot0_joint_pos" in obs and obs["robot0_joint_pos"].shape == (n, 7):
-        joints = np.asarray(obs["robot0_joint_pos"][()], dtype=np.float64)
+    if _array(obs, "robot0_joint_pos").shape == (n, 7):
+        joints = _array(obs, "robot0_joint_pos")
         used.add("robot0_joint_pos")
     extra = {
         key: np.asarray(item[()])
@@ -122,6 +122,14 @@ def _demo(group: Any, label: str, hz: float, ee_key: str | None) -> DemoRecord:
         joint_pos=joints,
         extra_obs=extra,
     )
+
+
+def _array(obs: h5py.Group, key: str) -> np.ndarray:
+    """``obs/<key>`` as float64, or an empty array when it is absent or not a dataset."""
+    item = obs.get(key)
+    if not isinstance(item, h5py.Dataset):
+        return np.empty((0,))
+    return np.asarray(item[()], dtype=np.float64)
 
 
 def _env_args(raw: Any) -> dict[str, Any]:

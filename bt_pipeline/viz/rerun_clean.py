@@ -138,7 +138,7 @@ def clean_blueprint(tasks: Iterable[Task | str]) -> rrb.Blueprint:
     parsed: list[Task] = [parse_task(str(name)) for name in tasks]
     if not parsed:
         raise ConfigError("clean_blueprint needs at least one task")
-    unique = [t for i, t in enumerate(parsed) if t not in parsed[:i]]
+    unique: list[Task] = [t for i, t in enumerate(parsed) if t not in parsed[:i]]
     layouts = [_task_layout(t) for t in unique]
     layouts += [timeline_views(f"/{t}/timeline", f"{t}: raw vs cleaned in time") for t in unique]
     main = rrb.Tabs(*layouts)

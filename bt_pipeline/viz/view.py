@@ -11,6 +11,7 @@ through the bundled ``rerun`` CLI, whose ``--bind`` keeps it on 127.0.0.1.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import signal
@@ -145,10 +146,8 @@ def start_server(rrd: Path, port: int, web_port: int) -> subprocess.Popen[bytes]
 def stop_server(process: subprocess.Popen[bytes]) -> None:
     """Stop a server from :func:`start_server` (its whole process group) and reap it."""
     if process.poll() is None:
-        try:
+        with contextlib.suppress(ProcessLookupError):  # ended on its own meanwhile
             os.killpg(process.pid, signal.SIGTERM)
-        except ProcessLookupError:
-            pass
         try:
             process.wait(timeout=10)
         except subprocess.TimeoutExpired:
