@@ -14,6 +14,7 @@ import json
 import subprocess
 import sys
 
+import h5py
 import robomimic.utils.file_utils as FileUtils
 import robomimic.utils.obs_utils as ObsUtils
 import torch
@@ -32,7 +33,11 @@ def main(path: str) -> dict:
     report["get_dataset_info_tail"] = info.stdout.strip().splitlines()[-12:]
     env_meta = FileUtils.get_env_metadata_from_dataset(path)
     report["env_type"] = env_meta["type"]
-    obs_keys = ("robot0_eef_pos", "robot0_eef_quat", "plane_uv")
+    with h5py.File(path, "r") as f:
+        present = set(f["data/demo_0/obs"].keys())
+    wanted = ("robot0_eef_pos", "robot0_eef_quat", "robot0_joint_pos", "plane_uv")
+    obs_keys = tuple(k for k in wanted if k in present)
+    report["obs_keys"] = list(obs_keys)
     ObsUtils.initialize_obs_utils_with_obs_specs(
         {"obs": {"low_dim": list(obs_keys), "rgb": [], "depth": [], "scan": []}}
     )

@@ -13,6 +13,7 @@ wheel=${BT_TORCH_WHEEL:-/opt/wheels/torch-2.13.0+cpu-cp311-cp311-manylinux_2_28_
 if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c "import robomimic" 2>/dev/null; then
   "${BT_PYTHON311:-python3.11}" -m venv "$venv"
   if [ -f "$wheel" ]; then "$venv/bin/pip" install -q "$wheel"; else "$venv/bin/pip" install -q torch; fi
-  "$venv/bin/pip" install -q robomimic==0.3.0
+  # robomimic 0.3.0 imports six without declaring it.
+  "$venv/bin/pip" install -q robomimic==0.3.0 six
 fi
 "$venv/bin/python" "$here/check_robomimic_export.py" "$file"
