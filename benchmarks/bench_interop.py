@@ -13,15 +13,13 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import statistics
 import sys
 import tempfile
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.bench_scoring import median_ms
 from bt_pipeline.interop.export_lerobot import export_lerobot
 from bt_pipeline.interop.export_robomimic import export_robomimic
 from bt_pipeline.interop.sources import load_export_tasks
@@ -29,17 +27,6 @@ from bt_pipeline.viz.view import save_view_rrd
 
 REPO = Path(__file__).resolve().parents[1]
 TAKES = REPO.parent / "shared/data/browser-takes/wiping"
-
-
-def median_ms(fn: Callable[[], object], repeats: int) -> float:
-    """Median wall time of `fn` over `repeats` runs after one warm-up run [ms]."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
 
 
 def main() -> None:

@@ -23,7 +23,7 @@ from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import DemoRecord, Recording
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import RecordingError
-from bt_pipeline.interop.plane_fit import fit_plane
+from bt_pipeline.interop.plane_fit import imported_recording
 
 _EE_NAMES = (("ee_x", "ee_y", "ee_z"), ("x", "y", "z"), ("eef_x", "eef_y", "eef_z"))
 _EE_FEATURES = ("observation.ee_pos", "observation.eef_pos", "observation.robot0_eef_pos")
@@ -68,14 +68,7 @@ def read_lerobot(
         rows = np.flatnonzero(episodes == ep)
         rows = rows[np.argsort(np.asarray(table["frame_index"])[rows], kind="stable")]
         demos[f"demo_{k}"] = _demo(table, features, feature, columns, rows, meta.get(int(ep), {}))
-    if plane is None:
-        plane = fit_plane([d.ee_pos for d in demos.values()])
-    return Recording(
-        task=task,
-        plane=plane,
-        demos=demos,
-        attrs={"imported_from": str(root), "imported_format": "lerobot"},
-    )
+    return imported_recording(task, plane, demos, str(root), "lerobot")
 
 
 def _ee_columns(features: dict[str, Any], ee_key: str | None, where: str) -> tuple[str, list[int]]:

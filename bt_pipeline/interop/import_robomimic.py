@@ -28,7 +28,7 @@ from bt_pipeline.data.records import DemoRecord, Recording
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.data.validate import sorted_demo_names
 from bt_pipeline.exceptions import RecordingError
-from bt_pipeline.interop.plane_fit import fit_plane
+from bt_pipeline.interop.plane_fit import imported_recording
 
 DEFAULT_CONTROL_HZ = 20.0
 """robosuite's default control frequency, used when the file does not say [Hz]."""
@@ -66,16 +66,8 @@ def read_robomimic(
             masks = _masks(file)
     except OSError as exc:
         raise RecordingError(f"{where}: cannot read the file as HDF5 ({exc})") from exc
-    if plane is None:
-        plane = fit_plane([d.ee_pos for d in demos.values()])
-    return Recording(
-        task=task,
-        plane=plane,
-        demos=demos,
-        env_args=env_args if _env_ok(env_args) else {},
-        masks=masks,
-        attrs={"imported_from": where, "imported_format": "robomimic"},
-    )
+    env = env_args if _env_ok(env_args) else None
+    return imported_recording(task, plane, demos, where, "robomimic", env, masks)
 
 
 def _demo(group: Any, label: str, hz: float, ee_key: str | None) -> DemoRecord:

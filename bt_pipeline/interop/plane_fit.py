@@ -1,4 +1,4 @@
-"""The task plane of imported demos: fitted by PCA, or given on the command line.
+"""The task plane of imported demos (fitted by PCA, or given) and their Recording.
 
 Other tools record no task plane. ``--plane auto`` fits one to every end-effector position of the
 file: origin = their mean, u and v = the two principal directions of largest variance (the
@@ -10,10 +10,13 @@ the normal u × v points to +z when the plane is not vertical, else u points to 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from bt_pipeline.data.plane import FloatArray, TaskPlane
+from bt_pipeline.data.records import DemoRecord, Recording
+from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError
 
 _MIN_SPREAD_M = 1e-4
@@ -66,3 +69,33 @@ def parse_plane(text: str) -> TaskPlane | None:
             "ox,oy,oz,ux,uy,uz,vx,vy,vz (origin and two orthonormal axes, [m])"
         )
     return TaskPlane(origin=np.array(numbers[:3]), axes=np.array(numbers[3:]).reshape(2, 3))
+
+
+def imported_recording(
+    task: Task,
+    plane: TaskPlane | None,
+    demos: dict[str, DemoRecord],
+    source: str,
+    fmt: str,
+    env_args: dict[str, Any] | None = None,
+    masks: dict[str, list[str]] | None = None,
+) -> Recording:
+    """The format-v1 recording of imported `demos`, on `plane` or on one fitted to them.
+
+    Args:
+        task: The task the demos perform.
+        plane: The task plane; None fits one (:func:`fit_plane`).
+        demos: The imported demos by name.
+        source: Where they were read from (``/data`` attr ``imported_from``).
+        fmt: Their format (attr ``imported_format``).
+        env_args: robomimic's environment metadata, if well-formed.
+        masks: Filter keys to keep.
+    """
+    return Recording(
+        task=task,
+        plane=plane if plane is not None else fit_plane([d.ee_pos for d in demos.values()]),
+        demos=demos,
+        env_args=env_args or {},
+        masks=masks or {},
+        attrs={"imported_from": source, "imported_format": fmt},
+    )
