@@ -267,7 +267,8 @@ def export(
     Args:
         paths: Format-v1 recordings: files, directories or glob patterns.
         format: "lerobot" (a LeRobotDataset v3.0 directory) or "robomimic" (one .hdf5 per task).
-        out: The dataset directory (lerobot) or file (robomimic).
+        out: lerobot: the dataset directory. robomimic: the .hdf5 file (one task), or a
+            directory that gets <task>.robomimic.hdf5 per task.
         fps: lerobot: frame rate [Hz]; every demo is resampled to it.
         task_text: lerobot: task sentences, TASK=TEXT (or TEXT alone for one task).
         valid_fraction: robomimic: share of demos in mask/valid (seeded split).
@@ -285,11 +286,11 @@ def export(
     else:
         from bt_pipeline.interop.export_robomimic import export_robomimic
 
-        written = export_robomimic(
+        for written in export_robomimic(
             paths, out, valid_fraction=valid_fraction, top_k=top_k, seed=seed, overwrite=overwrite
-        )
-        print(written.path)
-        log.info("%d demos; filter keys %s", written.demos, ", ".join(written.masks))
+        ):
+            print(written.path)
+            log.info("%d demos; filter keys %s", written.demos, ", ".join(written.masks))
 
 
 def import_(

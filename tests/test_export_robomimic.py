@@ -38,7 +38,7 @@ def synth_export(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, 
     tmp = tmp_path_factory.mktemp("robomimic")
     synth = make_demo_set("wiping", n_demos=6, seed=2)
     src = write_recording(tmp / "wiping.hdf5", synth.recording)
-    out = export_robomimic([src], tmp / "wiping.robomimic.hdf5", valid_fraction=0.34, top_k=(1, 3))
+    [out] = export_robomimic([src], tmp / "w.robomimic.hdf5", valid_fraction=0.34, top_k=(1, 3))
     return src, out.path, synth.expert_name
 
 
@@ -94,8 +94,8 @@ def test_masks_split_best_and_top_k(synth_export) -> None:
 
 def test_split_is_seeded(tmp_path) -> None:
     src = write_recording(tmp_path / "w.hdf5", make_demo_set("wiping", n_demos=5).recording)
-    first = export_robomimic([src], tmp_path / "a.hdf5", seed=1).masks
-    assert export_robomimic([src], tmp_path / "b.hdf5", seed=1).masks == first
+    first = export_robomimic([src], tmp_path / "a.hdf5", seed=1)[0].masks
+    assert export_robomimic([src], tmp_path / "b.hdf5", seed=1)[0].masks == first
 
 
 def test_quaternion_alias_is_xyzw(tmp_path) -> None:
@@ -106,7 +106,8 @@ def test_quaternion_alias_is_xyzw(tmp_path) -> None:
         stored = f["data/demo_0/obs/ee_quat"]
         assert isinstance(stored, h5py.Dataset)
         stored[...] = np.tile(quat, (record.num_samples, 1))
-    out = export_robomimic([src], tmp_path / "r.hdf5").path
+    [written] = export_robomimic([src], tmp_path / "r.hdf5")
+    out = written.path
     with h5py.File(out) as f:
         np.testing.assert_allclose(
             _ds(f, "data/demo_0/obs/robot0_eef_quat")[0], [0.5, -0.5, 0.5, 0.5]
@@ -119,6 +120,9 @@ def test_one_task_per_file_and_no_overwrite(tmp_path) -> None:
     b = write_recording(tmp_path / "b.hdf5", make_demo_set("weaving", n_demos=2).recording)
     with pytest.raises(ConfigError, match="one task"):
         export_robomimic([a, b], tmp_path / "out.hdf5")
+    assert not (tmp_path / "out.hdf5").exists()
+    written = export_robomimic([a, b], tmp_path / "per_task")
+    assert [w.path.name for w in written] == ["wiping.robomimic.hdf5", "weaving.robomimic.hdf5"]
     export_robomimic([a], tmp_path / "out.hdf5")
     with pytest.raises(ConfigError, match="exists"):
         export_robomimic([a], tmp_path / "out.hdf5")

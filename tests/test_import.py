@@ -165,6 +165,20 @@ def test_plane_fit_and_parse() -> None:
         parse_plane("1,2,3")
 
 
+def test_bad_inputs_are_one_clear_error(tmp_path) -> None:
+    text = tmp_path / "notes.hdf5"
+    text.write_text("not an HDF5 file")
+    with pytest.raises(RecordingError, match=r"notes\.hdf5: cannot read the file as HDF5"):
+        read_robomimic(text, "wiping", None)
+    with pytest.raises(RecordingError, match=r"no meta/info\.json"):
+        read_lerobot(tmp_path, "wiping", None)
+    src = write_recording(tmp_path / "w.hdf5", full_recording())
+    root = export_lerobot([src], tmp_path / "ds").root
+    next((root / "data").glob("*/*.parquet")).write_bytes(b"truncated")
+    with pytest.raises(RecordingError, match="cannot read the dataset's parquet files"):
+        read_lerobot(root, "wiping", None)
+
+
 def test_missing_end_effector_is_named(tmp_path) -> None:
     path = tmp_path / "bad.hdf5"
     with h5py.File(path, "w") as f:

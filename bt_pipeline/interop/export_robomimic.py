@@ -63,19 +63,21 @@ def export_robomimic(
     top_k: Sequence[int] = (3,),
     seed: int = 0,
     overwrite: bool = False,
-) -> RobomimicExport:
-    """Export one task's recordings under `paths` as a robomimic dataset at `out`.
+) -> list[RobomimicExport]:
+    """Export the recordings under `paths` as robomimic datasets, one file per task.
 
     Args:
-        paths: Format-v1 recordings of one task (raw or cleaned).
-        out: Output file (.hdf5).
+        paths: Format-v1 recordings (raw or cleaned).
+        out: Output file (``.hdf5``/``.h5``) when the inputs hold one task; otherwise a
+            directory that gets ``<task>.robomimic.hdf5`` per task.
         valid_fraction: Share of demos in ``mask/valid`` (at least one when there are ≥ 2 demos).
         top_k: Write ``mask/top_<k>``: the k demos of highest Ũ, for each k.
         seed: Seed of the train/valid split and of Stage 1's value map.
-        overwrite: Replace an existing `out`.
+        overwrite: Replace existing outputs.
 
     Raises:
-        ConfigError: Several tasks, an existing `out`, or bad options.
+        ConfigError: Several tasks into one file, an existing output, or bad options. Nothing
+            is written then.
         RecordingError, DemoError: An input cannot be read or holds no exportable demo.
     """
     out = Path(out)
@@ -83,26 +85,36 @@ def export_robomimic(
         raise ConfigError(f"--valid-fraction must be in [0, 1); got {valid_fraction}")
     if any(k < 1 for k in top_k):
         raise ConfigError(f"--top-k values must be ≥ 1; got {list(top_k)}")
-    if out.exists() and not overwrite:
-        raise ConfigError(f"{out} exists; choose another --out or pass --overwrite")
-    if out.is_dir():
-        raise ConfigError(f"--out {out} is a directory; robomimic datasets are one .hdf5 file")
     tasks = load_export_tasks(paths)
-    if len(tasks) != 1:
-        raise ConfigError(
-            f"a robomimic file holds one task; the inputs hold {', '.join(t.task for t in tasks)}"
-            " (export each task to its own file)"
-        )
-    task = tasks[0]
+    if out.suffix in (".hdf5", ".h5"):
+        if len(tasks) != 1:
+            raise ConfigError(
+                f"a robomimic file holds one task; the inputs hold "
+                f"{', '.join(t.task for t in tasks)}: give a directory as --out to write one "
+                "file per task"
+            )
+        targets = [(tasks[0], out)]
+    else:
+        targets = [(t, out / f"{t.task}.robomimic.hdf5") for t in tasks]
+    for _, path in targets:
+        if path.is_dir() or (path.exists() and not overwrite):
+            raise ConfigError(f"{path} exists; choose another --out or pass --overwrite")
+    return [_export_task(task, path, valid_fraction, top_k, seed) for task, path in targets]
+
+
+def _export_task(
+    task: ExportTask, out: Path, valid_fraction: float, top_k: Sequence[int], seed: int
+) -> RobomimicExport:
     actions = [d.record.resolved_actions() for d in task.demos]
     scale = np.max(np.abs(np.concatenate(actions)), axis=0)
     scale = np.where(scale > 0.0, scale, 1.0)
     masks = _masks(task, valid_fraction, top_k, seed)
+    rewards = step_rewards(task, seed)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.tmp-{uuid.uuid4().hex[:12]}")
     try:
         with h5py.File(tmp, "w") as file:
-            _write(file, task, actions, scale, masks, step_rewards(task, seed))
+            _write(file, task, actions, scale, masks, rewards)
         os.replace(tmp, out)
     except BaseException:
         tmp.unlink(missing_ok=True)

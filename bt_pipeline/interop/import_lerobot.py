@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from bt_pipeline.data.plane import TaskPlane
@@ -57,9 +58,14 @@ def read_lerobot(
     files = sorted((root / "data").glob("*/*.parquet"))
     if not files:
         raise RecordingError(f"{root}: no data/chunk-*/file-*.parquet files")
-    table = pq.read_table(files).to_pydict() if len(files) == 1 else _concat(files)
-    episodes = np.asarray(table["episode_index"], dtype=np.int64)
-    meta = _episode_meta(root)
+    try:
+        table = _concat(files)
+        episodes = np.asarray(table["episode_index"], dtype=np.int64)
+        meta = _episode_meta(root)
+    except (OSError, KeyError, pa.ArrowException) as exc:
+        raise RecordingError(
+            f"{root}: cannot read the dataset's parquet files ({type(exc).__name__}: {exc})"
+        ) from None
     demos = {}
     wanted = [e for e in np.unique(episodes) if meta.get(int(e), {}).get("bt/task", task) == task]
     if not wanted:

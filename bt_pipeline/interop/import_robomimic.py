@@ -64,7 +64,7 @@ def read_robomimic(
             names = sorted_demo_names(list(data.keys()), where)
             demos = {name: _demo(data[name], f"{where}: {name}", hz, ee_key) for name in names}
             masks = _masks(file)
-    except OSError as exc:
+    except (OSError, KeyError) as exc:  # not HDF5, truncated, broken links
         raise RecordingError(f"{where}: cannot read the file as HDF5 ({exc})") from exc
     env = env_args if _env_ok(env_args) else None
     return imported_recording(task, plane, demos, where, "robomimic", env, masks)
