@@ -10,7 +10,18 @@ set -euo pipefail
 export_dir=${1:?usage: scripts/verify_lerobot.sh EXPORT_DIR [VENV]}
 venv=${2:-/tmp/bt-lerobot-venv}
 here=$(cd "$(dirname "$0")" && pwd)
-python=${BT_PYTHON312:-python3.12}
+# A Python 3.12: $BT_PYTHON312, else python3.12 on PATH, else a pyenv- or uv-managed one.
+python=${BT_PYTHON312:-}
+if [ -z "$python" ]; then
+  for candidate in python3.12 "$HOME"/.pyenv/versions/3.12*/bin/python3.12 \
+      "$(uv python find 3.12 2>/dev/null || true)"; do
+    if [ -n "$candidate" ] && "$candidate" -c "" 2>/dev/null; then python=$candidate; break; fi
+  done
+fi
+if [ -z "$python" ]; then
+  echo "verify_lerobot.sh: no Python 3.12 found; set BT_PYTHON312 (LeRobot 0.6.1 needs >= 3.12)" >&2
+  exit 2
+fi
 if [ ! -x "$venv/bin/python" ]; then
   "$python" -m venv "$venv"
   extra=()
