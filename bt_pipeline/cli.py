@@ -16,8 +16,12 @@ import tyro
 
 from bt_pipeline.exceptions import BtError, ConfigError
 
-Paths = Annotated[list[str], tyro.conf.arg(metavar="PATH")]
+Paths = Annotated[
+    list[str], tyro.conf.arg(metavar="PATH", help_behavior_hint="(required, one or more)")
+]
 """Recording files, directories or glob patterns."""
+Required = tyro.conf.arg(help_behavior_hint="(required)")
+"""Help hint of a required option (tyro would print "(default: )" for some)."""
 
 log = logging.getLogger("bt")
 
@@ -34,6 +38,7 @@ def score(paths: tyro.conf.Positional[Paths], json: bool = False, samples: int =
     from bt_pipeline.score.utility import score_demos
     from bt_pipeline.viz.tables import print_score_tables, score_json
 
+    _require(paths)
     demos = load_demos(paths, n_samples=samples)
     results = [score_demos(group) for group in group_by_task(demos).values()]
     if json:
@@ -99,6 +104,7 @@ def clean(
     from bt_pipeline.clean.pipeline import CleanOptions
     from bt_pipeline.viz.tables import clean_json, print_clean_summary
 
+    _require(paths)
     options = CleanOptions(
         seed=seed, epochs=epochs, variant=variant, write_rrd=rrd, workers=workers, strict=strict
     )
@@ -266,6 +272,124 @@ def reproduce(
         print(path)
 
 
+def export(
+    paths: tyro.conf.Positional[Paths],
+    format: Annotated[Literal["lerobot", "robomimic"], Required],
+    out: Annotated[Path, Required],
+    fps: int = 50,
+    task_text: Annotated[list[str], tyro.conf.arg(help_behavior_hint="(default: built-in)")] = [],  # noqa: B006
+    valid_fraction: float = 0.1,
+    top_k: list[int] = [3],  # noqa: B006  # tyro reads the default; never mutated
+    seed: int = 0,
+    overwrite: bool = False,
+) -> None:
+    """Export recordings (raw or cleaned) for LeRobot or robomimic (docs/interop.md).
+
+    Args:
+        paths: Format-v1 recordings: files, directories or glob patterns.
+        format: "lerobot" (a LeRobotDataset v3.0 directory) or "robomimic" (one .hdf5 per task).
+        out: lerobot: the dataset directory. robomimic: the .hdf5 file (one task), or a
+            directory that gets <task>.robomimic.hdf5 per task.
+        fps: lerobot: frame rate [Hz]; every demo is resampled to it.
+        task_text: lerobot: task sentences, TASK=TEXT (or TEXT alone for one task).
+        valid_fraction: robomimic: share of demos in mask/valid (seeded split).
+        top_k: robomimic: write mask/top_<k>, the k demos of highest Ũ, for each k.
+        seed: robomimic: seed of the split and of Stage 1's value map (the rewards).
+        overwrite: Replace an existing output.
+    """
+    _require(paths)
+    if format == "lerobot":
+        from bt_pipeline.interop.export_lerobot import export_lerobot
+
+        done = export_lerobot(paths, out, fps=fps, task_texts=task_text, overwrite=overwrite)
+        print(done.root)
+        log.info("%d episodes, %d frames at %d fps", done.episodes, done.frames, fps)
+    else:
+        from bt_pipeline.interop.export_robomimic import export_robomimic
+
+        for written in export_robomimic(
+            paths, out, valid_fraction=valid_fraction, top_k=top_k, seed=seed, overwrite=overwrite
+        ):
+            print(written.path)
+            log.info("%d demos; filter keys %s", written.demos, ", ".join(written.masks))
+
+
+def import_(
+    file: tyro.conf.Positional[Annotated[Path, tyro.conf.arg(metavar="FILE")]],
+    from_: Annotated[Literal["robomimic", "lerobot"], tyro.conf.arg(name="from"), Required],
+    task: Annotated[str, Required],
+    out: Annotated[Path, Required],
+    plane: str = "auto",
+    ee_key: str | None = None,
+    overwrite: bool = False,
+) -> None:
+    """Turn another tool's demos (robomimic file, LeRobot v3.0 dataset) into a format-v1 file.
+
+    θ and ρ are unknown (NaN) unless the file is a bt export; bt estimates them when cleaning.
+
+    Args:
+        file: The robomimic .hdf5 file or the LeRobot dataset directory.
+        from_: Its format.
+        task: The task its demos perform: wiping, weaving or pick_and_place.
+        out: The format-v1 file to write.
+        plane: "auto" (fit by PCA of the end-effector positions) or 9 numbers
+            ox,oy,oz,ux,uy,uz,vx,vy,vz: the plane's origin and in-plane axes [m].
+        ee_key: The end-effector position: an obs key (robomimic) or FEATURE[:START] (lerobot).
+        overwrite: Replace an existing `out`.
+    """
+    from bt_pipeline.data.recording import write_recording
+    from bt_pipeline.data.tasks import parse_task
+    from bt_pipeline.interop.plane_fit import parse_plane
+
+    chosen, given = parse_task(task), parse_plane(plane)
+    if from_ == "robomimic":
+        from bt_pipeline.interop.import_robomimic import read_robomimic
+
+        recording = read_robomimic(file, chosen, given, ee_key)
+    else:
+        from bt_pipeline.interop.import_lerobot import read_lerobot
+
+        recording = read_lerobot(file, chosen, given, ee_key)
+    print(write_recording(out, recording, overwrite=overwrite))
+    log.info("%d demos; task plane origin %s", len(recording.demos), recording.plane.origin)
+
+
+def view(
+    paths: tyro.conf.Positional[Paths],
+    out: Path | None = None,
+    serve: bool = False,
+    port: int = 9090,
+    web_port: int = 9091,
+    samples: int = 300,
+) -> None:
+    """Scrub demos in time in Rerun: 3-D end-effector paths, the task plane, 2-D view, scores.
+
+    Without --out or --serve, opens the bundled Rerun viewer.
+
+    Args:
+        paths: Format-v1 recordings (raw or cleaned): files, directories or glob patterns.
+        out: Write a .rrd file instead of opening a viewer.
+        serve: Serve the web viewer on 127.0.0.1 only (until Ctrl-C); prints the URL.
+        port: gRPC port of --serve.
+        web_port: HTTP port of --serve's web viewer.
+        samples: N, samples per demo for scoring.
+    """
+    from bt_pipeline.viz.view import open_viewer, save_view_rrd, serve_view
+
+    _require(paths)
+    if out is not None:
+        print(save_view_rrd(paths, out, n_samples=samples))
+    elif serve:
+        serve_view(paths, port=port, web_port=web_port, n_samples=samples)
+    else:
+        open_viewer(paths, n_samples=samples)
+
+
+def _require(paths: list[str]) -> None:
+    if not paths:
+        raise ConfigError("give at least one PATH (a recording file, directory or glob pattern)")
+
+
 COMMANDS = {
     "teleop": teleop,
     "score": score,
@@ -273,15 +397,31 @@ COMMANDS = {
     "clean": clean,
     "evaluate": evaluate,
     "reproduce": reproduce,
+    "export": export,
+    "import": import_,
+    "view": view,
 }
 
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of the ``bt`` console script and ``python -m bt_pipeline``."""
     logging.basicConfig(level=logging.INFO, format="bt: %(message)s", stream=sys.stderr)
+    argv = sys.argv[1:] if args is None else args
+    if argv[:1] in (["--version"], ["-V"]):
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            print(f"bt {version('bt')}")
+        except PackageNotFoundError:  # run from a source tree that was never installed
+            print("bt (not installed; source tree)")
+        return
     try:
         tyro.extras.subcommand_cli_from_dict(
-            COMMANDS, prog="bt", description="Beyond the Teacher: score and clean demos.", args=args
+            COMMANDS,
+            prog="bt",
+            description="Beyond the Teacher: score and clean demos. `bt --version` prints the "
+            "version.",
+            args=args,
         )
     except (BtError, ConfigError) as error:
         print(f"bt: error: {error}", file=sys.stderr)

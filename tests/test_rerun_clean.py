@@ -28,6 +28,7 @@ from bt_pipeline.viz.rerun_clean import (
     recording_id,
     save_clean_rrd,
 )
+from bt_pipeline.viz.rerun_timeline import TIME_TIMELINE
 
 EPOCHS = 3
 N_SAMPLES = 120
@@ -111,7 +112,21 @@ def test_saved_file_is_complete_with_expected_entities(cleaned: Cleaned, saved: 
     assert expected <= set(chunks)
     assert all(path == "/__properties" or path.startswith("/wiping/") for path in chunks)
     timelines = {t for cs in chunks.values() for c in cs for t in c.timeline_names}
-    assert timelines == {EPOCH_TIMELINE}  # no wall-clock log_time
+    assert timelines == {EPOCH_TIMELINE, TIME_TIMELINE}  # no wall-clock log_time
+
+
+def test_raw_and_cleaned_side_by_side_on_the_time_timeline(cleaned: Cleaned, saved: Path) -> None:
+    result = cleaned.result
+    chunks = _chunks(saved)
+    plane = result.demos[result.best_index].plane
+    for i, demo in enumerate(result.demos):
+        for group, uv in (("raw", demo.positions), ("cleaned", result.positions[i])):
+            ee = chunks[f"/wiping/timeline/world/{group}/{i}_{demo.name}/ee"]
+            points = _values(ee, "Points3D:positions", static=False)
+            np.testing.assert_allclose(np.concatenate(points), plane.to_world(uv), atol=1e-6)
+            batches = [c.to_record_batch() for c in ee if not c.is_static]
+            times = np.concatenate([b.column(TIME_TIMELINE).cast("int64") for b in batches])
+            assert len(times) == demo.n_samples and times[-1] == round(demo.duration_s * 1e9)
 
 
 def test_epoch_histories_have_one_row_per_epoch(cleaned: Cleaned, saved: Path) -> None:

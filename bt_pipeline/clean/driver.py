@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
 from bt_pipeline.clean.stage2.config import EpochStats
+from bt_pipeline.data.carry import carried_masks, carried_obs
 from bt_pipeline.data.demo import Demo, demos_from_recording, group_by_task
 from bt_pipeline.data.paths import expand_paths
 from bt_pipeline.data.recording import read_recordings, write_recording
@@ -124,6 +125,7 @@ def cleaned_recording(
             source=record.source,
             created=record.created,
             ep_meta=record.ep_meta,
+            **carried_obs(record, timestamps),  # orientation, gripper, extra obs: not cleaned
             attrs={
                 "cleaned_from": f"{demo.file}:{demo.name}",
                 "preference_estimated": bool(result.stage1.estimated[i]),
@@ -140,11 +142,13 @@ def cleaned_recording(
             },
         )
     env_args = sources[best.file].env_args
+    names = {(d.file, d.name): n for d, n in zip(result.demos, out, strict=True)}
     return Recording(
         task=result.task,
         plane=plane,
         demos=out,
         env_args=env_args,
+        masks=carried_masks({f: r.masks for f, r in sources.items()}, names),
         attrs={
             "best_file": best.file,
             "best_demo": best.name,
@@ -165,7 +169,7 @@ def _clean_task(task_demos: tuple[int, list[Demo], CleanOptions]) -> TaskCleanRe
         unit="epoch",
         position=position,
         leave=True,
-        disable=not options.progress,
+        disable=None if options.progress else True,  # None: off when stderr is no TTY
         file=sys.stderr,
     ) as bar:
 

@@ -32,6 +32,7 @@ from bt_pipeline.data.validate import (
     DEMO_ATTRS,
     FORMAT,
     FORMAT_VERSION,
+    KNOWN_OBS,
     OPTIONAL_DATASETS,
     SUPPORTED_VERSIONS,
     check_env_args,
@@ -231,9 +232,22 @@ def _read_demo(data: h5py.Group, name: str, label: str) -> tuple[DemoRecord, int
         created=str_attr(attrs, "created", label) if "created" in attrs else None,
         ep_meta=ep_meta,
         attrs=read_extra_attrs(attrs, DEMO_ATTRS),
+        extra_obs=_read_extra_obs(group),
         **optional,
     )
     return demo, int_attr(attrs, "num_samples", label)
+
+
+def _read_extra_obs(group: h5py.Group) -> dict[str, np.ndarray]:
+    """``obs/<key>`` datasets other than bt's own, as stored (checked with the demo)."""
+    obs = group.get("obs")
+    if not isinstance(obs, h5py.Group):
+        return {}
+    return {
+        key: np.asarray(item[()])
+        for key, item in obs.items()
+        if key not in KNOWN_OBS and isinstance(item, h5py.Dataset)
+    }
 
 
 def _read_masks(file: h5py.File, where: str) -> dict[str, list[str]]:
@@ -302,6 +316,8 @@ def _write_file(file: h5py.File, recording: Recording) -> None:
             value = getattr(demo, field)
             if value is not None:
                 _write_float(group, dataset, value)
+        for key, value in demo.extra_obs.items():
+            group.create_dataset(f"obs/{key}", data=np.asarray(value))
     if recording.masks:
         masks = file.create_group("mask")
         for key, members in recording.masks.items():

@@ -71,6 +71,9 @@ class DemoRecord:
     """Full MuJoCo state for exact replay, shape (T, S)."""
     attrs: dict[str, Any] = field(default_factory=dict)
     """Extra per-demo attrs written as they are (e.g. the cleaner's scores)."""
+    extra_obs: dict[str, NDArray[Any]] = field(default_factory=dict)
+    """Other ``obs/<key>`` datasets (e.g. another tool's object poses), each shape (T, ...), any
+    numeric dtype: kept and written back, never used by bt."""
 
     @property
     def num_samples(self) -> int:

@@ -38,6 +38,8 @@ DEMO_ATTRS = frozenset(
     ("num_samples", "demonstrator", "theta_deg", "rho", "source", "created", "ep_meta")
 )
 """Demo attrs with a meaning in format v1 (not free for ``DemoRecord.attrs``)."""
+KNOWN_OBS = frozenset({"ee_pos", "ee_quat", "joint_pos", "gripper"})
+"""``obs/<key>`` datasets bt reads into named fields; any other is kept in ``extra_obs``."""
 OPTIONAL_DATASETS: tuple[tuple[str, str, int | None], ...] = (
     ("obs/ee_quat", "ee_quat", 4),
     ("obs/joint_pos", "joint_pos", 7),
@@ -194,6 +196,18 @@ def check_demo(demo: DemoRecord, label: str, *, extra_attrs: bool = True) -> Non
         value = getattr(demo, field_name)
         if value is not None:
             _check_dataset(value, dataset, n, columns, label)
+    for key, value in demo.extra_obs.items():
+        array = np.asarray(value)
+        if (
+            key in KNOWN_OBS
+            or "/" in key
+            or array.dtype.kind not in "fiub"
+            or array.shape[:1] != (n,)
+        ):
+            raise RecordingError(
+                f"{label}: obs/{key} must be a numeric dataset of T = {n} rows with a name other "
+                f"than {', '.join(sorted(KNOWN_OBS))}; got dtype {array.dtype}, shape {array.shape}"
+            )
     _check_demo_attrs(demo, label)
     if extra_attrs:
         check_attrs(demo.attrs, DEMO_ATTRS, label)

@@ -96,7 +96,9 @@ def evaluate_pairs(
     """Evaluate every task of `pairs`, with one progress bar (stderr) over all trainings."""
     total = len(pairs) * len(DATASETS) * len(config.learners)
     evaluations = []
-    with tqdm(total=total, desc=label, unit="model", file=sys.stderr, disable=not progress) as bar:
+    with tqdm(
+        total=total, desc=label, unit="model", file=sys.stderr, disable=None if progress else True
+    ) as bar:
         for task, (noisy, cleaned) in pairs.items():
             bar.set_postfix_str(task)
 

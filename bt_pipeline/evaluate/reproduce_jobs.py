@@ -226,7 +226,13 @@ def run_reproduce(config: ReproduceConfig, progress: bool = True) -> ReproduceRu
             for task in config.tasks
             for learner in config.learners
         ]
-    bar = tqdm(total=len(jobs), desc="reproduce", unit="job", file=sys.stderr, disable=not progress)
+    bar = tqdm(
+        total=len(jobs),
+        desc="reproduce",
+        unit="job",
+        file=sys.stderr,
+        disable=None if progress else True,
+    )
     results: list[JobResult | CompetenceRow] = []
     with bar:
         if config.workers > 1 and len(jobs) > 1:

@@ -35,6 +35,7 @@ from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.viz.rerun_timeline import log_clean_timeline, timeline_views
 from bt_pipeline.viz.rrd import demo_colors, save_rrd
 
 APP_ID = "bt_clean"
@@ -100,6 +101,7 @@ def log_clean_result(rec: rr.RecordingStream, result: TaskCleanResult) -> None:
     _log_scores(rec, root, result.raw, result.cleaned)
     _log_training(rec, root, result, names, colors)
     _log_text(rec, root, result, names)
+    log_clean_timeline(rec, f"{root}/timeline", result)  # the `time` timeline of bt view
 
 
 def log_epoch(rec: rr.RecordingStream, task: Task, stats: EpochStats, names: Sequence[str]) -> None:
@@ -136,8 +138,10 @@ def clean_blueprint(tasks: Iterable[Task | str]) -> rrb.Blueprint:
     parsed: list[Task] = [parse_task(str(name)) for name in tasks]
     if not parsed:
         raise ConfigError("clean_blueprint needs at least one task")
-    layouts = [_task_layout(t) for i, t in enumerate(parsed) if t not in parsed[:i]]
-    main = layouts[0] if len(layouts) == 1 else rrb.Tabs(*layouts)
+    unique: list[Task] = [t for i, t in enumerate(parsed) if t not in parsed[:i]]
+    layouts = [_task_layout(t) for t in unique]
+    layouts += [timeline_views(f"/{t}/timeline", f"{t}: raw vs cleaned in time") for t in unique]
+    main = rrb.Tabs(*layouts)
     return rrb.Blueprint(
         main,
         rrb.TimePanel(timeline=EPOCH_TIMELINE, state="collapsed"),

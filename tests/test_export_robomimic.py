@@ -1,0 +1,128 @@
+"""bt export --format robomimic: what robomimic 0.3.0 checks, read back with h5py."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import pytest
+
+from bt_pipeline.data.recording import read_recording, write_recording
+from bt_pipeline.data.synth import make_demo_set
+from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.interop.export_robomimic import GYM_ENV_TYPE, export_robomimic
+from tests.test_export_lerobot import full_recording
+
+
+def _ds(file: h5py.File, key: str) -> np.ndarray:
+    item = file[key]
+    assert isinstance(item, h5py.Dataset), key
+    return np.asarray(item[()])
+
+
+def _attrs(file: h5py.File, key: str) -> dict[str, Any]:
+    return dict(file[key].attrs)
+
+
+def _demo_names(file: h5py.File) -> list[str]:
+    data = file["data"]
+    assert isinstance(data, h5py.Group)
+    return list(data.keys())
+
+
+@pytest.fixture(scope="module")
+def synth_export(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, str]:
+    tmp = tmp_path_factory.mktemp("robomimic")
+    synth = make_demo_set("wiping", n_demos=6, seed=2)
+    src = write_recording(tmp / "wiping.hdf5", synth.recording)
+    [out] = export_robomimic([src], tmp / "w.robomimic.hdf5", valid_fraction=0.34, top_k=(1, 3))
+    return src, out.path, synth.expert_name
+
+
+def test_actions_in_unit_box_and_scale_undoes_them(synth_export) -> None:
+    src, out, _ = synth_export
+    raw = read_recording(src).demos
+    with h5py.File(out) as f:
+        scale = f["data"].attrs["action_scale"]
+        peak = 0.0
+        for k, record in enumerate(raw.values()):
+            actions = _ds(f, f"data/demo_{k}/actions")
+            assert np.all(np.abs(actions) <= 1.0)
+            peak = max(peak, float(np.abs(actions).max()))
+            np.testing.assert_allclose(actions * scale, record.resolved_actions(), atol=1e-12)
+        assert peak == pytest.approx(1.0)
+
+
+def test_rewards_dones_next_obs(synth_export) -> None:
+    _, out, expert = synth_export
+    with h5py.File(out) as f:
+        means = {}
+        for name in _demo_names(f):
+            attrs = _attrs(f, f"data/{name}")
+            n = int(attrs["num_samples"])
+            rewards, dones = _ds(f, f"data/{name}/rewards"), _ds(f, f"data/{name}/dones")
+            assert rewards.shape == (n,) and np.all(rewards >= 0.0)
+            assert dones[-1] == 1 and dones[:-1].sum() == 0
+            obs, nxt = (
+                _ds(f, f"data/{name}/obs/robot0_eef_pos"),
+                _ds(f, f"data/{name}/next_obs/robot0_eef_pos"),
+            )
+            np.testing.assert_array_equal(nxt[:-1], obs[1:])
+            np.testing.assert_array_equal(obs, _ds(f, f"data/{name}/obs/ee_pos"))
+            means[attrs["source_demo"]] = float(rewards.mean())
+        # The generator's expert-like demo draws the canonical motion: V_E rewards it most.
+        assert max(means, key=means.__getitem__) == expert
+
+
+def test_masks_split_best_and_top_k(synth_export) -> None:
+    _, out, _ = synth_export
+    with h5py.File(out) as f:
+        keys = ["train", "valid", "best", "top_1", "top_3"]
+        masks = {k: [n.decode() for n in _ds(f, f"mask/{k}")] for k in keys}
+        utility = {n: float(_attrs(f, f"data/{n}")["utility"]) for n in _demo_names(f)}
+        env = json.loads(_attrs(f, "data")["env_args"])
+    assert env["type"] == GYM_ENV_TYPE and isinstance(env["env_kwargs"], dict)
+    assert sorted(masks["train"] + masks["valid"]) == sorted(utility)
+    assert not set(masks["train"]) & set(masks["valid"]) and len(masks["valid"]) == 2
+    assert masks["best"] == masks["top_1"] == [max(utility, key=utility.__getitem__)]
+    top3 = sorted(utility, key=utility.__getitem__)[-3:]
+    assert sorted(masks["top_3"]) == sorted(top3)
+
+
+def test_split_is_seeded(tmp_path) -> None:
+    src = write_recording(tmp_path / "w.hdf5", make_demo_set("wiping", n_demos=5).recording)
+    first = export_robomimic([src], tmp_path / "a.hdf5", seed=1)[0].masks
+    assert export_robomimic([src], tmp_path / "b.hdf5", seed=1)[0].masks == first
+
+
+def test_quaternion_alias_is_xyzw(tmp_path) -> None:
+    src = write_recording(tmp_path / "w.hdf5", full_recording())
+    quat = np.array([0.5, 0.5, -0.5, 0.5])  # w, x, y, z
+    record = read_recording(src).demos["demo_0"]
+    with h5py.File(src, "r+") as f:  # a copy made in this test: give it a real orientation
+        stored = f["data/demo_0/obs/ee_quat"]
+        assert isinstance(stored, h5py.Dataset)
+        stored[...] = np.tile(quat, (record.num_samples, 1))
+    [written] = export_robomimic([src], tmp_path / "r.hdf5")
+    out = written.path
+    with h5py.File(out) as f:
+        np.testing.assert_allclose(
+            _ds(f, "data/demo_0/obs/robot0_eef_quat")[0], [0.5, -0.5, 0.5, 0.5]
+        )
+        assert _ds(f, "data/demo_0/obs/robot0_joint_pos").shape == (record.num_samples, 7)
+
+
+def test_one_task_per_file_and_no_overwrite(tmp_path) -> None:
+    a = write_recording(tmp_path / "a.hdf5", make_demo_set("wiping", n_demos=2).recording)
+    b = write_recording(tmp_path / "b.hdf5", make_demo_set("weaving", n_demos=2).recording)
+    with pytest.raises(ConfigError, match="one task"):
+        export_robomimic([a, b], tmp_path / "out.hdf5")
+    assert not (tmp_path / "out.hdf5").exists()
+    written = export_robomimic([a, b], tmp_path / "per_task")
+    assert [w.path.name for w in written] == ["wiping.robomimic.hdf5", "weaving.robomimic.hdf5"]
+    export_robomimic([a], tmp_path / "out.hdf5")
+    with pytest.raises(ConfigError, match="exists"):
+        export_robomimic([a], tmp_path / "out.hdf5")
