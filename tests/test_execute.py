@@ -38,10 +38,11 @@ def bad_input(item: int) -> int:
 @pytest.fixture(scope="module")
 def ray_local() -> Iterator[None]:
     import ray  # installed with the dev extras (bt[dev] pulls bt[ray])
+    from ray import cloudpickle
 
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
     # Ship this test module's functions by value: Ray workers do not have tests/ on sys.path.
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
     yield
     ray.shutdown()
 
