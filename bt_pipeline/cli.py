@@ -15,6 +15,7 @@ from typing import Annotated, Literal
 import tyro
 
 from bt_pipeline.exceptions import BtError, ConfigError
+from bt_pipeline.execute import ExecutorConfig, ExecutorName
 
 Paths = Annotated[list[str], tyro.conf.arg(metavar="PATH")]
 """Recording files, directories or glob patterns."""
@@ -78,6 +79,8 @@ def clean(
     seed: int = 0,
     epochs: int | None = None,
     workers: int = 1,
+    executor: ExecutorName = "processes",
+    ray_address: str | None = None,
     variant: Literal["default", "paper"] = "default",
     strict: bool = False,
     json: bool = False,
@@ -90,7 +93,9 @@ def clean(
         rrd: Also write DIR/<task>.rrd for the Rerun viewer.
         seed: Random seed (the result is deterministic for a seed).
         epochs: Refinement epochs (default: the variant's own).
-        workers: Tasks cleaned in parallel (processes).
+        workers: Tasks cleaned in parallel (processes; with ray, the most in flight, 0: no limit).
+        executor: Where tasks run: "local" (this process), "processes" or "ray" (docs/scale.md).
+        ray_address: Ray cluster address (with --executor ray); unset starts a local Ray.
         variant: "default" (bt's design) or "paper" (the paper's configuration, for comparison).
         strict: Stop at the first unreadable file instead of skipping it with a warning.
         json: Print one JSON summary on stdout instead of tables.
@@ -102,7 +107,7 @@ def clean(
     options = CleanOptions(
         seed=seed, epochs=epochs, variant=variant, write_rrd=rrd, workers=workers, strict=strict
     )
-    summaries = clean_paths(paths, out, options)
+    summaries = clean_paths(paths, out, options, ExecutorConfig(executor, workers, ray_address))
     if json:
         print(jsonlib.dumps(clean_json(summaries), indent=2))
     else:
