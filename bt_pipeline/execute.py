@@ -160,7 +160,10 @@ def _run_ray(
             "configure_logging": False,
         }
         if config.ray_address is None:
+            # A private single-node Ray on loopback (docs/scale.md: which of Ray's own sockets
+            # still listen wider, and how Ray's token authentication guards them).
             init["num_cpus"] = max(config.workers, 1)
+            init["_node_ip_address"] = "127.0.0.1"
         else:
             init["address"] = config.ray_address
         ray.init(**init)
