@@ -38,6 +38,7 @@ class TreeSampler:
     def __init__(self, period_s: float = 0.1) -> None:
         self.period_s = period_s
         self.peak = 0
+        self.cpu_at_start = 0.0
         self._cpu: dict[int, float] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
