@@ -169,6 +169,7 @@ def evaluate(
     quick: bool = False,
     samples: int = 300,
     steps: int | None = None,
+    paper_learners: bool = False,
 ) -> None:
     """Train imitation learners on noisy and on cleaned demos and compare their rollouts (Sec. IV).
 
@@ -190,6 +191,8 @@ def evaluate(
         quick: Use the learners' quick (CI-sized) presets.
         samples: N, samples per demo after resampling uniformly in time.
         steps: Override every learner's optimiser steps (smoke tests; results are not meaningful).
+        paper_learners: The learners as the paper wrote them (state = 2-D position, no
+            corrective data) instead of bt's (position + phase, corrective data).
     """
     from bt_pipeline.evaluate.driver import (
         eval_json,
@@ -205,7 +208,15 @@ def evaluate(
     if rrd is not None and rrd.suffix != ".rrd":
         raise ConfigError(f"--rrd must end in .rrd; got {rrd}")
     chosen = parse_learners(learners)
-    config = EvalConfig(learners=chosen, rollouts=rollouts, quick=quick, seed=seed, steps=steps)
+    config = EvalConfig(
+        learners=chosen,
+        rollouts=rollouts,
+        quick=quick,
+        seed=seed,
+        steps=steps,
+        state="position" if paper_learners else "phase",
+        corrective=not paper_learners,
+    )
     evaluations = evaluate_paths(noisy, cleaned, config, n_samples=samples)
     written = []
     if plots is not None:
@@ -225,9 +236,10 @@ def evaluate(
 def reproduce(
     quick: bool = False,
     out: Path = Path("reproduce"),
-    seeds: int = 1,
+    seeds: int | None = None,
     workers: int = 1,
     oracle: bool = False,
+    paper_learners: bool = False,
 ) -> None:
     """Reproduce the paper's Sec. IV on synthetic D1 and D2: generate, clean, evaluate, report.
 
@@ -238,14 +250,23 @@ def reproduce(
     Args:
         quick: The CI-sized run (learners' quick presets, 20 rollouts) instead of the full one.
         out: Output directory (created if missing; its files are replaced).
-        seeds: Repeat with seeds 0 .. K-1 and report the spread over seeds too.
+        seeds: Repeat with seeds 0 .. K-1 and report the spread over seeds too (default: 3 for
+            the full run, 1 with --quick).
         workers: Jobs (set × task × seed) run in parallel processes; results do not change.
         oracle: Also train on the synthetic ground truth: the upper bound of any cleaning.
+        paper_learners: The learners as the paper wrote them (2-D position, no corrective data).
     """
     from bt_pipeline.evaluate.reproduce import reproduce as run
     from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig
 
-    config = ReproduceConfig.preset(quick, seeds=seeds, workers=workers, oracle=oracle)
+    overrides: dict[str, object] = {
+        "workers": workers,
+        "oracle": oracle,
+        "paper_learners": paper_learners,
+    }
+    if seeds is not None:
+        overrides["seeds"] = seeds
+    config = ReproduceConfig.preset(quick, **overrides)
     for path in run(config, out):
         print(path)
 

@@ -15,12 +15,8 @@ from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth import make_d1
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.evaluate.reproduce import reproduce
-from bt_pipeline.evaluate.reproduce_jobs import (
-    PAPER_ILEED_D1_GAIN,
-    ReproduceConfig,
-    truth_demos,
-)
-from bt_pipeline.evaluate.reproduce_report import Cell, verdict
+from bt_pipeline.evaluate.reproduce_jobs import PAPER_ILEED_D1_GAIN, ReproduceConfig, truth_demos
+from bt_pipeline.evaluate.reproduce_report import Cell, verdict, verdict_test
 from bt_pipeline.exceptions import ConfigError
 
 TINY = ReproduceConfig(
@@ -74,15 +70,33 @@ def test_report_has_tables_the_paper_side_by_side_and_a_verdict(tiny_run) -> Non
     assert "## Where cleaned beats noisy, and where it does not" in report
     assert "Of 2 (set, task, learner) cells" in report
     assert "R̄ truth" in report and "with the truth" in report
+    assert "Welch t, seeds" in report  # two seeds: the test runs over per-seed means
+    assert "## Oracle rows" in report and "mean-preference loop" in report
+    assert "| wiping | +0.880 |" in report and "min-max" in report
     assert "![Fig. 11-style rewards](rewards.png)" in report
 
 
-def _cell(mean: float, std: float, count: int = 50) -> Cell:
+def test_results_json_has_the_oracle_rows(tiny_run) -> None:
+    rows = json.loads((tiny_run / "results.json").read_text())["competence"]
+    assert {(r["check"], r["learner"]) for r in rows} == {
+        (c, lr) for c in ("one", "four") for lr in ("bc", "ileed")
+    }
+    for row in rows:
+        assert 0.0 <= row["coverage"] <= 1.0 and row["shape_error"] > 0.0
+
+
+def _cell(mean: float, std: float, count: int = 50, seeds: tuple[float, ...] = ()) -> Cell:
+    rng = np.random.default_rng(int(mean * 1000) + count)
+    rewards = rng.normal(mean, std, count)
+    rewards += mean - rewards.mean()  # exactly the given mean
     return Cell(
         mean=mean,
         std=std,
-        seed_std=0.0,
-        direct=mean,
+        seed_std=float(np.std(seeds)) if seeds else 0.0,
+        nearest=mean,
+        minmax=0.5,
+        seed_means=seeds or (mean,),
+        rewards=rewards,
         shape_loss=0.01,
         shape_distance=0.01,
         coverage=1.0,
@@ -93,11 +107,17 @@ def _cell(mean: float, std: float, count: int = 50) -> Cell:
     )
 
 
-def test_verdict_needs_two_standard_errors() -> None:
-    assert verdict(_cell(0.50, 0.05), _cell(0.53, 0.05)) == "cleaned"  # Δ 0.03 > 2 × 0.010
+def test_verdict_is_welchs_t_test_over_rollouts_or_seeds() -> None:
+    assert verdict(_cell(0.50, 0.05), _cell(0.53, 0.05)) == "cleaned"  # t ≈ 3, p ≈ 0.003
     assert verdict(_cell(0.50, 0.05), _cell(0.51, 0.05)) == "tie"
     assert verdict(_cell(0.50, 0.05), _cell(0.47, 0.05)) == "noisy"
     assert verdict(_cell(0.50, 0.20, 4), _cell(0.60, 0.20, 4)) == "tie"  # few, spread rollouts
+    # With seeds the per-seed means decide: consistent over seeds wins, scattered ties.
+    n = _cell(0.50, 0.01, seeds=(0.49, 0.50, 0.51))
+    assert verdict(n, _cell(0.60, 0.01, seeds=(0.59, 0.60, 0.61))) == "cleaned"
+    assert verdict(n, _cell(0.55, 0.01, seeds=(0.35, 0.60, 0.70))) == "tie"
+    _word, test, p = verdict_test(n, _cell(0.60, 0.01, seeds=(0.59, 0.60, 0.61)))
+    assert test == "Welch t, seeds" and p < 0.01
 
 
 @pytest.mark.parametrize(
@@ -112,6 +132,7 @@ def test_quick_preset_is_smaller_than_the_full_one() -> None:
     quick, full = ReproduceConfig.preset(True), ReproduceConfig.preset(False)
     assert quick.quick and not full.quick
     assert quick.rollouts < full.rollouts == 50
+    assert full.seeds >= 3 and quick.competence and full.competence
     assert quick.tasks == full.tasks == TASKS and quick.sets == full.sets == ("D1", "D2")
 
 

@@ -1,4 +1,13 @@
-"""Rollout metrics against a yardstick built from the noisy demos: R̄, coverage and shape."""
+"""Rollout metrics against a yardstick neither dataset was built from: R̄, coverage and shape.
+
+* **R̄** reads the value map V_E of the best *raw* demo (Eq. 11 / N), as the paper does
+  (``"best"``, the headline); ``"nearest"`` first maps the rollout from the frame of the
+  demonstrator whose Stage 1 loop it lies nearest into the best one's (an alternative column).
+* **Coverage, shape distance, L4** compare the rollout with an independent reference loop: the
+  ground truth of the nearest demonstrator on synthetic data (``true_loops``), otherwise the best
+  raw demo itself. Never the Stage 1 references x_i^aligned, from which the cleaned demos were
+  made (they would favour the cleaned set).
+"""
 
 from __future__ import annotations
 
@@ -21,12 +30,14 @@ from bt_pipeline.score.mi import mutual_information
 from bt_pipeline.score.utility import Normaliser, normalised_utility, score_demos
 
 RewardFrame = Literal["nearest", "best"]
-"""Where V_E reads a rollout: mapped from its nearest demonstrator's frame into the best one's
-(bt's default), or as it is, in the best demonstrator's frame (the paper's literal protocol)."""
+"""Where V_E reads a rollout: as it is, in the best demonstrator's frame (the paper's reading,
+the default), or mapped from its nearest demonstrator's frame into the best one's."""
 UTILITY_WEIGHTS = (0.2, 0.2, 0.2, 0.4)
 """w_1..w_4 of Ũ for rollouts (the refinement weights, docs/algorithms.md §7 row 8)."""
 UTILITY_BETA = 0.5
 """β of Ũ for rollouts: the selection-time value, the same for every learner and dataset."""
+COVERAGE_TOLERANCE_M = 0.005
+"""A reference point is covered when the rollout passes within this distance [m]."""
 
 
 def mean_of(values: FloatArray) -> float:
@@ -37,8 +48,16 @@ def std_of(values: FloatArray) -> float:
     return float(np.std(values))
 
 
-def build_yardstick(noisy: Sequence[Demo], seed: int = 0) -> Yardstick:
-    """V_E, aligned references and the frozen normaliser of the noisy set.
+def build_yardstick(
+    noisy: Sequence[Demo], seed: int = 0, true_loops: Sequence[FloatArray] | None = None
+) -> Yardstick:
+    """V_E, the frozen normaliser and the independent references of the noisy set.
+
+    Args:
+        noisy: The raw demos.
+        seed: Seed of Stage 1 (as the cleaner's).
+        true_loops: The demonstrators' true loops (K, 2) [m] (synthetic data); None: the best raw
+            demo is the one reference.
 
     Raises:
         DemoError: No demos.
@@ -58,11 +77,15 @@ def build_yardstick(noisy: Sequence[Demo], seed: int = 0) -> Yardstick:
         size=float(np.max(np.ptp(best, axis=0))),
         representatives=tuple(sorted(keys.values())),
         ceiling=stage1.value_map.mean_reward(best),
+        references=tuple(np.asarray(t, dtype=np.float64) for t in true_loops)
+        if true_loops
+        else (best.copy(),),
+        truth=bool(true_loops),
     )
 
 
 def rollout_metrics(
-    rollouts: FloatArray, yardstick: Yardstick, reward_frame: RewardFrame = "nearest"
+    rollouts: FloatArray, yardstick: Yardstick, reward_frame: RewardFrame = "best"
 ) -> RolloutMetrics:
     """R̄ (both frames), L4, phase-free distance and Ũ of every rollout (module doc).
 
@@ -78,15 +101,19 @@ def rollout_metrics(
     value_map = stage1.value_map
     n = rollouts.shape[1]
     times = np.linspace(0.0, 1.0, n)
-    references = {i: _resampled(stage1.aligned[i], n) for i in yardstick.representatives}
+    frames = {i: _resampled(stage1.aligned[i], n) for i in yardstick.representatives}
+    references = [_resampled(np.vstack([r, r[:1]]), n) for r in yardstick.references]  # closed
     columns: dict[str, list[float]] = {
         k: [] for k in ("direct", "nearest", "l4", "chamfer", "coverage", "utility", "index")
     }
     for rollout in rollouts:
-        # The demonstrator whose loop this rollout draws: phase-free, so timing cannot pick it.
-        distances = {i: chamfer_distance(rollout, ref) for i, ref in references.items()}
-        j = min(distances, key=lambda i: distances[i])
-        l4 = shape_loss(rollout, references[j])  # Eq. (9), best shift and direction
+        # The independent loop this rollout draws: phase-free, so timing cannot pick it.
+        distances = [chamfer_distance(rollout, ref) for ref in yardstick.references]
+        r = int(np.argmin(distances))
+        l4 = shape_loss(rollout, references[r])  # Eq. (9), best shift and direction
+        # The demonstrator frame for the "nearest" reading of V_E (an alternative column only).
+        frame_gaps = {i: chamfer_distance(rollout, ref) for i, ref in frames.items()}
+        j = min(frame_gaps, key=lambda i: frame_gaps[i])
         actions = np.zeros_like(rollout)
         actions[:-1] = np.diff(rollout, axis=0) / np.diff(times)[:, None]
         values = np.array(
@@ -105,11 +132,11 @@ def rollout_metrics(
         columns["direct"].append(value_map.mean_reward(rollout))  # Eq. (11) / N
         columns["nearest"].append(value_map.mean_reward(stage1.to_best_frame(j, rollout)))
         columns["l4"].append(l4)
-        columns["chamfer"].append(distances[j])
-        gaps, _ = KDTree(rollout).query(references[j])
-        columns["coverage"].append(float(np.mean(gaps <= value_map.bandwidth)))
+        columns["chamfer"].append(distances[r])
+        gaps, _ = KDTree(rollout).query(yardstick.references[r])
+        columns["coverage"].append(float(np.mean(gaps <= COVERAGE_TOLERANCE_M)))
         columns["utility"].append(float(utility[0]))
-        columns["index"].append(j)
+        columns["index"].append(r)
     direct, nearest = np.array(columns["direct"]), np.array(columns["nearest"])
     return RolloutMetrics(
         rewards=nearest if reward_frame == "nearest" else direct,
@@ -133,39 +160,23 @@ def _resampled(curve: FloatArray, n: int) -> FloatArray:
 
 
 def initial_states(
-    demos: Sequence[Demo],
-    count: int,
-    noise_m: float,
-    seed: int,
-    references: FloatArray | None = None,
+    demos: Sequence[Demo], count: int, noise_m: float, seed: int, anywhere: bool = True
 ) -> FloatArray:
-    """A random demo's first state plus N(0, noise_m²) per axis, shape (count, 2), in [m].
+    """Rollout starts: raw demo states plus N(0, noise_m²) per axis, shape (count, 2), in [m].
 
     Args:
-        demos: The demos whose starts are drawn.
+        demos: The raw demos (never the cleaned ones, so the starts favour neither dataset).
         count: Number of initial states.
         noise_m: Std of the perturbation per axis [m].
-        seed: Seed of the draws (the same picks and noise whatever `references`).
-        references: Each demo's closed reference loop, shape (M, K, 2) [m]: the first state is
-            then moved to its nearest point on the demo's loop before the noise is added.
+        seed: Seed of the draws.
+        anywhere: A random sample of a random demo (default); False: a random demo's first
+            sample (§7 row 20).
     """
     rng = np.random.default_rng(seed)
-    starts = np.stack([demo.positions[0] for demo in demos])
-    if references is not None:
-        starts = np.stack(
-            [_nearest_on_loop(p, ref) for p, ref in zip(starts, references, strict=True)]
-        )
     picks = rng.integers(0, len(demos), size=count)
-    return starts[picks] + rng.normal(0.0, noise_m, size=(count, 2))
-
-
-def _nearest_on_loop(point: FloatArray, loop: FloatArray) -> FloatArray:
-    """The point of the polyline `loop` (K, 2) nearest to `point` (2,)."""
-    a, b = loop[:-1], loop[1:]
-    ab = b - a
-    t = np.clip(np.sum((point - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-30), 0, 1)
-    candidates = a + t[:, None] * ab
-    return candidates[int(np.argmin(np.sum((candidates - point) ** 2, axis=1)))]
+    samples = rng.integers(0, [demos[p].n_samples for p in picks]) if anywhere else np.zeros(count)
+    starts = np.stack([demos[p].positions[int(k)] for p, k in zip(picks, samples, strict=True)])
+    return starts + rng.normal(0.0, noise_m, size=(count, 2))
 
 
 @dataclass(frozen=True, eq=False)
@@ -182,6 +193,11 @@ class Yardstick:
     """One demo index per distinct demonstrator preference (θ, ρ): the candidate references."""
     ceiling: float
     """R̄ of the best raw demo itself: what a rollout as good as the expert-like demo scores."""
+    references: tuple[FloatArray, ...]
+    """Independent reference loops (K, 2) [m]: the demonstrators' true loops, or the best raw
+    demo."""
+    truth: bool
+    """Whether `references` are ground truth."""
 
     @property
     def demonstrators(self) -> int:
@@ -200,13 +216,13 @@ class RolloutMetrics:
     rewards_nearest: FloatArray
     """R̄ with V_E read in the nearest demonstrator's frame."""
     shape_losses: FloatArray
-    """L4 (Eq. 9, best circular shift and direction) to the nearest aligned reference [m]."""
+    """L4 (Eq. 9, best circular shift and direction) to the nearest independent reference [m]."""
     shape_distances: FloatArray
-    """Phase-free (Chamfer) distance to the nearest aligned reference [m]."""
+    """Phase-free (Chamfer) distance to the nearest independent reference [m]."""
     coverage: FloatArray
-    """Share of the nearest reference loop the rollout passes within V_E's bandwidth h, in
-    [0, 1]: low for a rollout that stalls or draws part of the loop (which R̄ alone rewards)."""
+    """Share of the nearest independent reference the rollout passes within 5 mm, in [0, 1]:
+    low for a rollout that stalls or draws part of the loop (which R̄ alone rewards)."""
     utilities: FloatArray
     """Ũ (Eq. 8), in [0, 1]."""
     nearest: np.ndarray
-    """Index (into the demos) of the nearest demonstrator's representative, int, shape (R,)."""
+    """Index into the yardstick's references of the nearest one, int, shape (R,)."""

@@ -2,23 +2,18 @@
 
 For one task (pure core, :func:`evaluate_task`)::
 
-    noisy demos ──score──> best ──Stage 1──> V_E, x_i^aligned, frozen normaliser   (the yardstick)
+    noisy demos ──score──> best ──Stage 1──> V_E, frozen normaliser         (the yardstick)
+    true loops (synthetic) or the best raw demo                              (the references)
     for dataset in (noisy, cleaned):
         for learner in (bc, traj_bc, ileed, node):
-            train on the dataset ──> R rollouts of N steps from perturbed initial states
-            per rollout: nearest demonstrator j* (phase-free distance to its reference), then
-                R̄ (Eq. 11 / N: V_E in j*'s frame), L4 to j*'s aligned reference (Eq. 9),
-                Ũ (Eq. 8 with L1-L4, the frozen normaliser, β = 0.5), and for comparison
-                R̄ with V_E read directly (the paper's literal protocol) and the phase-free
-                distance itself
+            train on the dataset ──> R rollouts of N steps from perturbed raw-demo states
+            per rollout: R̄ (Eq. 11 / N, V_E read directly: the paper's reading, the headline),
+                R̄ in the nearest demonstrator's frame (an alternative), coverage, phase-free
+                distance and L4 (Eq. 9) to the nearest independent reference, Ũ (Eq. 8)
 
-The yardstick comes from the noisy set only, so both datasets are measured by the same V_E,
-references, normaliser and initial states (docs/algorithms.md §7 row 20). docs/evaluation.md
-explains every protocol choice, in particular why R̄ is read in the nearest demonstrator's frame:
-V_E is a thin ridge along the *best* demonstrator's loop (its θ, ρ), so read directly it scores a
-perfect loop of another demonstrator 0.2-0.4 against 0.6-0.7 for the best one's, whatever the
-quality; a learner trained on all demonstrators draws some loop among theirs and is then
-measured by its distance to the best demonstrator's preference, not by its quality.
+Both datasets are measured by the same V_E, references, normaliser and initial states, and none
+of them was built from the cleaned set or from the Stage 1 references the cleaned demos were made
+from (docs/evaluation.md gives every choice).
 """
 
 from __future__ import annotations
@@ -33,7 +28,14 @@ from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
-from bt_pipeline.evaluate.learners import LEARNERS, LearnerName, learner_config, train_learner
+from bt_pipeline.evaluate.learners import (
+    LEARNERS,
+    STATES,
+    LearnerName,
+    StateRep,
+    learner_config,
+    train_learner,
+)
 from bt_pipeline.evaluate.metrics import (
     RewardFrame,
     RolloutMetrics,
@@ -51,9 +53,9 @@ Dataset = Literal["noisy", "cleaned", "truth"]
 upper bound of any cleaning) the demos' ground-truth shapes."""
 DATASETS: tuple[Dataset, ...] = ("noisy", "cleaned")
 """The datasets every evaluation compares."""
-StartRule = Literal["reference", "demo"]
-"""Where rollouts start (before the noise): a random demo's first state moved onto its
-demonstrator's reference loop (bt's default), or the raw first state itself (§7 row 20)."""
+StartRule = Literal["raw", "first"]
+"""Where rollouts start (before the noise): a random sample of a random raw demo (bt's default),
+or a random raw demo's first sample (§7 row 20). Raw demos either way: neither dataset's own."""
 
 
 @dataclass(frozen=True)
@@ -70,10 +72,15 @@ class EvalConfig:
     """Use each learner's CI-sized preset."""
     seed: int = 0
     """Seed of training and of the initial states."""
-    reward_frame: RewardFrame = "nearest"
-    """Frame in which V_E reads a rollout for the headline R̄ (both are always reported)."""
-    starts: StartRule = "reference"
+    reward_frame: RewardFrame = "best"
+    """Frame in which V_E reads a rollout for the headline R̄: "best" is the paper's reading
+    (both are always reported)."""
+    starts: StartRule = "raw"
     """Where rollouts start before the perturbation."""
+    state: StateRep = "phase"
+    """The learners' state: "position" is the paper as written."""
+    corrective: bool = True
+    """Train on corrective (DART-style) pairs; False is the paper as written."""
     steps: int | None = None
     """Override every learner's optimiser steps (tiny test runs); None keeps the presets."""
 
@@ -97,8 +104,10 @@ class EvalConfig:
             raise ConfigError(
                 f"reward_frame must be 'nearest' or 'best'; got {self.reward_frame!r}"
             )
-        if self.starts not in ("reference", "demo"):
-            raise ConfigError(f"starts must be 'reference' or 'demo'; got {self.starts!r}")
+        if self.starts not in ("raw", "first"):
+            raise ConfigError(f"starts must be 'raw' or 'first'; got {self.starts!r}")
+        if self.state not in STATES:
+            raise ConfigError(f"state must be one of {', '.join(STATES)}; got {self.state!r}")
         if self.steps is not None and self.steps < 1:
             raise ConfigError(f"steps must be ≥ 1 or None; got {self.steps}")
 
@@ -212,10 +221,11 @@ def evaluate_task(
     config = config or EvalConfig()
     task, n = check_pair(noisy, cleaned)
     yardstick = yardstick or build_yardstick(noisy, seed=config.seed)
-    references = yardstick.stage1.aligned if config.starts == "reference" else None
     noise_m = config.init_noise * yardstick.size
-    x0 = initial_states(noisy, config.rollouts, noise_m, config.seed, references)
-    overrides: dict[str, object] = {"seed": config.seed}
+    x0 = initial_states(noisy, config.rollouts, noise_m, config.seed, config.starts == "raw")
+    overrides: dict[str, object] = {"seed": config.seed, "state": config.state}
+    if not config.corrective:
+        overrides["dart_fraction"] = 0.0
     if config.steps is not None:
         overrides["steps"] = config.steps
     if truth is not None:
@@ -298,11 +308,16 @@ def evaluate_demos(
     config: EvalConfig | None = None,
     on_trained: Callable[[LearnerEval], None] | None = None,
     truth: Sequence[Demo] | None = None,
+    true_loops: Sequence[FloatArray] | None = None,
 ) -> TaskEvaluation:
-    """:func:`evaluate_task`, returned with its yardstick, plane and demo duration."""
+    """:func:`evaluate_task`, returned with its yardstick, plane and demo duration.
+
+    `true_loops` are the demonstrators' true loops (synthetic data): the independent references
+    of coverage and shape; without them the best raw demo is the reference.
+    """
     config = config or EvalConfig()
     check_pair(noisy, cleaned)
-    yardstick = build_yardstick(noisy, seed=config.seed)
+    yardstick = build_yardstick(noisy, seed=config.seed, true_loops=true_loops)
     results = evaluate_task(noisy, cleaned, config, on_trained, yardstick, truth)
     return TaskEvaluation(
         task=noisy[0].task,

@@ -26,6 +26,7 @@ from bt_pipeline.data.synth import make_d1, make_d2
 from bt_pipeline.data.tasks import TASKS, Task
 from bt_pipeline.evaluate.distance import distance_to_truth
 from bt_pipeline.evaluate.learners import LEARNERS, LearnerName
+from bt_pipeline.evaluate.oracle import CompetenceRow, competence_check
 from bt_pipeline.evaluate.protocol import (
     DATASETS,
     Dataset,
@@ -68,6 +69,10 @@ class ReproduceConfig:
     """Jobs run in parallel (processes)."""
     oracle: bool = False
     """Also train every learner on the demos' ground-truth shapes (the upper bound of cleaning)."""
+    competence: bool = True
+    """Run the competence checks (perfect demos of one and of four demonstrators) as oracle rows."""
+    paper_learners: bool = False
+    """The learners as the paper wrote them: 2-D position state, no corrective data."""
 
     def __post_init__(self) -> None:
         if self.seeds < 1:
@@ -83,8 +88,9 @@ class ReproduceConfig:
 
     @classmethod
     def preset(cls, quick: bool, **overrides: object) -> ReproduceConfig:
-        """The full run, or the CI-sized one (`quick`: 20 rollouts, quick learner presets)."""
-        base = cls(quick=True, rollouts=20) if quick else cls()
+        """The full run (3 seeds, 50 rollouts), or the CI-sized one (`quick`: one seed, 20
+        rollouts, quick learner presets)."""
+        base = cls(quick=True, rollouts=20) if quick else cls(seeds=3)
         return replace(base, **overrides)  # pyright: ignore[reportArgumentType]  # validated
 
     def eval_config(self, seed: int) -> EvalConfig:
@@ -95,6 +101,8 @@ class ReproduceConfig:
             quick=self.quick,
             seed=seed,
             steps=self.steps,
+            state="position" if self.paper_learners else "phase",
+            corrective=not self.paper_learners,
         )
 
 
@@ -138,7 +146,10 @@ def run_job(job: tuple[int, SetName, Task, ReproduceConfig]) -> JobResult:
     clean_seconds = time.perf_counter() - start
     start = time.perf_counter()
     truth = truth_demos(demos, truths) if config.oracle else None
-    evaluation = evaluate_demos(demos, cleaned, config.eval_config(seed), truth=truth)
+    loops = {d.record.demonstrator: d.truth for d in synth.demos}  # one per demonstrator
+    evaluation = evaluate_demos(
+        demos, cleaned, config.eval_config(seed), truth=truth, true_loops=list(loops.values())
+    )
     return JobResult(
         seed=seed,
         set_name=set_name,
@@ -172,6 +183,8 @@ class ReproduceRun:
     jobs: tuple[JobResult, ...]
     seconds: float
     """Wall time of the whole run [s]."""
+    competence: tuple[CompetenceRow, ...] = ()
+    """The competence checks (oracle rows), seed 0, in (check, task, learner) order."""
 
     @property
     def datasets(self) -> tuple[Dataset, ...]:
@@ -179,29 +192,59 @@ class ReproduceRun:
         return (*DATASETS, "truth") if self.config.oracle else DATASETS
 
 
+CompetenceJob = tuple[str, Task, LearnerName, ReproduceConfig]
+"""("one" or "four", task, learner, config): one competence check."""
+
+
+def run_competence(job: CompetenceJob) -> CompetenceRow:
+    """One competence check, seed 0 (runs in a worker when workers > 1)."""
+    check, task, learner, config = job
+    rollouts = min(20, config.rollouts)
+    return competence_check(
+        check, task, learner, config.quick, 0, rollouts, config.steps, config.paper_learners
+    )
+
+
+def _run_any(job: tuple) -> JobResult | CompetenceRow:
+    return run_competence(job) if isinstance(job[0], str) else run_job(job)
+
+
 def run_reproduce(config: ReproduceConfig, progress: bool = True) -> ReproduceRun:
-    """Run every (seed, set, task) job of `config` (progress bar on stderr)."""
+    """Run every (seed, set, task) job of `config` and its competence checks (progress bar on
+    stderr)."""
     start = time.perf_counter()
-    jobs: list[tuple[int, SetName, Task, ReproduceConfig]] = [
+    jobs: list[tuple] = [
         (seed, set_name, task, config)
         for set_name in config.sets
         for task in config.tasks
         for seed in range(config.seeds)
     ]
+    if config.competence:
+        jobs += [
+            (check, task, learner, config)
+            for check in ("one", "four")
+            for task in config.tasks
+            for learner in config.learners
+        ]
     bar = tqdm(total=len(jobs), desc="reproduce", unit="job", file=sys.stderr, disable=not progress)
-    results: list[JobResult] = []
+    results: list[JobResult | CompetenceRow] = []
     with bar:
         if config.workers > 1 and len(jobs) > 1:
             context = multiprocessing.get_context("spawn")
             with concurrent.futures.ProcessPoolExecutor(
                 max_workers=min(config.workers, len(jobs)), mp_context=context
             ) as pool:
-                for result in pool.map(run_job, jobs):
+                for result in pool.map(_run_any, jobs):
                     results.append(result)
                     bar.update(1)
         else:
             for job in jobs:
-                bar.set_postfix_str(f"{job[1]} {job[2]} seed {job[0]}")
-                results.append(run_job(job))
+                bar.set_postfix_str(" ".join(str(x) for x in job[:3]))
+                results.append(_run_any(job))
                 bar.update(1)
-    return ReproduceRun(config=config, jobs=tuple(results), seconds=time.perf_counter() - start)
+    return ReproduceRun(
+        config=config,
+        jobs=tuple(r for r in results if isinstance(r, JobResult)),
+        seconds=time.perf_counter() - start,
+        competence=tuple(r for r in results if isinstance(r, CompetenceRow)),
+    )

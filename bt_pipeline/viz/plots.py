@@ -1,8 +1,8 @@
 """Figures of the evaluation (PNG, matplotlib without pyplot): Figs. 8-10 and Fig. 11 of the paper.
 
 * :func:`plot_rollouts` (Figs. 8-10): one task, a grid with rows noisy / cleaned and one column
-  per learner; every rollout drawn thin over the aligned references of the noisy set's
-  demonstrators (dashed), the initial states as dots, and R̄ and L4 in each panel's title.
+  per learner; every rollout drawn thin over the independent references (dashed: the true loops,
+  or the best raw demo), the initial states as dots, and R̄ and coverage in each panel's title.
 * :func:`plot_reward_bars` (Fig. 11): mean R̄ of the rollouts, noisy (grey) vs cleaned (green),
   with one-standard-deviation error bars, per task and learner; one panel per group (e.g. D1,
   D2) and a dotted line per task at the ceiling (R̄ of the best raw demo itself).
@@ -65,8 +65,7 @@ def plot_rollouts(
         `path` as a Path.
     """
     learners = evaluation.learners
-    stage1 = evaluation.yardstick.stage1
-    references = [stage1.aligned[i] for i in evaluation.yardstick.representatives]
+    references = [np.vstack([r, r[:1]]) for r in evaluation.yardstick.references]  # closed
     all_points = np.concatenate(
         [*references, *(r.rollouts.reshape(-1, 2) for r in evaluation.results)]
     )
@@ -86,7 +85,7 @@ def plot_rollouts(
                     color=_REFERENCE_COLOR,
                     lw=0.8,
                     alpha=0.7,
-                    label="aligned references" if k == 0 else None,
+                    label="references" if k == 0 else None,
                 )
             for rollout in result.rollouts:
                 ax.plot(*rollout.T, color=_ROLLOUT_COLORS[dataset], lw=0.5, alpha=0.45)
@@ -94,7 +93,7 @@ def plot_rollouts(
             ax.set_title(
                 f"{LEARNER_TITLES.get(learner, learner)}, {dataset}\n"
                 f"R̄ {np.mean(result.rewards):.3f} ± {np.std(result.rewards):.3f}, "
-                f"L4 {1e3 * np.mean(result.shape_losses):.1f} mm",
+                f"coverage {np.mean(result.metrics.coverage):.2f}",
                 fontsize=9,
             )
             ax.set_aspect("equal")

@@ -1,18 +1,20 @@
 """The imitation learners of the paper's evaluation (Sec. IV): BC, Traj-BC, ILEED and Neural ODE.
 
-Pure numerics on torch (CPU): demos in, a policy out. Every learner trains an autonomous policy
-ẋ = π(x) on task coordinates from demos of shape (M, N, 2) [m], uniform on t ∈ [0, 1], and rolls
-it out by integration with Δt = 1 / (N - 1), every state clipped to a padded box of the training
-data (:mod:`bt_pipeline.evaluate.learners.common`).
+Pure numerics on torch (CPU): demos in, a policy out. Demos are task coordinates of shape
+(M, N, 2) [m], uniform on t ∈ [0, 1]. By default every learner sees the state (x, cos φ, sin φ),
+φ the phase of a canonical oscillator estimated from each demo (:mod:`.phase`), and trains on
+corrective (DART-style) pairs that make the demonstrated loop attracting (:mod:`.common`);
+``state="position", dart_fraction=0`` is the paper as written (ẋ = π(x)). Rollouts integrate
+with Δt = 1 / (N - 1), every state clipped to a padded box of the training data (:mod:`.policy`).
 
-=========  ====================================================  ============  ============
-learner    trained on                                            rollout       module
-=========  ====================================================  ============  ============
-bc         one-step velocity regression                          Euler         ``bc``
-traj_bc    Euler unrolls of H = 20 steps from random windows     Euler         ``traj_bc``
-ileed      mixture likelihood with per-demonstrator expertise    Euler         ``ileed``
-node       torchdiffeq RK4 on random segments, curriculum        RK4           ``node``
-=========  ====================================================  ============  ============
+=========  ========================================================  ============  ============
+learner    trained on                                                rollout       module
+=========  ========================================================  ============  ============
+bc         one-step velocity regression                              Euler         ``bc``
+traj_bc    chunks of the next H = 10 positions (trajectory-level)    receding H    ``traj_bc``
+ileed      mixture likelihood with per-demonstrator expertise        Euler         ``ileed``
+node       torchdiffeq RK4 on random segments, curriculum            RK4           ``node``
+=========  ========================================================  ============  ============
 
 Usage::
 
@@ -29,14 +31,15 @@ from numpy.typing import ArrayLike
 
 from bt_pipeline.evaluate.learners.bc import BCConfig, train_bc
 from bt_pipeline.evaluate.learners.common import (
+    STATES,
     LearnerName,
-    Policy,
+    StateRep,
     TrainConfig,
     TrainedLearner,
-    VectorFieldPolicy,
 )
 from bt_pipeline.evaluate.learners.ileed import ILEEDConfig, train_ileed
 from bt_pipeline.evaluate.learners.node import NODEConfig, train_node
+from bt_pipeline.evaluate.learners.policy import LearnedPolicy
 from bt_pipeline.evaluate.learners.traj_bc import TrajBCConfig, train_traj_bc
 from bt_pipeline.exceptions import ConfigError
 
@@ -121,16 +124,17 @@ def train_learner(
 
 __all__ = [
     "LEARNERS",
+    "STATES",
     "BCConfig",
     "ILEEDConfig",
+    "LearnedPolicy",
     "LearnerConfig",
     "LearnerName",
     "NODEConfig",
-    "Policy",
+    "StateRep",
     "TrainConfig",
     "TrainedLearner",
     "TrajBCConfig",
-    "VectorFieldPolicy",
     "learner_config",
     "parse_learner",
     "train_learner",

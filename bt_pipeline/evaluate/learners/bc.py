@@ -1,15 +1,12 @@
-"""Behaviour cloning: an MLP policy x → ẋ regressed on the demos' (state, action) pairs.
+"""Behaviour cloning: an MLP policy (x, φ) → ẋ regressed on the demos' (state, action) pairs.
 
 As the authors' public baseline (docs/algorithms.md §5): tanh MLP of width 64 and depth 3 with
 orthogonal initialisation, mean squared error between the predicted and the finite-difference
-velocity, Adam with cosine annealing, rolled out by Euler integration with Δt = 1 / (N - 1) for
-N - 1 steps. Inputs are standardised positions, targets standardised velocities.
-
-The actions are the paper's forward differences a_k = (x_{k+1} - x_k) / Δt (not the central
-differences of ``np.gradient`` the baseline uses): an Euler rollout with the same Δt then retraces a
-demo whose actions are matched exactly. The artificial a_N = 0 is dropped
-(:mod:`bt_pipeline.evaluate.learners.common`). The baseline's 10k full-batch steps at lr 1e-4 are
-replaced by fewer mini-batch steps at a higher rate, which reach the same loss much sooner.
+velocity, Adam with cosine annealing, rolled out by Euler integration with Δt = 1 / (N - 1).
+bt adds the phase to the state and corrective (DART-style) pairs
+(:mod:`bt_pipeline.evaluate.learners.common`); ``state="position", dart_fraction=0`` is the
+baseline as written. The actions are the paper's forward differences a_k = (x_{k+1} - x_k) / Δt,
+so an Euler rollout with the same Δt retraces a demo whose actions are matched exactly.
 """
 
 from __future__ import annotations
@@ -24,10 +21,10 @@ from bt_pipeline.evaluate.learners.common import (
     TrainConfig,
     TrainedLearner,
     make_mlp,
-    make_policy,
     prepare_demos,
 )
-from bt_pipeline.evaluate.learners.training import fit, sample_indices, torch_session
+from bt_pipeline.evaluate.learners.policy import make_policy
+from bt_pipeline.evaluate.learners.training import fit, sample_rows, torch_session
 
 
 @dataclass(frozen=True)
@@ -61,16 +58,15 @@ def train_bc(demos: ArrayLike, config: BCConfig | None = None) -> TrainedLearner
         DemoError: The demos have the wrong shape, too few samples, or are not finite.
     """
     config = config or BCConfig()
-    data = prepare_demos(demos, config.box_padding)
-    states = data.z[:, :-1].reshape(-1, 2)  # x_k paired with a_k, k = 1..N-1
-    targets = data.v.reshape(-1, 2)
+    data = prepare_demos(demos, config)
+    pairs = data.rows_with(1)  # x_k paired with a_k, k = 1..N-1
     with torch_session(config.seed, config.threads) as generator:
-        net = make_mlp(2, 2, config.hidden, config.depth)
+        net = make_mlp(data.n_features, 2, config.hidden, config.depth)
 
         def loss_fn(_: int) -> torch.Tensor:
-            index = sample_indices(generator, states.shape[0], config.batch_size)
-            s, a = (states, targets) if index is None else (states[index], targets[index])
-            return torch.mean((net(s) - a) ** 2)
+            rows = sample_rows(generator, pairs, config.batch_size)
+            z, _delta, labels = data.perturbed(rows, generator)
+            return torch.mean((net(data.features(z, data.phase[rows])) - labels) ** 2)
 
         result = fit([{"params": list(net.parameters())}], loss_fn, config)
     return TrainedLearner(

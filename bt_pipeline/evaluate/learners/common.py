@@ -1,28 +1,27 @@
-"""What every imitation learner shares: data preparation, the vector-field policy, training.
+"""What every imitation learner shares: the state, corrective (DART) data, the training config.
 
 Data flow, one learner::
 
-    demos (M, N, 2) [m], uniform on t ∈ [0, 1]  ──► prepare_demos ──► DemoData:
-        z = (x - μ_x) / s_x                      standardised positions, (M, N, 2)
-        v = ((x_{k+1} - x_k) / Δt - μ_v) / s_v   standardised forward-difference velocities,
-                                                 (M, N - 1, 2): the paper's a_k without a_N = 0
-        box = [min x - p·extent, max x + p·extent]
-    ──► learner-specific loss on an MLP net(z) ──► fit (Adam, cosine annealing, gradient clipping)
-    ──► VectorFieldPolicy: ẋ = s_v ⊙ net((x - μ_x) / s_x) + μ_v, rolled out from x_0 by Euler
-        (or RK4), every state clipped to the box.
+    demos (M, N, 2) [m], uniform on t ∈ [0, 1] ──► prepare_demos ──► DemoData, one row per sample:
+        state "phase" (default): each demo resampled at uniform steps of its estimated phase
+            (:mod:`~bt_pipeline.evaluate.learners.phase`); features (z, cos φ, sin φ)
+        state "position" (the paper as written): the demo's own samples; features z
+        z = (x - μ_x) / s_x, v = ((x_{k+1} - x_k) / Δt - μ_v) / s_v   (forward differences)
+    ──► learner-specific loss on an MLP, with corrective data (below) ──► fit (Adam, cosine)
+    ──► LearnedPolicy (:mod:`~bt_pipeline.evaluate.learners.policy`): rolled out from x_0 with
+        φ̇ = ω, every state clipped to the padded box of the training positions.
 
-Choices (docs/algorithms.md §5, §7 rows 1 and 20):
+**Corrective data (DART-style; Laskey et al., CoRL 2017).** Perfect demos never leave the loop,
+so the field off the loop is unconstrained and a rollout keeps any offset it starts with. Every
+learner therefore also trains on perturbed states x̃ = x_k + δ, δ ~ N(0, (`dart_noise` · size)²)
+per axis (size = the demos' largest extent), for a share `dart_fraction` of every batch, labelled
+with the action that returns to the demo at rate K = `dart_gain` / T: ã = a_k - K δ (the demo's
+x_{k+j} + δ e^{-K j Δt} for the trajectory-level learners). Under this label an offset decays as
+e^{-K t}, i.e. by e^{-dart_gain} per period. It is applied identically to every dataset: the
+corrections point back to whatever the dataset's demos are. ``dart_fraction=0`` switches it off.
 
-* **Actions.** Velocity targets are the paper's forward differences a_k = (x_{k+1} - x_k) / Δt
-  with Δt = 1 / (N - 1). The artificial last action a_N = 0 is dropped rather than learned (it
-  would teach the policy to stop at the loop's end point), and no periodic wrap-around difference
-  is used (a demo's two ends need not meet). Forward differences are exactly the steps an Euler
-  rollout with the same Δt takes, so a policy that matches them reproduces the demo.
-* **Standardisation.** Positions and velocities are standardised per axis over all demos; the
-  network sees and predicts O(1) numbers whatever the task's size and speed.
-* **Bounded rollouts.** Every rolled-out state, the initial one included, is clipped to the box of
-  the training positions padded by `box_padding` × the largest extent on every side. The MLP is
-  finite on a bounded input, so rollouts are finite and bounded for any initial state.
+Actions are the paper's forward differences a_k = (x_{k+1} - x_k) / Δt with Δt = 1 / (N - 1);
+the artificial last action a_N = 0 is dropped, and no wrap-around difference is used.
 """
 
 from __future__ import annotations
@@ -30,9 +29,9 @@ from __future__ import annotations
 import contextlib
 import itertools
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field, fields
-from typing import Literal, Protocol
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import torch
@@ -41,12 +40,18 @@ from torch import nn
 from torch.nn import functional
 
 from bt_pipeline.data.records import MIN_SAMPLES, FloatArray
+from bt_pipeline.evaluate.learners.phase import estimate_phases, phase_resample
 from bt_pipeline.exceptions import ConfigError, DemoError
+
+if TYPE_CHECKING:  # policy.py builds on this module
+    from bt_pipeline.evaluate.learners.policy import LearnedPolicy
 
 LearnerName = Literal["bc", "traj_bc", "ileed", "node"]
 """An imitation learner of the paper's evaluation (Sec. IV)."""
-Integrator = Literal["euler", "rk4"]
-"""How a policy is rolled out: explicit Euler (BC, Traj-BC, ILEED) or RK4 (NODE, 3/8 rule)."""
+StateRep = Literal["phase", "position"]
+"""A learner's state: position plus the phase of a canonical oscillator (bt), or the 2-D position
+alone (the paper as written)."""
+STATES: tuple[StateRep, ...] = ("phase", "position")
 
 
 @dataclass(frozen=True)
@@ -73,6 +78,14 @@ class TrainConfig:
     """Torch threads while training and rolling out (1 is fastest for these small nets)."""
     box_padding: float = 0.25
     """Rollout box padding, as a fraction of the largest extent of the training positions."""
+    state: StateRep = "phase"
+    """The policy's state (module doc)."""
+    dart_noise: float = 0.08
+    """Std of the corrective perturbation per axis, as a fraction of the demos' largest extent."""
+    dart_fraction: float = 0.5
+    """Share of every batch that is perturbed (0 switches corrective data off)."""
+    dart_gain: float = 8.0
+    """Decay of an offset per canonical period under the corrective labels (K = gain / T)."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -96,6 +109,14 @@ class TrainConfig:
             raise ConfigError(f"seed must be >= 0; got {self.seed}")
         if self.box_padding < 0.0:
             raise ConfigError(f"box_padding must be >= 0; got {self.box_padding}")
+        if self.state not in STATES:
+            raise ConfigError(f"state must be one of {', '.join(STATES)}; got {self.state!r}")
+        if self.dart_noise < 0.0 or self.dart_gain < 0.0:
+            raise ConfigError(
+                f"dart_noise and dart_gain must be >= 0; got {self.dart_noise}, {self.dart_gain}"
+            )
+        if not 0.0 <= self.dart_fraction <= 1.0:
+            raise ConfigError(f"dart_fraction must be in [0, 1]; got {self.dart_fraction}")
 
 
 @dataclass(frozen=True)
@@ -119,18 +140,6 @@ class Standardiser:
         if not float(std.max()) > 1e-12:
             raise DemoError(f"the demos' {what} do not vary; a learner needs a moving demo")
         return cls(mean=mean, scale=np.maximum(std, 1e-3 * float(std.max())))
-
-
-class Policy(Protocol):
-    """A learned policy ẋ = π(x) on task coordinates, rolled out by integration."""
-
-    def velocity(self, positions: ArrayLike) -> FloatArray:
-        """Velocities [m per unit normalised time], shape (B, 2), at positions (B, 2) [m]."""
-        ...
-
-    def rollout(self, x0: ArrayLike, n_samples: int, dt: float | None = None) -> FloatArray:
-        """States (R, n_samples, 2) [m] from initial states (R, 2), n_samples - 1 steps of dt."""
-        ...
 
 
 class MLP(nn.Module):
@@ -168,12 +177,17 @@ def make_mlp(n_in: int, n_out: int, hidden: int, depth: int) -> MLP:
 
 @dataclass(frozen=True, eq=False)
 class DemoData:
-    """Demos prepared for training, as float32 tensors in standardised units."""
+    """Demos prepared for training: every sample a row, float32 tensors in standardised units."""
 
     z: torch.Tensor
-    """Standardised positions, shape (M, N, 2)."""
+    """Standardised positions of every row, shape (R, 2)."""
+    phase: torch.Tensor
+    """Phase of every row [rad], shape (R,) (zeros for the position state)."""
     v: torch.Tensor
-    """Standardised forward-difference velocities (a_N dropped), shape (M, N - 1, 2)."""
+    """Standardised forward-difference velocity of every row, shape (R, 2) (zero on a demo's
+    last row, which has no next sample and is never drawn as a pair)."""
+    remaining: torch.Tensor
+    """Rows after this one in its demo, int64, shape (R,)."""
     positions: Standardiser
     """Position standardiser (units [m])."""
     velocities: Standardiser
@@ -181,17 +195,25 @@ class DemoData:
     box: FloatArray
     """Rollout box [m], shape (2, 2): row 0 the lower corner, row 1 the upper corner."""
     dt: float
-    """Sample spacing Δt = 1 / (N - 1) of the normalised time axis."""
+    """Step Δt = 1 / (N - 1) of the normalised time axis."""
+    state: StateRep
+    """The state the learner sees."""
+    omega: float
+    """ω, the canonical oscillator's rate [rad per unit normalised time] (0 for position)."""
+    gain: float
+    """K, the corrective decay rate [1 per unit normalised time]."""
+    noise_m: float
+    """Std of the corrective perturbation per axis [m]."""
+    fraction: float
+    """Share of a batch that is perturbed."""
+    anchors: FloatArray
+    """Training positions [m], shape (A, 2), and (column 2) their phases [rad]: where a
+    rollout's initial phase is looked up; shape (A, 3)."""
 
     @property
-    def n_demos(self) -> int:
-        """M."""
-        return int(self.z.shape[0])
-
-    @property
-    def n_samples(self) -> int:
-        """N."""
-        return int(self.z.shape[1])
+    def n_features(self) -> int:
+        """Inputs of the policy: 4 for (z, cos φ, sin φ), 2 for z."""
+        return 4 if self.state == "phase" else 2
 
     @property
     def velocity_ratio(self) -> torch.Tensor:
@@ -203,9 +225,45 @@ class DemoData:
         """μ_v / s_x, shape (2,): the constant part of dz/dt."""
         return torch.as_tensor(self.velocities.mean / self.positions.scale, dtype=torch.float32)
 
+    def features(self, z: torch.Tensor, phase: torch.Tensor) -> torch.Tensor:
+        """Network inputs, shape (B, n_features), of positions z (B, 2) and phases (B,)."""
+        return phase_features(z, phase, self.state)
 
-def prepare_demos(demos: ArrayLike, box_padding: float, min_samples: int = MIN_SAMPLES) -> DemoData:
-    """Validate demos (M, N, 2) [m] (uniform on t ∈ [0, 1]) and standardise them.
+    def rows_with(self, span: int) -> torch.Tensor:
+        """Rows followed by at least `span` rows of the same demo, shape (n,)."""
+        return torch.nonzero(self.remaining >= span).squeeze(1)
+
+    def perturbation(self, count: int, generator: torch.Generator) -> torch.Tensor:
+        """Corrective offsets δ [m], shape (count, 2): N(0, noise_m²) on a `fraction` of rows,
+        zero on the others."""
+        delta = torch.randn((count, 2), generator=generator) * self.noise_m
+        keep = torch.rand((count, 1), generator=generator) < self.fraction
+        return delta * keep
+
+    def perturbed(
+        self, rows: torch.Tensor, generator: torch.Generator
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Perturbed standardised states (B, 2), their δ in standardised positions (B, 2), and the
+        corrective standardised velocity labels (B, 2) of `rows` (module doc)."""
+        delta_m = self.perturbation(rows.shape[0], generator)
+        scale_x = torch.as_tensor(self.positions.scale, dtype=torch.float32)
+        scale_v = torch.as_tensor(self.velocities.scale, dtype=torch.float32)
+        delta_z = delta_m / scale_x
+        labels = self.v[rows] - self.gain * delta_m / scale_v
+        return self.z[rows] + delta_z, delta_z, labels
+
+
+def phase_features(z: torch.Tensor, phase: torch.Tensor, state: StateRep) -> torch.Tensor:
+    """(z, cos φ, sin φ) for the phase state, z for the position state; shape (B, 4) or (B, 2)."""
+    if state == "position":
+        return z
+    return torch.cat([z, torch.cos(phase)[:, None], torch.sin(phase)[:, None]], dim=1)
+
+
+def prepare_demos(
+    demos: ArrayLike, config: TrainConfig, min_samples: int = MIN_SAMPLES
+) -> DemoData:
+    """Validate demos (M, N, 2) [m] (uniform on t ∈ [0, 1]), estimate phases and standardise.
 
     Raises:
         DemoError: Wrong shape, fewer than `min_samples` samples, non-finite or motionless demos.
@@ -213,110 +271,52 @@ def prepare_demos(demos: ArrayLike, box_padding: float, min_samples: int = MIN_S
     x = np.array(demos, dtype=np.float64)  # a copy: the caller's array is never touched
     if x.ndim != 3 or x.shape[0] < 1 or x.shape[2] != 2:
         raise DemoError(f"demos must have shape (M, N, 2) with M >= 1; got {x.shape}")
-    if x.shape[1] < min_samples:
-        raise DemoError(f"demos have {x.shape[1]} samples; at least {min_samples} are needed")
+    if x.shape[1] < max(min_samples, 8):
+        raise DemoError(
+            f"demos have {x.shape[1]} samples; at least {max(min_samples, 8)} are needed"
+        )
     if not np.all(np.isfinite(x)):
         raise DemoError("demos contain NaN or infinite positions")
     dt = 1.0 / (x.shape[1] - 1)
-    velocities = np.diff(x, axis=1) / dt  # the paper's a_k, k = 1..N-1 (a_N = 0 dropped)
-    pos_std = Standardiser.fit(x.reshape(-1, 2), "positions")
-    vel_std = Standardiser.fit(velocities.reshape(-1, 2), "velocities")
     flat = x.reshape(-1, 2)
     lo, hi = flat.min(axis=0), flat.max(axis=0)
-    pad = box_padding * float((hi - lo).max())
+    size = float((hi - lo).max())
+    if not size > 1e-12:
+        raise DemoError("the demos' positions do not vary; a learner needs a moving demo")
+    if config.state == "phase":
+        fit = estimate_phases(x)
+        sequences = phase_resample(x, fit, dt)
+        omega, period = fit.omega, fit.period
+    else:
+        sequences = [np.column_stack([d, np.zeros(len(d))]) for d in x]
+        omega, period = 0.0, 1.0
+    rows = np.concatenate(sequences)
+    velocities = np.concatenate(
+        [np.vstack([np.diff(q[:, :2], axis=0) / dt, np.zeros((1, 2))]) for q in sequences]
+    )
+    remaining = np.concatenate([np.arange(len(q))[::-1] for q in sequences])
+    pos_std = Standardiser.fit(rows[:, :2], "positions")
+    vel_std = Standardiser.fit(velocities[remaining > 0], "velocities")
+    z = (rows[:, :2] - pos_std.mean) / pos_std.scale
+    v = np.where(remaining[:, None] > 0, (velocities - vel_std.mean) / vel_std.scale, 0.0)
+    pad = config.box_padding * size
+    step = max(1, len(rows) // 4000)
     return DemoData(
-        z=torch.as_tensor((x - pos_std.mean) / pos_std.scale, dtype=torch.float32),
-        v=torch.as_tensor((velocities - vel_std.mean) / vel_std.scale, dtype=torch.float32),
+        z=torch.as_tensor(z, dtype=torch.float32),
+        phase=torch.as_tensor(rows[:, 2], dtype=torch.float32),
+        v=torch.as_tensor(v, dtype=torch.float32),
+        remaining=torch.as_tensor(remaining, dtype=torch.int64),
         positions=pos_std,
         velocities=vel_std,
         box=np.stack([lo - pad, hi + pad]),
         dt=dt,
+        state=config.state,
+        omega=omega,
+        gain=config.dart_gain / period,
+        noise_m=config.dart_noise * size,
+        fraction=config.dart_fraction,
+        anchors=rows[::step].copy(),
     )
-
-
-@dataclass(frozen=True, eq=False)
-class VectorFieldPolicy:
-    """ẋ = s_v ⊙ net((x - μ_x) / s_x) + μ_v on task coordinates [m], rolled out with clipping."""
-
-    net: nn.Module
-    """MLP from standardised position (B, 2) to standardised velocity (B, 2)."""
-    positions: Standardiser
-    """Position standardiser."""
-    velocities: Standardiser
-    """Velocity standardiser."""
-    box: FloatArray
-    """Rollout box [m], shape (2, 2) (lower corner, upper corner)."""
-    dt: float
-    """Default rollout step: the training demos' Δt = 1 / (N - 1)."""
-    integrator: Integrator = "euler"
-    """Rollout scheme."""
-    threads: int = 1
-    """Torch threads while rolling out."""
-
-    def velocity(self, positions: ArrayLike) -> FloatArray:
-        """π(x) [m per unit normalised time], shape (B, 2), at positions (B, 2) [m]."""
-        x = _points(positions, "positions")
-        with torch_threads(self.threads), torch.no_grad():
-            z = torch.as_tensor(
-                (x - self.positions.mean) / self.positions.scale, dtype=torch.float32
-            )
-            v = self.net(z).double().numpy()
-        return v * self.velocities.scale + self.velocities.mean
-
-    def rollout(self, x0: ArrayLike, n_samples: int, dt: float | None = None) -> FloatArray:
-        """Roll out from every initial state at once, clipping each state to the box.
-
-        Args:
-            x0: Initial states, shape (R, 2) (or (2,) for one), in [m]; clipped to the box.
-            n_samples: States per rollout, >= 1 (n_samples - 1 integration steps).
-            dt: Step [unit normalised time]; default :attr:`dt` (N - 1 steps span one demo).
-
-        Returns:
-            States, shape (R, n_samples, 2), in [m]; ``[:, 0]`` is the clipped x0.
-
-        Raises:
-            ConfigError: Bad shapes, non-finite x0, n_samples < 1 or dt <= 0.
-        """
-        x = _points(np.atleast_2d(np.asarray(x0, dtype=np.float64)), "x0")
-        if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 1:
-            raise ConfigError(f"n_samples must be an integer >= 1; got {n_samples!r}")
-        step = self.dt if dt is None else float(dt)
-        if not (math.isfinite(step) and step > 0.0):
-            raise ConfigError(f"dt must be a finite number > 0; got {dt!r}")
-        mu, s = self.positions.mean, self.positions.scale
-        lo = torch.as_tensor((self.box[0] - mu) / s, dtype=torch.float32)
-        hi = torch.as_tensor((self.box[1] - mu) / s, dtype=torch.float32)
-        ratio = torch.as_tensor(self.velocities.scale / s, dtype=torch.float32)
-        offset = torch.as_tensor(self.velocities.mean / s, dtype=torch.float32)
-
-        def rate(z: torch.Tensor) -> torch.Tensor:
-            return self.net(z) * ratio + offset
-
-        with torch_threads(self.threads), torch.no_grad():
-            z = torch.as_tensor((x - mu) / s, dtype=torch.float32).clamp(lo, hi)
-            states = [z]
-            for _ in range(n_samples - 1):
-                z = (z + step * _increment(rate, z, step, self.integrator)).clamp(lo, hi)
-                states.append(z)
-            out = torch.stack(states, dim=1).double().numpy()
-        return np.clip(out * s + mu, self.box[0], self.box[1])  # float32 round-off at the walls
-
-
-def _increment(
-    rate: Callable[[torch.Tensor], torch.Tensor], z: torch.Tensor, h: float, integrator: Integrator
-) -> torch.Tensor:
-    """Mean slope of one explicit step of size h from z.
-
-    ``"rk4"`` is the 3/8-rule RK4 that torchdiffeq's fixed-grid ``rk4`` takes, so a NODE is rolled
-    out with exactly the scheme it was trained through.
-    """
-    k1 = rate(z)
-    if integrator == "euler":
-        return k1
-    k2 = rate(z + h * k1 / 3.0)
-    k3 = rate(z + h * (k2 - k1 / 3.0))
-    k4 = rate(z + h * (k1 - k2 + k3))
-    return (k1 + 3.0 * (k2 + k3) + k4) / 8.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -325,7 +325,7 @@ class TrainedLearner:
 
     name: LearnerName
     """Which learner."""
-    policy: VectorFieldPolicy
+    policy: LearnedPolicy
     """The policy used at test time (ILEED: the shared policy's mean only)."""
     config: TrainConfig
     """The settings it was trained with."""
@@ -337,33 +337,6 @@ class TrainedLearner:
     """Steps skipped because the loss or a gradient was not finite."""
     expertise: dict[str, float] = field(default_factory=dict)
     """ILEED only: mean σ_i(s) over each demonstrator's own states, in (0, 1)."""
-
-
-def _points(values: ArrayLike, what: str) -> FloatArray:
-    x = np.asarray(values, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 2:
-        raise ConfigError(f"{what} must have shape (B, 2); got {x.shape}")
-    if not np.all(np.isfinite(x)):
-        raise ConfigError(f"{what} has NaN or infinite values")
-    return x
-
-
-def make_policy(
-    net: nn.Module, data: DemoData, config: TrainConfig, integrator: Integrator = "euler"
-) -> VectorFieldPolicy:
-    """The test-time policy around a trained `net` (put in eval mode, gradients off)."""
-    net.eval()
-    for p in net.parameters():
-        p.requires_grad_(False)
-    return VectorFieldPolicy(
-        net=net,
-        positions=data.positions,
-        velocities=data.velocities,
-        box=data.box,
-        dt=data.dt,
-        integrator=integrator,
-        threads=config.threads,
-    )
 
 
 @contextlib.contextmanager

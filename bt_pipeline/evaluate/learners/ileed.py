@@ -23,6 +23,8 @@ probability σ_i(s) = sigmoid(⟨f_θ(s), ω_i⟩), and otherwise at random::
     Gaussian the expert leads by 0.82-0.97 and the rollouts are as close to the truth
     (mean Chamfer 0.070 vs 0.078 of the shape's size).
 
+The state features and the corrective (DART-style) pairs are every learner's
+(:mod:`bt_pipeline.evaluate.learners.common`); a corrective pair keeps its demo's demonstrator.
 Training maximises the mean mixture log-likelihood over all (state, action) pairs of every demo
 (computed stably with logaddexp) jointly over φ, σ_a, θ and {ω_i}, with the shared loop of
 :func:`bt_pipeline.evaluate.learners.common.fit`. At test time only μ_φ is used, rolled out by Euler
@@ -51,10 +53,10 @@ from bt_pipeline.evaluate.learners.common import (
     TrainConfig,
     TrainedLearner,
     make_mlp,
-    make_policy,
     prepare_demos,
 )
-from bt_pipeline.evaluate.learners.training import fit, sample_indices, torch_session
+from bt_pipeline.evaluate.learners.policy import make_policy
+from bt_pipeline.evaluate.learners.training import fit, sample_rows, torch_session
 from bt_pipeline.exceptions import ConfigError
 
 RandomModel = Literal["uniform", "gaussian"]
@@ -117,10 +119,12 @@ class ILEEDConfig(TrainConfig):
 class _ILEEDModel(nn.Module):
     """Policy mean μ_φ, action std σ_a, state embedding f_θ and expertise embeddings ω."""
 
-    def __init__(self, n_demonstrators: int, config: ILEEDConfig) -> None:
+    def __init__(self, n_demonstrators: int, n_features: int, config: ILEEDConfig) -> None:
         super().__init__()
-        self.policy = make_mlp(2, 2, config.hidden, config.depth)
-        self.embedding = make_mlp(2, config.embed_dim, config.embed_hidden, config.embed_depth)
+        self.policy = make_mlp(n_features, 2, config.hidden, config.depth)
+        self.embedding = make_mlp(
+            n_features, config.embed_dim, config.embed_hidden, config.embed_depth
+        )
         self.omega = nn.Parameter(torch.randn(n_demonstrators, config.embed_dim))
         self.log_std = nn.Parameter(
             torch.full((2,), math.log(config.action_std)), requires_grad=config.learn_action_std
@@ -129,7 +133,7 @@ class _ILEEDModel(nn.Module):
         self.max_log_std = math.log(config.max_action_std)
 
     def competence_logit(self, states: torch.Tensor, who: torch.Tensor) -> torch.Tensor:
-        """⟨f_θ(s), ω_i⟩, shape (B,), for states (B, 2) of demonstrators `who` (B,)."""
+        """⟨f_θ(s), ω_i⟩, shape (B,), for state features (B, F) of demonstrators `who` (B,)."""
         return torch.sum(self.embedding(states) * self.omega[who], dim=-1)
 
     def log_likelihood(
@@ -196,22 +200,23 @@ def train_ileed(
         ConfigError: `demonstrators` does not have one name per demo.
     """
     config = config or ILEEDConfig()
-    data = prepare_demos(demos, config.box_padding)
-    names, demo_who = demonstrator_ids(demonstrators, data.n_demos)
-    states = data.z[:, :-1].reshape(-1, 2)
-    actions = data.v.reshape(-1, 2)
-    who = torch.as_tensor(np.repeat(demo_who, data.n_samples - 1))
-    log_random = _log_random_density(actions, config.random_model)
+    data = prepare_demos(demos, config)
+    names, demo_who = demonstrator_ids(demonstrators, len(np.asarray(demos)))
+    # every row's demonstrator: rows are the demos' samples in order, each demo ending with
+    # remaining == 0
+    ends = torch.nonzero(data.remaining == 0).squeeze(1)
+    lengths = torch.diff(torch.cat([torch.tensor([-1]), ends])).numpy()
+    who = torch.as_tensor(np.repeat(demo_who, lengths))
+    pairs = data.rows_with(1)
     with torch_session(config.seed, config.threads) as generator:
-        model = _ILEEDModel(len(names), config)
+        model = _ILEEDModel(len(names), data.n_features, config)
 
         def loss_fn(_: int) -> torch.Tensor:
-            index = sample_indices(generator, states.shape[0], config.batch_size)
-            if index is None:
-                return -model.log_likelihood(states, actions, who, log_random).mean()
-            return -model.log_likelihood(
-                states[index], actions[index], who[index], log_random[index]
-            ).mean()
+            rows = sample_rows(generator, pairs, config.batch_size)
+            z, _delta, labels = data.perturbed(rows, generator)
+            features = data.features(z, data.phase[rows])
+            log_random = _log_random_density(labels, config.random_model)
+            return -model.log_likelihood(features, labels, who[rows], log_random).mean()
 
         networks = [*model.policy.parameters(), *model.embedding.parameters()]
         groups = [{"params": networks}, {"params": [model.omega], "lr": config.embedding_lr}]
@@ -219,8 +224,11 @@ def train_ileed(
             groups[0]["params"] = [*networks, model.log_std]
         result = fit(groups, loss_fn, config)
         with torch.no_grad():
-            competence = torch.sigmoid(model.competence_logit(states, who))
-        expertise = {name: float(competence[who == i].mean()) for i, name in enumerate(names)}
+            features = data.features(data.z[pairs], data.phase[pairs])
+            competence = torch.sigmoid(model.competence_logit(features, who[pairs]))
+        expertise = {
+            name: float(competence[who[pairs] == i].mean()) for i, name in enumerate(names)
+        }
     return TrainedLearner(
         name="ileed",
         policy=make_policy(model.policy, data, config),

@@ -1,8 +1,11 @@
-"""Neural ODE: an autonomous vector field ẋ = f(x) trained through an ODE solver on demo segments.
+"""Neural ODE: a vector field ẋ = f(x, φ) trained through an ODE solver on demo segments.
 
 Chen et al., NeurIPS 2018; library torchdiffeq (docs/algorithms.md §5). The field is the same
-tanh MLP as BC's policy (standardised position → standardised velocity), so
-dz/dt = (s_v / s_x) ⊙ net(z) + μ_v / s_x in standardised positions z; it ignores t (autonomous).
+tanh MLP as BC's policy (standardised state features → standardised velocity), so
+dz/dt = (s_v / s_x) ⊙ net(z, cos φ, sin φ) + μ_v / s_x, integrated jointly with the canonical
+oscillator dφ/dt = ω; with ``state="position"`` it is the autonomous field of the paper.
+A segment may start from a perturbed state x_k + δ (the shared DART-style data); its targets are
+then x_{k+j} + δ e^{-K t_j}, so the field learns to return to the demo.
 
 Training integrates the field with ``torchdiffeq.odeint`` and matches the demos' states:
 
@@ -33,13 +36,14 @@ from torch import nn
 from torchdiffeq import odeint
 
 from bt_pipeline.evaluate.learners.common import (
+    DemoData,
     TrainConfig,
     TrainedLearner,
     make_mlp,
-    make_policy,
     prepare_demos,
 )
-from bt_pipeline.evaluate.learners.training import fit, torch_session
+from bt_pipeline.evaluate.learners.policy import make_policy
+from bt_pipeline.evaluate.learners.training import fit, sample_rows, torch_session
 from bt_pipeline.exceptions import ConfigError
 
 Solver = Literal["rk4", "midpoint", "euler"]
@@ -86,7 +90,7 @@ class NODEConfig(TrainConfig):
     @classmethod
     def quick(cls, **overrides: Any) -> NODEConfig:
         """The CI-sized preset."""
-        return replace(cls(steps=80, lr=1e-2, max_segment=0.1), **overrides)
+        return replace(cls(steps=160, lr=1e-2, max_segment=0.1), **overrides)
 
     def segment_steps(self, step: int, n_intervals: int) -> int:
         """Solver steps per segment at optimiser step `step` (the curriculum), >= 1."""
@@ -99,17 +103,19 @@ class NODEConfig(TrainConfig):
 
 
 class _Field(nn.Module):
-    """dz/dt = ratio ⊙ net(z) + offset, autonomous (t ignored)."""
+    """d(z, φ)/dt = (ratio ⊙ net(features(z, φ)) + offset, ω) on y = (z, φ), shape (B, 3)."""
 
-    def __init__(self, net: nn.Module, ratio: torch.Tensor, offset: torch.Tensor) -> None:
+    def __init__(self, net: nn.Module, data: DemoData) -> None:
         super().__init__()
         self.net = net
-        self.register_buffer("ratio", ratio)
-        self.register_buffer("offset", offset)
+        self.data = data
+        self.register_buffer("ratio", data.velocity_ratio)
+        self.register_buffer("offset", data.velocity_offset)
 
-    def forward(self, t: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        del t  # autonomous
-        return self.net(z) * self.ratio + self.offset
+    def forward(self, t: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        del t  # time enters through φ
+        rate = self.net(self.data.features(y[:, :2], y[:, 2])) * self.ratio + self.offset
+        return torch.cat([rate, torch.full_like(y[:, 2:], self.data.omega)], dim=1)
 
 
 def train_node(demos: ArrayLike, config: NODEConfig | None = None) -> TrainedLearner:
@@ -126,28 +132,30 @@ def train_node(demos: ArrayLike, config: NODEConfig | None = None) -> TrainedLea
         DemoError: The demos have the wrong shape, too few samples, or are not finite.
     """
     config = config or NODEConfig()
-    data = prepare_demos(demos, config.box_padding, min_samples=config.stride + 2)
-    n_intervals = data.n_samples - 1
+    data = prepare_demos(demos, config, min_samples=config.stride + 2)
+    n_intervals = int(data.remaining.max())  # the longest training sequence
     with torch_session(config.seed, config.threads) as generator:
-        net = make_mlp(2, 2, config.hidden, config.depth)
-        field = _Field(net, data.velocity_ratio, data.velocity_offset)
+        net = make_mlp(data.n_features, 2, config.hidden, config.depth)
+        field = _Field(net, data)
 
         def loss_fn(step: int) -> torch.Tensor:
             n_steps = config.segment_steps(step, n_intervals)
             span = n_steps * config.stride  # samples covered by a segment
-            n_starts = n_intervals - span + 1
-            n_segments = data.n_demos * n_starts
-            if config.batch_size == 0:
-                segment = torch.arange(n_segments)
-            else:
-                segment = torch.randint(n_segments, (config.batch_size,), generator=generator)
-            demo, start = segment // n_starts, segment % n_starts
+            starts = data.rows_with(span)
+            while starts.numel() == 0:  # a demo shorter than the segment: shorten it
+                n_steps = max(1, n_steps // 2)
+                span = n_steps * config.stride
+                starts = data.rows_with(span)
+            rows = sample_rows(generator, starts, config.batch_size)
+            z0, delta_z, _ = data.perturbed(rows, generator)
             offsets = torch.arange(1, n_steps + 1) * config.stride
-            targets = data.z[demo[:, None], start[:, None] + offsets]  # (B, L, 2)
             times = torch.arange(n_steps + 1, dtype=torch.float32) * (config.stride * data.dt)
-            states = odeint(field, data.z[demo, start], times, method=config.solver)
+            decay = torch.exp(-data.gain * times[1:])[None, :, None]
+            targets = data.z[rows[:, None] + offsets] + delta_z[:, None] * decay  # (B, L, 2)
+            y0 = torch.cat([z0, data.phase[rows, None]], dim=1)
+            states = odeint(field, y0, times, method=config.solver)
             assert isinstance(states, torch.Tensor)  # a tensor y0 gives a tensor
-            return torch.mean((states[1:].transpose(0, 1) - targets) ** 2)
+            return torch.mean((states[1:, :, :2].transpose(0, 1) - targets) ** 2)
 
         result = fit([{"params": list(net.parameters())}], loss_fn, config)
     return TrainedLearner(

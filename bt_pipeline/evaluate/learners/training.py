@@ -78,6 +78,13 @@ def sample_indices(generator: torch.Generator, high: int, batch_size: int) -> to
     return torch.randint(high, (batch_size,), generator=generator)
 
 
+def sample_rows(generator: torch.Generator, rows: torch.Tensor, batch_size: int) -> torch.Tensor:
+    """`batch_size` of `rows` (n,) drawn with replacement; all of them for batch_size 0."""
+    if batch_size == 0:
+        return rows
+    return rows[torch.randint(rows.shape[0], (batch_size,), generator=generator)]
+
+
 @contextlib.contextmanager
 def torch_session(seed: int, threads: int) -> Iterator[torch.Generator]:
     """Seed torch (without touching the caller's global RNG state) and limit its threads.
