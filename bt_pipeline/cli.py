@@ -15,6 +15,7 @@ from typing import Annotated, Literal
 import tyro
 
 from bt_pipeline.exceptions import BtError, ConfigError
+from bt_pipeline.execute import ExecutorConfig, ExecutorName
 
 Paths = Annotated[
     list[str], tyro.conf.arg(metavar="PATH", help_behavior_hint="(required, one or more)")
@@ -83,6 +84,8 @@ def clean(
     seed: int = 0,
     epochs: int | None = None,
     workers: int = 1,
+    executor: ExecutorName = "processes",
+    ray_address: str | None = None,
     variant: Literal["default", "paper"] = "default",
     strict: bool = False,
     json: bool = False,
@@ -95,7 +98,9 @@ def clean(
         rrd: Also write DIR/<task>.rrd for the Rerun viewer.
         seed: Random seed (the result is deterministic for a seed).
         epochs: Refinement epochs (default: the variant's own).
-        workers: Tasks cleaned in parallel (processes).
+        workers: Tasks cleaned in parallel (processes; with ray, the most in flight, 0: no limit).
+        executor: Where tasks run: "local" (this process), "processes" or "ray" (docs/scale.md).
+        ray_address: Ray cluster address (with --executor ray); unset starts a local Ray.
         variant: "default" (bt's design) or "paper" (the paper's configuration, for comparison).
         strict: Stop at the first unreadable file instead of skipping it with a warning.
         json: Print one JSON summary on stdout instead of tables.
@@ -108,7 +113,7 @@ def clean(
     options = CleanOptions(
         seed=seed, epochs=epochs, variant=variant, write_rrd=rrd, workers=workers, strict=strict
     )
-    summaries = clean_paths(paths, out, options)
+    summaries = clean_paths(paths, out, options, ExecutorConfig(executor, workers, ray_address))
     if json:
         print(jsonlib.dumps(clean_json(summaries), indent=2))
     else:
@@ -171,6 +176,9 @@ def evaluate(
     samples: int = 300,
     steps: int | None = None,
     paper_learners: bool = False,
+    workers: int = 1,
+    executor: ExecutorName = "processes",
+    ray_address: str | None = None,
 ) -> None:
     """Train imitation learners on noisy and on cleaned demos and compare their rollouts (Sec. IV).
 
@@ -194,6 +202,10 @@ def evaluate(
         steps: Override every learner's optimiser steps (smoke tests; results are not meaningful).
         paper_learners: The learners as the paper wrote them (state = 2-D position, no
             corrective data) instead of bt's (position + phase, corrective data).
+        workers: Tasks evaluated in parallel (processes; with ray, the most in flight, 0: no
+            limit); results do not change.
+        executor: Where tasks run: "local", "processes" or "ray" (docs/scale.md).
+        ray_address: Ray cluster address (with --executor ray); unset starts a local Ray.
     """
     from bt_pipeline.evaluate.driver import (
         eval_json,
@@ -218,7 +230,13 @@ def evaluate(
         state="position" if paper_learners else "phase",
         corrective=not paper_learners,
     )
-    evaluations = evaluate_paths(noisy, cleaned, config, n_samples=samples)
+    evaluations = evaluate_paths(
+        noisy,
+        cleaned,
+        config,
+        n_samples=samples,
+        executor=ExecutorConfig(executor, workers, ray_address),
+    )
     written = []
     if plots is not None:
         written += write_plots(evaluations, plots)
@@ -239,6 +257,8 @@ def reproduce(
     out: Path = Path("reproduce"),
     seeds: int | None = None,
     workers: int = 1,
+    executor: ExecutorName = "processes",
+    ray_address: str | None = None,
     oracle: bool = False,
     paper_learners: bool = False,
 ) -> None:
@@ -253,7 +273,9 @@ def reproduce(
         out: Output directory (created if missing; its files are replaced).
         seeds: Repeat with seeds 0 .. K-1 and report the spread over seeds too (default: 3 for
             the full run, 1 with --quick).
-        workers: Jobs (set × task × seed) run in parallel processes; results do not change.
+        workers: Jobs (set × task × seed) run in parallel; results do not change.
+        executor: Where jobs run: "local", "processes" or "ray" (docs/scale.md).
+        ray_address: Ray cluster address (with --executor ray); unset starts a local Ray.
         oracle: Also train on the synthetic ground truth: the upper bound of any cleaning.
         paper_learners: The learners as the paper wrote them (2-D position, no corrective data).
     """
@@ -268,7 +290,7 @@ def reproduce(
     if seeds is not None:
         overrides["seeds"] = seeds
     config = ReproduceConfig.preset(quick, **overrides)
-    for path in run(config, out):
+    for path in run(config, out, executor=ExecutorConfig(executor, workers, ray_address)):
         print(path)
 
 

@@ -6,9 +6,7 @@ Ctrl-C) leaves no partial output file. Inputs are opened read-only and never mod
 
 from __future__ import annotations
 
-import concurrent.futures
 import logging
-import multiprocessing
 import sys
 import time
 from collections.abc import Sequence
@@ -28,6 +26,7 @@ from bt_pipeline.data.recording import read_recordings, write_recording
 from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_actions
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
+from bt_pipeline.execute import ExecutorConfig, run_jobs
 
 log = logging.getLogger("bt")
 
@@ -181,9 +180,15 @@ def _clean_task(task_demos: tuple[int, list[Demo], CleanOptions]) -> TaskCleanRe
 
 
 def clean_paths(
-    paths: Sequence[str | Path], out_dir: str | Path, options: CleanOptions | None = None
+    paths: Sequence[str | Path],
+    out_dir: str | Path,
+    options: CleanOptions | None = None,
+    executor: ExecutorConfig | None = None,
 ) -> list[TaskCleanSummary]:
     """Clean every task found under `paths` and write the outputs into `out_dir`.
+
+    Tasks run as jobs of `executor` (default: ``options.workers`` local processes); outputs are
+    written here, in this process, so every executor writes the same files for a seed.
 
     Raises:
         RecordingError: No recordings found, or an unreadable file when strict.
@@ -216,14 +221,8 @@ def clean_paths(
                 )
 
     jobs = [(k, group, options) for k, group in enumerate(groups.values())]
-    if options.workers > 1 and len(jobs) > 1:
-        context = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(
-            max_workers=min(options.workers, len(jobs)), mp_context=context
-        ) as pool:
-            results = list(pool.map(_clean_task, jobs))
-    else:
-        results = [_clean_task(job) for job in jobs]
+    executor = executor or ExecutorConfig("processes", options.workers)
+    results = run_jobs(_clean_task, jobs, executor, label=lambda job: str(job[1][0].task))
 
     # Every task succeeded: only now write outputs, each atomically.
     out_dir.mkdir(parents=True, exist_ok=True)

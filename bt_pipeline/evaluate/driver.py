@@ -38,6 +38,7 @@ from bt_pipeline.evaluate.protocol import (
     evaluate_demos,
 )
 from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.execute import ExecutorConfig, run_jobs
 from bt_pipeline.viz.plots import LEARNER_TITLES, RewardBar, plot_reward_bars, plot_rollouts
 
 """Rerun application id of evaluation recordings."""
@@ -87,13 +88,32 @@ def pair_by_task(
     return {task: (by_noisy[task], by_cleaned[task]) for task in by_noisy}
 
 
+def _evaluate_job(job: tuple[list[Demo], list[Demo], EvalConfig]) -> TaskEvaluation:
+    return evaluate_demos(*job)
+
+
 def evaluate_pairs(
     pairs: dict[Task, tuple[list[Demo], list[Demo]]],
     config: EvalConfig,
     progress: bool = True,
     label: str = "evaluate",
+    executor: ExecutorConfig | None = None,
 ) -> list[TaskEvaluation]:
-    """Evaluate every task of `pairs`, with one progress bar (stderr) over all trainings."""
+    """Evaluate every task of `pairs`, with one progress bar (stderr) over all trainings.
+
+    With an executor that runs jobs elsewhere (``processes`` with workers > 1, or ``ray``), each
+    task is one job and the bar counts tasks; the results are the same.
+    """
+    if executor is not None and (executor.kind == "ray" or executor.workers > 1):
+        jobs = [(noisy, cleaned, config) for noisy, cleaned in pairs.values()]
+        return run_jobs(
+            _evaluate_job,
+            jobs,
+            executor,
+            desc=label,
+            progress=progress,
+            label=lambda job: str(job[0][0].task),
+        )
     total = len(pairs) * len(DATASETS) * len(config.learners)
     evaluations = []
     with tqdm(
@@ -119,6 +139,7 @@ def evaluate_paths(
     config: EvalConfig,
     n_samples: int = DEFAULT_SAMPLES,
     progress: bool = True,
+    executor: ExecutorConfig | None = None,
 ) -> list[TaskEvaluation]:
     """Read both sets (files, directories or globs), pair them by task and evaluate each task.
 
@@ -127,7 +148,7 @@ def evaluate_paths(
         ConfigError: A task in one set only.
     """
     pairs = pair_by_task(load_demos(noisy, n_samples), load_demos(cleaned, n_samples))
-    return evaluate_pairs(pairs, config, progress)
+    return evaluate_pairs(pairs, config, progress, executor=executor)
 
 
 def eval_json(evaluations: Sequence[TaskEvaluation]) -> dict[str, Any]:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig, ReproduceRun, run_reproduce
 from bt_pipeline.evaluate.reproduce_report import cells, report_markdown, results_json, reward_bars
+from bt_pipeline.execute import ExecutorConfig
 from bt_pipeline.viz.plots import plot_reward_bars, plot_rollouts
 
 log = logging.getLogger("bt")
@@ -60,8 +61,14 @@ def _write_text(path: Path, text: str) -> Path:
     return path
 
 
-def reproduce(config: ReproduceConfig, out_dir: str | Path, progress: bool = True) -> list[Path]:
-    """Run `config` and write its outputs into `out_dir` (see the module doc)."""
-    run = run_reproduce(config, progress)
+def reproduce(
+    config: ReproduceConfig,
+    out_dir: str | Path,
+    progress: bool = True,
+    executor: ExecutorConfig | None = None,
+) -> list[Path]:
+    """Run `config` (jobs on `executor`; default: ``config.workers`` processes) and write its
+    outputs into `out_dir` (see the module doc)."""
+    run = run_reproduce(config, progress, executor)
     log.info("reproduce: %d jobs in %.0f s", len(run.jobs), run.seconds)
     return write_outputs(run, out_dir)

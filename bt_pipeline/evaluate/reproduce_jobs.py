@@ -7,17 +7,13 @@ are in :mod:`bt_pipeline.evaluate.reproduce`. Results depend only on the config 
 
 from __future__ import annotations
 
-import concurrent.futures
 import logging
-import multiprocessing
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
-from tqdm import tqdm
 
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import Demo, demos_from_recording
@@ -35,6 +31,7 @@ from bt_pipeline.evaluate.protocol import (
     evaluate_demos,
 )
 from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.execute import ExecutorConfig, run_jobs
 
 log = logging.getLogger("bt")
 
@@ -209,7 +206,9 @@ def _run_any(job: tuple) -> JobResult | CompetenceRow:
     return run_competence(job) if isinstance(job[0], str) else run_job(job)
 
 
-def run_reproduce(config: ReproduceConfig, progress: bool = True) -> ReproduceRun:
+def run_reproduce(
+    config: ReproduceConfig, progress: bool = True, executor: ExecutorConfig | None = None
+) -> ReproduceRun:
     """Run every (seed, set, task) job of `config` and its competence checks (progress bar on
     stderr)."""
     start = time.perf_counter()
@@ -226,28 +225,15 @@ def run_reproduce(config: ReproduceConfig, progress: bool = True) -> ReproduceRu
             for task in config.tasks
             for learner in config.learners
         ]
-    bar = tqdm(
-        total=len(jobs),
+    executor = executor or ExecutorConfig("processes", config.workers)
+    results = run_jobs(
+        _run_any,
+        jobs,
+        executor,
         desc="reproduce",
-        unit="job",
-        file=sys.stderr,
-        disable=None if progress else True,
+        progress=progress,
+        label=lambda job: " ".join(str(x) for x in job[:3]),
     )
-    results: list[JobResult | CompetenceRow] = []
-    with bar:
-        if config.workers > 1 and len(jobs) > 1:
-            context = multiprocessing.get_context("spawn")
-            with concurrent.futures.ProcessPoolExecutor(
-                max_workers=min(config.workers, len(jobs)), mp_context=context
-            ) as pool:
-                for result in pool.map(_run_any, jobs):
-                    results.append(result)
-                    bar.update(1)
-        else:
-            for job in jobs:
-                bar.set_postfix_str(" ".join(str(x) for x in job[:3]))
-                results.append(_run_any(job))
-                bar.update(1)
     return ReproduceRun(
         config=config,
         jobs=tuple(r for r in results if isinstance(r, JobResult)),

@@ -1,0 +1,152 @@
+"""``bt clean`` at scale: M = 100, 1,000 and 5,000 demos over 3 tasks, processes vs a local Ray.
+
+Writes single-loop synthetic sets (300 samples per demo, M/3 demos per task, one file per task)
+to a temporary directory, then cleans them through the library call behind ``bt clean`` with each
+executor. Reports per (M, executor): wall time, CPU time of the whole process tree, peak resident
+memory of the whole tree (sampled every 0.1 s with psutil: this process, worker processes and,
+with Ray, raylet, GCS and Ray workers), and the growth against the smallest M. Ray's overhead is
+the ratio of its wall time to the process executor's at the smallest M, measured in this run.
+
+    python benchmarks/bench_clean_scale.py --sizes 100,1000,5000 --workers 2
+
+The numbers in docs/scale.md come from this script; it is a benchmark, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import psutil
+
+from bt_pipeline.clean.driver import clean_paths
+from bt_pipeline.clean.pipeline import CleanOptions
+from bt_pipeline.data.recording import write_recording
+from bt_pipeline.data.synth import make_demo_set
+from bt_pipeline.execute import ExecutorConfig
+
+TASKS = ("wiping", "weaving", "pick_and_place")
+
+
+class TreeSampler:
+    """Peak RSS [bytes] and CPU seconds of this process and all its descendants."""
+
+    def __init__(self, period_s: float = 0.1) -> None:
+        self.period_s = period_s
+        self.peak = 0
+        self.cpu_at_start = 0.0
+        self._cpu: dict[int, float] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> TreeSampler:
+        self._sample()
+        self.cpu_at_start = self.cpu_s
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self._stop.set()
+        self._thread.join()
+        self._sample()
+
+    @property
+    def cpu_s(self) -> float:
+        return sum(self._cpu.values())
+
+    def _sample(self) -> None:
+        me = psutil.Process()
+        rss = 0
+        for proc in [me, *me.children(recursive=True)]:
+            try:
+                with proc.oneshot():
+                    rss += proc.memory_info().rss
+                    times = proc.cpu_times()
+                    self._cpu[proc.pid] = times.user + times.system
+            except psutil.Error:
+                continue
+        self.peak = max(self.peak, rss)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self._sample()
+            self._stop.wait(self.period_s)
+
+
+def _rusage_cpu() -> float:
+    """CPU seconds of this process and its reaped children."""
+    own, kids = (
+        resource.getrusage(resource.RUSAGE_SELF),
+        resource.getrusage(resource.RUSAGE_CHILDREN),
+    )
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def write_sets(root: Path, m: int) -> list[Path]:
+    """M demos in all, spread over the three tasks, one file per task."""
+    files = []
+    for k, task in enumerate(TASKS):
+        n = m // len(TASKS) + (1 if k < m % len(TASKS) else 0)
+        demo_set = make_demo_set(task, n_demos=n, seed=k)
+        files.append(write_recording(root / f"m{m}" / f"{task}.hdf5", demo_set.recording))
+    return files
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--sizes", default="100,1000,5000")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--executors", default="processes,ray")
+    args = parser.parse_args()
+    sizes = [int(m) for m in args.sizes.split(",")]
+    executors = args.executors.split(",")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        inputs = {m: write_sets(root, m) for m in sizes}
+        for kind in executors:
+            config = ExecutorConfig(kind, args.workers)  # type: ignore[arg-type]
+            # Warm-up (imports; Ray's start-up) on the smallest set, not measured.
+            clean_paths(
+                inputs[sizes[0]], root / f"warm_{kind}", CleanOptions(progress=False), config
+            )
+            for m in sizes:
+                before = _rusage_cpu()
+                with TreeSampler() as sampler:
+                    start = time.perf_counter()
+                    clean_paths(
+                        inputs[m],
+                        root / f"out_{kind}_{m}",
+                        CleanOptions(progress=False, write_rrd=False),
+                        config,
+                    )
+                    wall = time.perf_counter() - start
+                # Reaped pool workers are counted by getrusage; live trees (Ray) by the sampler.
+                cpu = max(sampler.cpu_s - sampler.cpu_at_start, _rusage_cpu() - before)
+                rows.append((kind, m, wall, cpu, sampler.peak / 2**30))
+                print(
+                    f"{kind} M={m}: {wall:.1f} s wall, {sampler.cpu_s:.1f} s CPU, "
+                    f"{sampler.peak / 2**30:.2f} GiB peak",
+                    flush=True,
+                )
+    print()
+    print("| executor | M | wall [s] | CPU [s] | peak RSS [GiB] | wall / wall(M0) | M / M0 |")
+    print("|---|---|---|---|---|---|---|")
+    for kind, m, wall, cpu, peak in rows:
+        base = next(r for r in rows if r[0] == kind and r[1] == sizes[0])
+        print(
+            f"| {kind} | {m} | {wall:.1f} | {cpu:.1f} | {peak:.2f} | "
+            f"{wall / base[2]:.1f} | {m / sizes[0]:.0f} |"
+        )
+    walls = {(r[0], r[1]): r[2] for r in rows}
+    if ("ray", sizes[0]) in walls and ("processes", sizes[0]) in walls:
+        ratio = walls[("ray", sizes[0])] / walls[("processes", sizes[0])]
+        print(f"\nRay / processes wall time at M = {sizes[0]}: {ratio:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,213 @@
+"""Where independent jobs run: in this process, in local worker processes, or on a Ray cluster.
+
+``bt clean`` (one job per task, or per chunk of a large task), ``bt evaluate`` and ``bt reproduce``
+(one job per set × task × learner × seed) hand their jobs to :func:`run_jobs`. A job is a
+picklable function applied to one picklable item; its result comes back to this process, which
+alone writes outputs (atomically), so every executor gives the same files for the same seeds.
+
+    items ──run_jobs(fn, items, ExecutorConfig)──▶ results, in the order of the items
+      local:     fn(item) in this process, one after another
+      processes: a spawn-context ProcessPoolExecutor of ``workers`` processes
+      ray:       one Ray task per item (``ray.init(address)``, or a local Ray without dashboard)
+
+Fault tolerance: a worker that dies mid-job (killed, out of memory, segfault) is retried up to
+``retries`` times; a job that raises a :class:`~bt_pipeline.exceptions.BtError` is not retried
+(the input is wrong, and would be wrong again) and its message reaches the caller unchanged. Ray
+is an optional dependency (``pip install 'bt[ray]'``); docs/scale.md says what each executor costs.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import multiprocessing
+import sys
+from collections.abc import Callable, Sequence
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar, get_args
+
+from tqdm import tqdm
+
+from bt_pipeline.exceptions import BtError, ConfigError
+
+ExecutorName = Literal["local", "processes", "ray"]
+"""``local``: this process; ``processes``: local worker processes; ``ray``: Ray tasks."""
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+@dataclass(frozen=True)
+class ExecutorConfig:
+    """How :func:`run_jobs` runs jobs."""
+
+    kind: ExecutorName = "processes"
+    """Which executor."""
+    workers: int = 1
+    """processes: pool size (1 runs in this process); ray: most jobs in flight (0: no limit)."""
+    ray_address: str | None = None
+    """ray: address of a running cluster (``ray start --head`` prints it; ``auto`` finds a local
+    one); None starts a private local Ray with ``workers`` CPUs and no dashboard."""
+    retries: int = 2
+    """Times a job whose worker died is run again before the run fails."""
+
+    def __post_init__(self) -> None:
+        if self.kind not in get_args(ExecutorName):
+            names = ", ".join(get_args(ExecutorName))
+            raise ConfigError(f"unknown executor {self.kind!r}; valid: {names}")
+        if self.workers < 0:
+            raise ConfigError(f"workers must be >= 0; got {self.workers}")
+        if self.retries < 0:
+            raise ConfigError(f"retries must be >= 0; got {self.retries}")
+        if self.ray_address is not None and self.kind != "ray":
+            raise ConfigError("--ray-address needs --executor ray")
+
+
+class WorkerLostError(BtError):
+    """A job's worker died more often than the retries allow."""
+
+
+def run_jobs(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    config: ExecutorConfig,
+    *,
+    desc: str = "jobs",
+    progress: bool = False,
+    label: Callable[[T], str] = lambda item: "",
+) -> list[R]:
+    """Apply `fn` to every item with the configured executor; results in the order of `items`.
+
+    Args:
+        fn: A picklable (module-level) function of one item.
+        items: The jobs' inputs (picklable).
+        config: Which executor, how wide, how many retries.
+        desc: Name of the progress bar.
+        progress: Show a bar over all jobs on stderr (plain lines when stderr is not a terminal).
+        label: Names a job in error messages.
+
+    Raises:
+        BtError: A job raised it (not retried); the message names the job when `label` does.
+        WorkerLostError: A job's worker died more than ``config.retries`` times.
+    """
+    if not items:
+        return []
+    bar = tqdm(
+        total=len(items),
+        desc=desc,
+        unit="job",
+        file=sys.stderr,
+        disable=None if progress else True,  # None: no bar when stderr is not a terminal
+    )
+    with bar:
+        if config.kind == "ray":
+            return _run_ray(fn, items, config, bar, label)
+        if config.kind == "processes" and config.workers > 1 and len(items) > 1:
+            return _run_processes(fn, items, config, bar, label)
+        results = []
+        for item in items:
+            results.append(fn(item))
+            bar.update(1)
+        return results
+
+
+def _run_processes(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    config: ExecutorConfig,
+    bar: tqdm,
+    label: Callable[[T], str],
+) -> list[R]:
+    """A spawn pool; a pool broken by a dead worker is replaced and its unfinished jobs rerun."""
+    results: dict[int, R] = {}
+    attempts = dict.fromkeys(range(len(items)), 0)
+    context = multiprocessing.get_context("spawn")
+    while len(results) < len(items):
+        pending = [i for i in range(len(items)) if i not in results]
+        pool = concurrent.futures.ProcessPoolExecutor(
+            max_workers=min(config.workers, len(pending)), mp_context=context
+        )
+        broken = False
+        try:
+            futures = {pool.submit(fn, items[i]): i for i in pending}
+            for future in concurrent.futures.as_completed(futures):
+                i = futures[future]
+                try:
+                    results[i] = future.result()
+                    bar.update(1)
+                except BrokenProcessPool:
+                    broken = True
+        finally:
+            # On a job's error (or Ctrl-C), drop the queued jobs instead of waiting for them.
+            pool.shutdown(wait=True, cancel_futures=True)
+        if broken:
+            for i in (i for i in pending if i not in results):
+                attempts[i] += 1
+                if attempts[i] > config.retries:
+                    raise WorkerLostError(
+                        f"job {label(items[i]) or i}: its worker process died "
+                        f"{attempts[i]} times (retries: {config.retries})"
+                    )
+    return [results[i] for i in range(len(items))]
+
+
+def _run_ray(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    config: ExecutorConfig,
+    bar: tqdm,
+    label: Callable[[T], str],
+) -> list[R]:
+    ray = _import_ray()
+    if not ray.is_initialized():
+        init: dict[str, Any] = {
+            "include_dashboard": False,
+            "log_to_driver": False,
+            "configure_logging": False,
+        }
+        if config.ray_address is None:
+            # A private single-node Ray on loopback (docs/scale.md: which of Ray's own sockets
+            # still listen wider, and how Ray's token authentication guards them).
+            init["num_cpus"] = max(config.workers, 1)
+            init["_node_ip_address"] = "127.0.0.1"
+        else:
+            init["address"] = config.ray_address
+        ray.init(**init)
+    # max_retries reruns a task whose worker process died; exceptions raised by the job itself
+    # are not retried (retry_exceptions=False): bad input fails the same way every time.
+    remote = ray.remote(max_retries=config.retries, retry_exceptions=False)(fn)
+    limit = config.workers if config.workers > 0 else len(items)
+    refs: dict[Any, int] = {}
+    results: dict[int, R] = {}
+    queue = list(range(len(items)))
+    while queue or refs:
+        while queue and len(refs) < limit:
+            i = queue.pop(0)
+            refs[remote.remote(items[i])] = i
+        done, _ = ray.wait(list(refs), num_returns=1)
+        for ref in done:
+            i = refs.pop(ref)
+            try:
+                results[i] = ray.get(ref)
+            except ray.exceptions.RayTaskError as error:
+                cause = error.cause if hasattr(error, "cause") else None
+                if isinstance(cause, BtError):
+                    raise cause from None
+                raise
+            except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError) as error:
+                raise WorkerLostError(
+                    f"job {label(items[i]) or i}: its Ray worker died more than "
+                    f"{config.retries} times ({type(error).__name__})"
+                ) from None
+            bar.update(1)
+    return [results[i] for i in range(len(items))]
+
+
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError(
+            "--executor ray needs Ray: pip install 'bt[ray]' (or pip install ray)"
+        ) from None
+    return ray

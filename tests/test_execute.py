@@ -1,0 +1,120 @@
+"""Tests of bt_pipeline.execute: every executor returns the same results in order, job errors
+reach the caller unchanged, and a worker that dies mid-job is retried (issue 14)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from bt_pipeline.exceptions import ConfigError, DemoError
+from bt_pipeline.execute import ExecutorConfig, WorkerLostError, run_jobs
+
+
+def square(item: tuple[int, str]) -> int:
+    """A job: the square of item[0]; dies (kill-like exit) while item[1]'s marker is missing."""
+    value, marker = item
+    if marker:
+        path = Path(marker)
+        if not path.exists():
+            path.write_text("died once")
+            os._exit(3)  # the worker process dies mid-job, as under kill -9 or OOM
+    return value * value
+
+
+def always_dies(item: int) -> int:
+    os._exit(4)
+
+
+def bad_input(item: int) -> int:
+    if item == 2:
+        raise DemoError(f"demo_{item} does not move")
+    return item
+
+
+@pytest.fixture(scope="module")
+def ray_local() -> Iterator[None]:
+    import ray  # installed with the dev extras (bt[dev] pulls bt[ray])
+    from ray import cloudpickle
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    # Ship this test module's functions by value: Ray workers do not have tests/ on sys.path.
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    yield
+    ray.shutdown()
+
+
+CONFIGS = [
+    ExecutorConfig("local"),
+    ExecutorConfig("processes", workers=1),
+    ExecutorConfig("processes", workers=2),
+]
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda c: f"{c.kind}-{c.workers}")
+def test_results_in_order(config: ExecutorConfig) -> None:
+    items = [(k, "") for k in range(7)]
+    assert run_jobs(square, items, config) == [k * k for k in range(7)]
+    assert run_jobs(square, [], config) == []
+
+
+def test_ray_results_match_processes(ray_local: None) -> None:
+    items = [(k, "") for k in range(9)]
+    expected = run_jobs(square, items, ExecutorConfig("processes", workers=2))
+    assert run_jobs(square, items, ExecutorConfig("ray", workers=2)) == expected
+    assert run_jobs(square, items, ExecutorConfig("ray", workers=0)) == expected
+
+
+def test_a_dead_worker_is_retried_with_processes(tmp_path: Path) -> None:
+    marker = tmp_path / "job3.died"
+    items = [(k, str(marker) if k == 3 else "") for k in range(6)]
+    out = run_jobs(square, items, ExecutorConfig("processes", workers=2, retries=1))
+    assert out == [k * k for k in range(6)]
+    assert marker.read_text() == "died once"  # the first attempt really died
+
+
+def test_a_dead_worker_is_retried_with_ray(ray_local: None, tmp_path: Path) -> None:
+    marker = tmp_path / "job1.died"
+    items = [(k, str(marker) if k == 1 else "") for k in range(4)]
+    out = run_jobs(square, items, ExecutorConfig("ray", workers=2, retries=1))
+    assert out == [0, 1, 4, 9]
+    assert marker.exists()
+
+
+def test_a_worker_that_keeps_dying_fails_the_run() -> None:
+    with pytest.raises(WorkerLostError, match=r"job [ab]: its worker process died 2 times"):
+        run_jobs(
+            always_dies,
+            [0, 1],
+            ExecutorConfig("processes", workers=2, retries=1),
+            label=lambda i: "ab"[i],
+        )
+
+
+def test_ray_worker_that_keeps_dying_fails_the_run(ray_local: None) -> None:
+    with pytest.raises(WorkerLostError, match="job 0: its Ray worker died"):
+        run_jobs(always_dies, [0], ExecutorConfig("ray", workers=1, retries=0))
+
+
+@pytest.mark.parametrize("kind", ["local", "processes"])
+def test_job_errors_are_not_retried_and_keep_their_message(kind: str) -> None:
+    config = ExecutorConfig(kind, workers=2)  # type: ignore[arg-type]
+    with pytest.raises(DemoError, match="demo_2 does not move"):
+        run_jobs(bad_input, [0, 1, 2, 3], config)
+
+
+def test_ray_job_errors_keep_their_type_and_message(ray_local: None) -> None:
+    with pytest.raises(DemoError, match="demo_2 does not move"):
+        run_jobs(bad_input, [0, 1, 2, 3], ExecutorConfig("ray", workers=2))
+
+
+def test_config_is_validated() -> None:
+    with pytest.raises(ConfigError, match="unknown executor 'dask'; valid: local, processes, ray"):
+        ExecutorConfig("dask")  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="needs --executor ray"):
+        ExecutorConfig("processes", ray_address="auto")
+    with pytest.raises(ConfigError, match="retries"):
+        ExecutorConfig("ray", retries=-1)
