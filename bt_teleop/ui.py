@@ -38,7 +38,10 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.cleaning import CleanJob
-from bt_teleop.replay import ReplayPlayer, TaskLibrary, library_markdown, load_library
+from bt_teleop.escape import display_text
+from bt_teleop.library import TaskLibrary, library_markdown, load_library
+from bt_teleop.moderation import Moderator, token_matches
+from bt_teleop.replay import ReplayPlayer
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
 from bt_teleop.session import Session
@@ -79,7 +82,9 @@ class ClientUI:
         self._library_version = -1
         self._seen_job: CleanJob | None = None
         self._status_text = ""
-        self.controls = TabControls(client.gui, ctx)
+        self._operator = False
+        self._flagged_take: Path | None = None
+        self.controls = TabControls(client.gui, ctx, session_id)
         """The tab's GUI handles."""
         self.controls.connect(self)
         self.session: Session = self._new_session(ctx.initial_task)
@@ -91,6 +96,7 @@ class ClientUI:
         )
         """The tab's 3-D view."""
         self._task_shown()
+        TabScene.frame(client.camera, self.session.scene)
         self._worker = threading.Thread(target=self._run, name=f"bt-tab-{session_id}", daemon=True)
         self._worker.start()
 
@@ -123,6 +129,22 @@ class ClientUI:
     def stop_replay(self) -> None:
         """Stop a replay and remove its paths."""
         self._queue(self._do_stop_replay)
+
+    def discard_take(self) -> None:
+        """Discard the flagged take just saved: exclude it (the file is kept; Restore undoes)."""
+        self._queue(self._do_discard_take)
+
+    def moderate(self, action: str, key: str) -> None:
+        """Exclude or restore the raw demo `key` (own demos, or any as an operator)."""
+        self._queue(self._do_moderate, action, key)
+
+    def set_operator_token(self, typed: str) -> None:
+        """Become an operator when `typed` is the app's operator token (else stop being one)."""
+        self._operator = token_matches(typed, self.ctx.operator_token)
+
+    def reset_view(self, client_id: int | None = None) -> None:
+        """Put the camera back to the task's default view."""
+        self._queue(lambda: TabScene.frame(self.client.camera, self.session.scene))
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
         """Wait until every action asked for so far has run; whether it happened in time.
@@ -226,7 +248,7 @@ class ClientUI:
             if text != self._status_text:
                 self._status_text = text
                 c.status_text.content = text
-            c.record_button.disabled = status.recording
+            c.record_button.disabled = status.recording or self.replay is not None
             c.save_button.disabled = not status.recording
             c.discard_button.disabled = not status.recording
         self._frames += 1
@@ -302,6 +324,8 @@ class ClientUI:
         self.library = library
         self.controls.library_text.content = library_markdown(library)
         self.controls.show_replay_keys([track.key for track in library.tracks])
+        excluded = {t.key for t in library.raw if t.excluded}
+        self.controls.show_moderation_keys([t.key for t in library.raw], excluded)
 
     def _poll_clean(self) -> None:
         job = self.ctx.cleaner.current
@@ -312,9 +336,10 @@ class ClientUI:
         if job.owner is self and job.finished and self._seen_job is not job:
             self._seen_job = job
             if progress.state == "done":
-                self._notify("Clean done", f"{job.task}: cleaned demos in {progress.output}")
+                name = "" if progress.output is None else progress.output.name
+                self._notify("Clean done", f"{job.task}: cleaned demos in .cleaned/{name}")
                 if job.result is not None:
-                    self.logger.log_clean_result(job.result)
+                    self.logger.log_clean_result(job.result, self.ctx.cleaner.options.seed)
             else:
                 self._notify("Clean failed", progress.message, color="red")
 
@@ -347,6 +372,7 @@ class ClientUI:
         old.close(save_incomplete=False)
         self.session = self._new_session(task)
         self.tab_scene.show_task(self.session.scene)
+        TabScene.frame(self.client.camera, self.session.scene)
         self._task_shown()
         self.controls.task_input.value = task
 
@@ -354,17 +380,44 @@ class ClientUI:
         self._do_stop_replay()
         self.tab_scene.trail.clear()
         c = self.controls
-        self.session.start_recording(
-            c.name_input.value, float(c.theta_input.value), float(c.rho_input.value)
-        )
+        self.session.start_recording(c.name_input.value, c.theta_deg, c.rho)
+        self._flagged_take = None
+        c.show_take_check(None)
 
     def _do_save(self) -> None:
         trail = self.session.trail()
-        path = self.session.stop_and_save()
+        take = self.session.stop_and_check()
+        path = take.path
         self.saved.append(path)
         self.ctx.versions.bump(self.task)
         self.logger.log_demo(path.stem, trail)
-        self._notify("Saved", f"{path.parent.name}/{path.name}")
+        if take.check.ok:
+            self._notify("Saved", f"{path.parent.name}/\n{path.name}")
+        else:
+            self._flagged_take = path
+            self.controls.show_take_check(take.check.reasons())
+            reasons = "; ".join(take.check.reasons())
+            self._notify("Saved but flagged", f"{path.name}\n{reasons}", color="yellow")
+
+    def _do_discard_take(self) -> None:
+        path, self._flagged_take = self._flagged_take, None
+        self.controls.show_take_check(None)
+        if path is None:
+            return
+        from bt_pipeline.data.moderation import exclude
+
+        exclude(path, reason="discarded by its demonstrator", by=f"session {self.session_id}")
+        self.ctx.versions.bump(self.task)
+        self._notify("Discarded", f"{path.name}\nexcluded; the file is kept (Restore undoes it)")
+
+    def _do_moderate(self, action: str, key: str) -> None:
+        if self.library is None:
+            raise BtError("the recordings are still loading")
+        track = self.library.find(key)
+        moderator = Moderator(self.session_id, operator=self._operator)
+        done = moderator.apply("restore" if action == "restore" else "exclude", track)
+        self.ctx.versions.bump(self.task)
+        self._notify("Excluded" if action == "exclude" else "Restored", done)
 
     def _do_discard(self) -> None:
         self.session.discard()
@@ -384,6 +437,7 @@ class ClientUI:
         self.tab_scene.draw_replay_paths(track, self.library)
         self.replay = ReplayPlayer(self.session, track)
         self.replay.start()
+        self.logger.log_replay(track.key, track.positions, track.kind)
 
     def _do_stop_replay(self) -> None:
         if self.replay is not None:
@@ -392,6 +446,7 @@ class ClientUI:
         self.tab_scene.clear_replay_paths()
 
     def _notify(self, title: str, body: str, color: Any = None) -> None:
+        body = "\n".join(display_text(line, 300) for line in body.split("\n"))  # see escape.py
         self.messages.append((title, body))
         try:
             self.client.add_notification(title, body, auto_close_seconds=6.0, color=color)

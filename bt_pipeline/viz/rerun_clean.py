@@ -357,6 +357,16 @@ def _log_text(
     )
 
 
+def task_layout(task: Task | str) -> rrb.Container:
+    """One task's views of :func:`clean_blueprint` (to compose into other layouts, e.g. the
+    teleop app's session blueprint).
+
+    Raises:
+        UnknownTaskError: A task name bt does not know.
+    """
+    return _task_layout(parse_task(str(task)))
+
+
 def _task_layout(task: Task) -> rrb.Container:
     """One task's views: curves on top, scores and training below, text at the bottom."""
     root = f"/{task}"
