@@ -10,12 +10,11 @@ demo and scoring and cleaning skip them. The checks, in task-plane coordinates::
     incomplete  share of the guide's angular sectors the take reaches < min_loop_share
 
 Loop share, measured against the guide (the task's canonical loop under the take's θ and ρ,
-centred on the plane origin): the plane around the guide's centre is cut into ``n_sectors``
-equal angles. The guide visits some of them (all for a closed loop, fewer for a figure
-eight); a sector counts as reached when a sample of the take lies in it at least
-``min_radius_share`` of the guide's radius in that sector away from the centre. The share is
-reached sectors / guide sectors. The measure ignores where the take starts, its speed, pauses,
-an approach and a retreat, and a loop drawn somewhat larger or smaller than the guide.
+centred on the plane origin, at uniform phase): the share of the guide's points that have a
+sample of the take within ``tolerance_share`` of the guide's RMS radius, in task-plane
+coordinates. It ignores where the take starts, its speed, pauses, an approach and a retreat
+(they cover little of the loop), and a loop drawn up to about 15 % larger or smaller than the
+guide; a straight drag across the plane covers only the points near where it crosses the loop.
 """
 
 from __future__ import annotations
@@ -24,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import FloatArray, TakeFlag
@@ -44,11 +44,8 @@ class TakeCheckConfig:
     """A take whose samples all stay within this distance [m] of its first is ``no_motion``."""
     min_loop_share: float = 0.6
     """Least share (0..1) of the guide's sectors a take must reach not to be ``incomplete``."""
-    n_sectors: int = 24
-    """Angular sectors the plane is cut into around the guide's centre."""
-    min_radius_share: float = 0.3
-    """A sample reaches a sector when it is at least this share of the guide's radius there
-    away from the centre (a take may be drawn smaller than the guide)."""
+    tolerance_share: float = 0.15
+    """A guide point is reached when a sample is within this share of the guide's RMS radius."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.min_duration_s) and self.min_duration_s >= 0.0):
@@ -57,10 +54,8 @@ class TakeCheckConfig:
             raise ConfigError(f"min_motion_m must be ≥ 0 [m]; got {self.min_motion_m}")
         if not 0.0 <= self.min_loop_share <= 1.0:
             raise ConfigError(f"min_loop_share must be in [0, 1]; got {self.min_loop_share}")
-        if not 4 <= self.n_sectors <= 360:
-            raise ConfigError(f"n_sectors must be in 4..360; got {self.n_sectors}")
-        if not 0.0 <= self.min_radius_share < 1.0:
-            raise ConfigError(f"min_radius_share must be in [0, 1); got {self.min_radius_share}")
+        if not (math.isfinite(self.tolerance_share) and 0.0 < self.tolerance_share <= 1.0):
+            raise ConfigError(f"tolerance_share must be in (0, 1]; got {self.tolerance_share}")
 
 
 @dataclass(frozen=True)
@@ -74,7 +69,7 @@ class TakeCheck:
     motion_m: float
     """Largest distance of a sample from the first [m]."""
     loop_share: float
-    """Share (0..1) of the guide's sectors reached."""
+    """Share (0..1) of the guide's points reached."""
     config: TakeCheckConfig
     """The thresholds used."""
 
@@ -98,7 +93,7 @@ class TakeCheck:
                 f"(at least {1e3 * c.min_motion_m:.0f} mm)"
             ),
             "incomplete": (
-                f"incomplete: it covers {100 * self.loop_share:.0f} % of the blue loop "
+                f"incomplete: it follows {100 * self.loop_share:.0f} % of the blue loop "
                 f"(at least {100 * c.min_loop_share:.0f} %)"
             ),
             "closed_mid_take": "the tab closed during the take",
@@ -106,29 +101,22 @@ class TakeCheck:
         return [text[flag] for flag in self.flags]
 
 
-def loop_share(
-    uv: FloatArray, guide_uv: FloatArray, n_sectors: int = 24, min_radius_share: float = 0.3
-) -> float:
-    """Share (0..1) of the guide's angular sectors around the origin that `uv` reaches.
+def loop_share(uv: FloatArray, guide_uv: FloatArray, tolerance_share: float = 0.15) -> float:
+    """Share (0..1) of the guide's points that the take `uv` comes close to.
 
     Args:
         uv: The take in task coordinates, shape (T, 2) [m].
-        guide_uv: The guide loop in task coordinates, centred on the origin, shape (N, 2) [m].
-        n_sectors: Equal angular sectors around the origin.
-        min_radius_share: A sample reaches a sector when its radius is at least this share of
-            the guide's largest radius in that sector.
+        guide_uv: The guide loop at uniform phase, centred on the origin, shape (N, 2) [m].
+        tolerance_share: A guide point is reached when a sample is within this share of the
+            guide's RMS radius.
     """
-    guide_sector, guide_r = _sectors(guide_uv, n_sectors)
-    reach = np.zeros(n_sectors)
-    np.maximum.at(reach, guide_sector, guide_r)
-    visited = reach > 0.0
-    if not visited.any():
+    guide = np.asarray(guide_uv, dtype=np.float64).reshape(-1, 2)
+    take = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    if len(guide) == 0 or len(take) == 0:
         return 0.0
-    sector, radius = _sectors(np.asarray(uv, dtype=np.float64).reshape(-1, 2), n_sectors)
-    reached = np.zeros(n_sectors, dtype=bool)
-    hit = radius >= min_radius_share * reach[sector]
-    reached[sector[hit & visited[sector]]] = True
-    return float(reached.sum() / visited.sum())
+    tolerance = tolerance_share * float(np.sqrt(np.mean(np.sum(guide**2, axis=1))))
+    distance, _ = cKDTree(take).query(guide, k=1, distance_upper_bound=tolerance)
+    return float(np.mean(np.isfinite(distance)))
 
 
 def check_take(
@@ -162,7 +150,7 @@ def check_take(
     theta = 0.0 if not math.isfinite(theta_deg) else float(theta_deg)
     scale = 1.0 if not (math.isfinite(rho) and rho > 0.0) else float(rho)
     guide = similarity_transform(canonical_loop(task, 240), theta, scale)
-    share = loop_share(plane.to_plane(pos), guide, config.n_sectors, config.min_radius_share)
+    share = loop_share(plane.to_plane(pos), guide, config.tolerance_share)
     flags: list[TakeFlag] = []
     if duration < config.min_duration_s:
         flags.append("too_short")
@@ -173,10 +161,3 @@ def check_take(
     if closed_mid_take:
         flags.append("closed_mid_take")
     return TakeCheck(tuple(flags), duration, motion, share, config)
-
-
-def _sectors(uv: FloatArray, n_sectors: int) -> tuple[np.ndarray, FloatArray]:
-    """(sector index (T,), radius (T,) [m]) of points (T, 2) around the origin."""
-    angle = np.arctan2(uv[:, 1], uv[:, 0])
-    sector = np.floor((angle + math.pi) / (2.0 * math.pi) * n_sectors).astype(int) % n_sectors
-    return sector, np.linalg.norm(uv, axis=1)

@@ -47,6 +47,7 @@ __all__ = [
     "chromium_page",
     "circle_uv",
     "decode_frame",
+    "shared_dir",
     "tab_factory",
     "wait_until",
 ]
@@ -218,6 +219,14 @@ def wait_until(
             return value
         time.sleep(poll_s)
     raise TimeoutError(f"timed out after {timeout_s} s waiting for {what or condition}")
+
+
+def shared_dir() -> Path:
+    """``../shared`` beside the clone (CI), or ``$BT_SHARED_DIR`` when set (a worktree)."""
+    import os
+
+    override = os.environ.get("BT_SHARED_DIR")
+    return Path(override) if override else Path(__file__).resolve().parents[2] / "shared"
 
 
 def circle_uv(t_s: float, radius_m: float = 0.06, period_s: float = 4.0) -> FloatArray:

@@ -40,7 +40,6 @@ from bt_pipeline.exceptions import BtError
 from bt_teleop.cleaning import CleanJob
 from bt_teleop.escape import display_text
 from bt_teleop.library import TaskLibrary, library_markdown, load_library
-from bt_teleop.moderation import Moderator, token_matches
 from bt_teleop.replay import ReplayPlayer
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
@@ -48,6 +47,7 @@ from bt_teleop.session import Session
 from bt_teleop.tab_scene import Frame, TabScene
 from bt_teleop.ui_context import TaskVersions, UiContext
 from bt_teleop.ui_panels import TabControls, status_markdown
+from bt_teleop.ui_takes import TakeDesk
 
 __all__ = ["ClientUI", "Frame", "TaskVersions", "UiContext", "status_markdown"]
 
@@ -65,8 +65,6 @@ class ClientUI:
         self.logger: SessionLogger = ctx.rerun.session_logger(session_id)
         self.messages: list[tuple[str, str]] = []
         """(title, body) of every notification shown (newest last)."""
-        self.saved: list[Path] = []
-        """Demo files this tab saved."""
         self.last_frame: Frame | None = None
         self.library: TaskLibrary | None = None
         self.replay: ReplayPlayer | None = None
@@ -82,10 +80,11 @@ class ClientUI:
         self._library_version = -1
         self._seen_job: CleanJob | None = None
         self._status_text = ""
-        self._operator = False
-        self._flagged_take: Path | None = None
         self.controls = TabControls(client.gui, ctx, session_id)
         """The tab's GUI handles."""
+        self.takes = TakeDesk(ctx, session_id, self.controls, self.logger, self._notify)
+        """Saved takes, their checks' verdict and moderation."""
+        self.saved = self.takes.saved
         self.controls.connect(self)
         self.session: Session = self._new_session(ctx.initial_task)
         self.tab_scene = TabScene(
@@ -132,15 +131,15 @@ class ClientUI:
 
     def discard_take(self) -> None:
         """Discard the flagged take just saved: exclude it (the file is kept; Restore undoes)."""
-        self._queue(self._do_discard_take)
+        self._queue(lambda: self.takes.discard_flagged(self.task))
 
     def moderate(self, action: str, key: str) -> None:
         """Exclude or restore the raw demo `key` (own demos, or any as an operator)."""
-        self._queue(self._do_moderate, action, key)
+        self._queue(lambda: self.takes.moderate(action, key, self.library))
 
     def set_operator_token(self, typed: str) -> None:
         """Become an operator when `typed` is the app's operator token (else stop being one)."""
-        self._operator = token_matches(typed, self.ctx.operator_token)
+        self.takes.set_operator_token(typed)
 
     def reset_view(self, client_id: int | None = None) -> None:
         """Put the camera back to the task's default view."""
@@ -381,43 +380,10 @@ class ClientUI:
         self.tab_scene.trail.clear()
         c = self.controls
         self.session.start_recording(c.name_input.value, c.theta_deg, c.rho)
-        self._flagged_take = None
-        c.show_take_check(None)
+        self.takes.started()
 
     def _do_save(self) -> None:
-        trail = self.session.trail()
-        take = self.session.stop_and_check()
-        path = take.path
-        self.saved.append(path)
-        self.ctx.versions.bump(self.task)
-        self.logger.log_demo(path.stem, trail)
-        if take.check.ok:
-            self._notify("Saved", f"{path.parent.name}/\n{path.name}")
-        else:
-            self._flagged_take = path
-            self.controls.show_take_check(take.check.reasons())
-            reasons = "; ".join(take.check.reasons())
-            self._notify("Saved but flagged", f"{path.name}\n{reasons}", color="yellow")
-
-    def _do_discard_take(self) -> None:
-        path, self._flagged_take = self._flagged_take, None
-        self.controls.show_take_check(None)
-        if path is None:
-            return
-        from bt_pipeline.data.moderation import exclude
-
-        exclude(path, reason="discarded by its demonstrator", by=f"session {self.session_id}")
-        self.ctx.versions.bump(self.task)
-        self._notify("Discarded", f"{path.name}\nexcluded; the file is kept (Restore undoes it)")
-
-    def _do_moderate(self, action: str, key: str) -> None:
-        if self.library is None:
-            raise BtError("the recordings are still loading")
-        track = self.library.find(key)
-        moderator = Moderator(self.session_id, operator=self._operator)
-        done = moderator.apply("restore" if action == "restore" else "exclude", track)
-        self.ctx.versions.bump(self.task)
-        self._notify("Excluded" if action == "exclude" else "Restored", done)
+        self.takes.save(self.session)
 
     def _do_discard(self) -> None:
         self.session.discard()

@@ -159,7 +159,7 @@ def test_a_name_from_the_browser_never_leaves_the_recordings_folder(make_app, ta
     assert path.resolve().parent == task_dir
     assert path.name.startswith("etc-passwd_") and ".." not in path.name
     assert read_recording(path).demos["demo_0"].demonstrator == "../../etc/passwd"
-    assert ("Saved", f"wiping/{path.name}") in ui.messages
+    assert any(path.name in body for _, body in ui.messages)  # the toast names the file whole
 
 
 def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
@@ -178,16 +178,18 @@ def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
 # -- clean and replay ---------------------------------------------------------------------------
 
 
-def circle_script(radius_m: float, theta_deg: float) -> dict[str, Any]:
-    """A 3 s scripted ellipse in the wiping plane (the scripted operator's JSON)."""
+def circle_script(rho: float, theta_deg: float) -> dict[str, Any]:
+    """A 3 s scripted take along the wiping guide under (θ, ρ) (the scripted operator's JSON)."""
+    from bt_pipeline.data.shapes import canonical_loop, similarity_transform
+
+    loop = similarity_transform(canonical_loop("wiping", 30), theta_deg, rho)
     times = np.linspace(0.0, 3.0, 31)
-    phase = 2.0 * math.pi * times / 3.0
-    rows = np.stack([times, radius_m * np.cos(phase), 0.5 * radius_m * np.sin(phase)], axis=1)
+    rows = np.column_stack([times, np.vstack([loop, loop[:1]])])
     return {
         "task": "wiping",
-        "demonstrator": f"r{radius_m}",
+        "demonstrator": f"r{rho}",
         "theta_deg": theta_deg,
-        "rho": 1.0,
+        "rho": rho,
         "waypoints": rows.tolist(),
     }
 
@@ -195,8 +197,8 @@ def circle_script(radius_m: float, theta_deg: float) -> dict[str, Any]:
 @pytest.fixture
 def three_recordings(tmp_path: Path) -> Path:
     root = tmp_path / "recordings"
-    for radius, theta in ((0.08, 0.0), (0.1, 5.0), (0.07, -5.0)):
-        run_script(circle_script(radius, theta), root)
+    for rho, theta in ((0.8, 0.0), (1.0, 5.0), (0.7, -5.0)):
+        run_script(circle_script(rho, theta), root)
     return root
 
 
