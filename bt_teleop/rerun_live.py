@@ -104,7 +104,7 @@ class SessionLogger:
         """Items dropped because the queue was full."""
         self._queue: queue.Queue[object] = queue.Queue(maxsize=queue_size)
         self._states: list[tuple[float, FloatArray, FloatArray]] = []
-        self._last_state_s = -np.inf
+        self._next_state_s = -np.inf
         self._flush_pending = False
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -120,14 +120,14 @@ class SessionLogger:
     def log_state(self, sim_time_s: float, ee_pos: FloatArray, joint_pos: FloatArray) -> None:
         """Queue one robot snapshot: end-effector position (3,) [m], arm joints (7,) [rad].
 
-        Snapshots closer than 1 / :data:`MAX_STATE_HZ` of simulation time to the last one kept
-        are dropped (a bounded rate)."""
+        At most :data:`MAX_STATE_HZ` snapshots per second of simulation time are kept; the
+        others are dropped (a bounded rate)."""
         if self.rec is None:
             return
         with self._lock:
-            if sim_time_s - self._last_state_s < 1.0 / MAX_STATE_HZ - 1e-9:
+            if sim_time_s < self._next_state_s - 1e-9:
                 return
-            self._last_state_s = float(sim_time_s)
+            self._next_state_s = max(self._next_state_s + 1.0 / MAX_STATE_HZ, float(sim_time_s))
             self._states.append((float(sim_time_s), np.array(ee_pos), np.array(joint_pos)))
             if len(self._states) > _MAX_PENDING_STATES:  # the worker is far behind: drop
                 del self._states[0]
