@@ -8,7 +8,6 @@ and the tab closed after a few moves are flagged."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
