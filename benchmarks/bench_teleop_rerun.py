@@ -12,11 +12,12 @@ Two viewers per run:
 
 * *attached from the start* (the baseline, same process, same run): the lag while streaming;
 * *opened late*, after ``--warm-s`` seconds of streaming (the proxy then holds a backlog):
-  the seconds from opening until every session's lag is under 1 s (catch-up), and the lag
+  the seconds from opening until the lag (high bound) is under 2 s (catch-up), and the lag
   afterwards.
 
-Medians over runs. The issue's aim: a viewer opened at any time shows the present within a
-few seconds.
+Lags are given as low..high bounds: the sessions' clocks are read before and after reading
+the file (which takes up to seconds on a loaded machine). Medians over runs. The issue's aim:
+a viewer opened at any time shows the present within a few seconds.
 
     nice -n 10 .venv/bin/python benchmarks/bench_teleop_rerun.py --runs 3
 """
@@ -39,8 +40,8 @@ from bt_teleop.rerun_proxy import free_port, rerun_binary
 from bt_teleop.testing import app_factory, circle_uv, tab_factory
 from bt_teleop.ui import ClientUI
 
-CAUGHT_UP_S = 1.0
-"""A viewer has caught up when every session's lag is below this [s]."""
+CAUGHT_UP_S = 2.0
+"""A viewer has caught up when its lag (high bound, reading time included) is below this [s]."""
 
 
 @dataclass(frozen=True)
@@ -98,15 +99,20 @@ class Viewer:
             start_new_session=True,
         )
 
-    def lags(self, uis: list[ClientUI]) -> list[float]:
-        """Seconds behind each session (inf when nothing of it arrived yet).
+    def lag(self, uis: list[ClientUI]) -> tuple[float, float]:
+        """Bounds (low, high) [s] on how far behind the most lagging session the viewer is.
 
-        The sessions' clocks are read before the file: the time spent reading it is not
-        counted as lag. A read that fails (a chunk half written) keeps the last answer."""
-        now = [ui.session.status().sim_time_s for ui in uis]
+        Reading the file takes time (seconds on a loaded machine): the sessions' clocks are
+        read before it (low bound) and after it (high bound). inf: nothing of a session yet. A
+        read that fails (a chunk half written) keeps the last answer."""
+        before = [ui.session.status().sim_time_s for ui in uis]
         for recording, value in newest_sim_times(self.path).items():
             self.newest[recording] = max(self.newest.get(recording, -np.inf), value)
-        return [t - self.newest.get(ui.session_id, -np.inf) for t, ui in zip(now, uis, strict=True)]
+        after = [ui.session.status().sim_time_s for ui in uis]
+        newest = [self.newest.get(ui.session_id, -np.inf) for ui in uis]
+        low = max(t - n for t, n in zip(before, newest, strict=True))
+        high = max(t - n for t, n in zip(after, newest, strict=True))
+        return low, high
 
     def close(self) -> None:
         self.process.terminate()
@@ -119,8 +125,9 @@ def move(uis: list[ClientUI], t0: float) -> None:
         ui.session.set_target(plane.to_world(circle_uv(time.perf_counter() - t0 + k)))
 
 
-def run_once(n_tabs: int, args: Args) -> tuple[float, float, float]:
-    """(baseline lag, late viewer's catch-up time, its lag afterwards) [s], medians."""
+def run_once(n_tabs: int, args: Args) -> tuple[float, float, float, float, float]:
+    """Medians [s]: baseline lag (low, high), late viewer's catch-up time, its lag afterwards
+    (low, high)."""
     with tempfile.TemporaryDirectory() as tmp, tab_factory() as open_tab:
         folder = Path(tmp)
         with app_factory(folder / "recordings") as make:
@@ -131,21 +138,21 @@ def run_once(n_tabs: int, args: Args) -> tuple[float, float, float]:
                 open_tab(app, decode=False)
             uis = list(app.wait_for_sessions(n_tabs, 120.0).values())
             t0 = time.perf_counter()
-            baseline: list[float] = []
+            baseline: list[tuple[float, float]] = []
             while time.perf_counter() - t0 < args.warm_s:
                 move(uis, t0)
                 time.sleep(0.25)
                 if time.perf_counter() - t0 > args.warm_s / 2:
-                    baseline.append(max(early.lags(uis)))
+                    baseline.append(early.lag(uis))
             late = Viewer(app.rerun.grpc_url, folder, "late")
             opened = time.perf_counter()
             catch_up = float("inf")
-            after: list[float] = []
+            after: list[tuple[float, float]] = []
             while time.perf_counter() - opened < args.watch_s + 5.0:
                 move(uis, t0)
                 time.sleep(0.25)
-                lag = max(late.lags(uis))
-                if catch_up == float("inf") and lag < CAUGHT_UP_S:
+                lag = late.lag(uis)
+                if catch_up == float("inf") and lag[1] < CAUGHT_UP_S:
                     catch_up = time.perf_counter() - opened
                 elif catch_up < float("inf"):
                     after.append(lag)
@@ -155,12 +162,14 @@ def run_once(n_tabs: int, args: Args) -> tuple[float, float, float]:
                     break
             early.close()
             late.close()
-    finite = [x for x in baseline if np.isfinite(x)]
-    return (
-        statistics.median(finite) if finite else float("inf"),
-        catch_up,
-        statistics.median(after) if after else float("inf"),
-    )
+    return (*_medians(baseline), catch_up, *_medians(after))
+
+
+def _medians(pairs: list[tuple[float, float]]) -> tuple[float, float]:
+    finite = [p for p in pairs if np.isfinite(p[1])]
+    if not finite:
+        return float("inf"), float("inf")
+    return statistics.median(p[0] for p in finite), statistics.median(p[1] for p in finite)
 
 
 def main(args: Args) -> None:
@@ -169,8 +178,11 @@ def main(args: Args) -> None:
     print("|---|---|---|---|")
     for n_tabs in (1, 4):
         results = [run_once(n_tabs, args) for _ in range(args.runs)]
-        base, catch, after = (statistics.median(r[i] for r in results) for i in range(3))
-        print(f"| {n_tabs} | {base:.2f} s | {catch:.2f} s | {after:.2f} s |", flush=True)
+        m = [statistics.median(r[i] for r in results) for i in range(5)]
+        print(
+            f"| {n_tabs} | {m[0]:.2f}..{m[1]:.2f} s | {m[2]:.2f} s | {m[3]:.2f}..{m[4]:.2f} s |",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":
