@@ -83,7 +83,7 @@ def session_blueprint() -> rrb.Blueprint:
         origin="/",
         contents=["/ee/**", "/demos/**", "/replay/**"],
     )
-    tabs = [live]
+    tabs: list[rrb.Container | rrb.View] = [live]
     for task in TASKS:
         rollouts = rrb.Spatial2DView(
             name=f"{task}: DMP rollouts behind V_E",

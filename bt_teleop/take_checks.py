@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import FloatArray, TakeFlag
@@ -115,7 +115,7 @@ def loop_share(uv: FloatArray, guide_uv: FloatArray, tolerance_share: float = 0.
     if len(guide) == 0 or len(take) == 0:
         return 0.0
     tolerance = tolerance_share * float(np.sqrt(np.mean(np.sum(guide**2, axis=1))))
-    distance, _ = cKDTree(take).query(guide, k=1, distance_upper_bound=tolerance)
+    distance, _ = KDTree(take).query(guide, k=1, distance_upper_bound=tolerance)
     return float(np.mean(np.isfinite(distance)))
 
 

@@ -136,7 +136,7 @@ def clean_blueprint(tasks: Iterable[Task | str]) -> rrb.Blueprint:
     parsed: list[Task] = [parse_task(str(name)) for name in tasks]
     if not parsed:
         raise ConfigError("clean_blueprint needs at least one task")
-    layouts = [_task_layout(t) for i, t in enumerate(parsed) if t not in parsed[:i]]
+    layouts = [task_layout(t) for i, t in enumerate(parsed) if t not in parsed[:i]]
     main = layouts[0] if len(layouts) == 1 else rrb.Tabs(*layouts)
     return rrb.Blueprint(
         main,
@@ -357,18 +357,8 @@ def _log_text(
     )
 
 
-def task_layout(task: Task | str) -> rrb.Container:
-    """One task's views of :func:`clean_blueprint` (to compose into other layouts, e.g. the
-    teleop app's session blueprint).
-
-    Raises:
-        UnknownTaskError: A task name bt does not know.
-    """
-    return _task_layout(parse_task(str(task)))
-
-
-def _task_layout(task: Task) -> rrb.Container:
-    """One task's views: curves on top, scores and training below, text at the bottom."""
+def task_layout(task: Task) -> rrb.Container:
+    """One task's views (also composed into the teleop app's session blueprint)."""
     root = f"/{task}"
     plane = f"{root}/plane"
     curves = rrb.Horizontal(
