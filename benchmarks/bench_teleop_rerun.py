@@ -125,13 +125,20 @@ def move(uis: list[ClientUI], t0: float) -> None:
         ui.session.set_target(plane.to_world(circle_uv(time.perf_counter() - t0 + k)))
 
 
-def run_once(n_tabs: int, args: Args) -> tuple[float, float, float, float, float]:
+def run_once(
+    n_tabs: int, args: Args, newest_first: bool = True
+) -> tuple[float, float, float, float, float]:
     """Medians [s]: baseline lag (low, high), late viewer's catch-up time, its lag afterwards
     (low, high)."""
     with tempfile.TemporaryDirectory() as tmp, tab_factory() as open_tab:
         folder = Path(tmp)
         with app_factory(folder / "recordings") as make:
-            app = make(rerun="serve", rerun_grpc_port=0, rerun_web_port=0)
+            app = make(
+                rerun="serve",
+                rerun_grpc_port=0,
+                rerun_web_port=0,
+                rerun_newest_first=newest_first,
+            )
             assert app.rerun.grpc_url is not None
             early = Viewer(app.rerun.grpc_url, folder, "early")
             for _ in range(n_tabs):
@@ -174,15 +181,18 @@ def _medians(pairs: list[tuple[float, float]]) -> tuple[float, float]:
 
 def main(args: Args) -> None:
     print(f"live Rerun latency, medians of {args.runs} runs (late viewer after {args.warm_s} s)")
-    print("| sessions | lag, viewer from the start | late viewer: catch-up | lag afterwards |")
-    print("|---|---|---|---|")
+    print("| sessions | proxy | lag, viewer from the start | late viewer: catch-up | lag after |")
+    print("|---|---|---|---|---|")
     for n_tabs in (1, 4):
-        results = [run_once(n_tabs, args) for _ in range(args.runs)]
-        m = [statistics.median(r[i] for r in results) for i in range(5)]
-        print(
-            f"| {n_tabs} | {m[0]:.2f}..{m[1]:.2f} s | {m[2]:.2f} s | {m[3]:.2f}..{m[4]:.2f} s |",
-            flush=True,
-        )
+        for newest_first in (True, False):  # the app's setting, and the proxy's default order
+            results = [run_once(n_tabs, args, newest_first) for _ in range(args.runs)]
+            m = [statistics.median(r[i] for r in results) for i in range(5)]
+            order = "newest first" if newest_first else "in order"
+            print(
+                f"| {n_tabs} | {order} | {m[0]:.2f}..{m[1]:.2f} s | {m[2]:.2f} s "
+                f"| {m[3]:.2f}..{m[4]:.2f} s |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

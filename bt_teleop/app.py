@@ -87,6 +87,8 @@ class AppOptions:
     """Preferred port of Rerun's gRPC server (serve mode)."""
     rerun_web_port: int = 9090
     """Preferred port of Rerun's web viewer (serve mode)."""
+    rerun_newest_first: bool = True
+    """A Rerun viewer that connects late gets the newest data first (serve mode)."""
     session: SessionConfig = field(default_factory=SessionConfig)
     """Control and recording rates of every session."""
     fancy_lighting: bool = False
@@ -135,6 +137,7 @@ class TeleopApp:
             host=options.host,
             grpc_port=options.rerun_grpc_port,
             web_port=options.rerun_web_port,
+            newest_first=options.rerun_newest_first,
         )
         self.versions = TaskVersions()
         self.cleaner = CleanRunner(

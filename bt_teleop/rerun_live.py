@@ -230,6 +230,7 @@ class RerunHub:
         grpc_port: int = 9876,
         web_port: int = 9090,
         memory_limit: str = "256MiB",
+        newest_first: bool = True,
     ) -> None:
         """Start serving (``serve``); nothing is started for ``save`` and ``off``.
 
@@ -240,6 +241,7 @@ class RerunHub:
             grpc_port: Preferred port of the gRPC proxy (a free one when busy).
             web_port: Preferred port of the web viewer (a free one when busy).
             memory_limit: Log data the proxy keeps for viewers that connect late.
+            newest_first: A viewer that connects late gets the newest data first.
 
         Raises:
             ConfigError: Unknown mode, or the proxy did not start.
@@ -255,7 +257,9 @@ class RerunHub:
         """The web viewer, connected to the proxy, in serve mode."""
         self.proxy: RerunProxy | None = None
         if mode == "serve":
-            self.proxy = RerunProxy(host, grpc_port, web_port, memory_limit)
+            self.proxy = RerunProxy(
+                host, grpc_port, web_port, memory_limit, newest_first=newest_first
+            )
             self.grpc_url = self.proxy.grpc_url
             query = urllib.parse.urlencode({"url": self.grpc_url})
             self.viewer_url = f"{self.proxy.web_url}?{query}"

@@ -80,9 +80,16 @@ class RerunProxy:
     """A running ``rerun --serve-web`` child process; :meth:`close` stops it."""
 
     def __init__(
-        self, host: str, grpc_port: int, web_port: int, memory_limit: str = "256MiB"
+        self,
+        host: str,
+        grpc_port: int,
+        web_port: int,
+        memory_limit: str = "256MiB",
+        *,
+        newest_first: bool = True,
     ) -> None:
-        """Start the proxy and web viewer on `host` (preferred ports; free ones when busy).
+        """Start the proxy and web viewer on `host` (preferred ports; free ones when busy);
+        `newest_first`: a viewer that connects late gets the newest data first.
 
         Raises:
             ConfigError: No rerun binary, or it did not start within :data:`START_TIMEOUT_S`.
@@ -104,7 +111,7 @@ class RerunProxy:
             str(self.web_port),
             "--server-memory-limit",
             memory_limit,
-            "--newest-first",
+            *(["--newest-first"] if newest_first else []),
         ]
         self.process = subprocess.Popen(
             command,
