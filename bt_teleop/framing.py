@@ -1,18 +1,20 @@
 """Framing a task in a tab's 3-D view: the default camera per task and the gizmo's axes.
 
-The camera looks at the task plane's origin (the centre of the guide loop) from the side of
-the plane that faces away from the robot's base, raised a little and turned a little to the
-side, so that the guide, the stylus and the trail are in front of the arm instead of behind
-it::
+The camera looks at the task plane's origin (the centre of the guide loop) from the side the
+robot works on, so that the guide, the stylus and the trail face the camera (not the back of a
+board), and from where the arm hides little of them::
 
-    n   the plane's normal, flipped to point away from the robot base (world origin)
-    a   the horizontal direction from the base to the plane origin
-    dir = normalise(n + 0.9 a + 0.35 z + 0.3 (z × a))
+    a   the horizontal direction from the robot base (world origin) to the plane origin
+    l   z × a, sideways
+    horizontal plane (a table, |n·z| > 0.7):  dir = normalise(z + 0.9 a + 0.3 l)
+        above the table and in front of the robot, looking down past the arm
+    vertical plane (a board):                  dir = normalise(n_r + 1.1 l + 0.45 z)
+        n_r the normal pointing to the robot's side; from the robot's side, well to the
+        left of the arm and a little above
     camera = origin + distance · dir,  look_at = origin,  up = +z
 
-For the wiping table (n = +z) this is above and in front of the table; for the vertical
-weaving frame and pick-and-place board (n = +x) it is in front of the frame. The gizmo's arrows
-are the plane's axes u, v and its normal, so dragging along an arrow moves along the task.
+The gizmo's arrows are the plane's axes u, v and its normal, so dragging along an arrow moves
+along the task.
 """
 
 from __future__ import annotations
@@ -48,13 +50,16 @@ def default_view(plane: TaskPlane, distance_m: float = VIEW_DISTANCE_M) -> Camer
     origin = np.asarray(plane.origin, dtype=np.float64)
     z = np.array([0.0, 0.0, 1.0])
     normal = plane.normal / np.linalg.norm(plane.normal)
-    if float(normal @ origin) < 0.0:  # point away from the robot base at the world origin
-        normal = -normal
     away = np.array([origin[0], origin[1], 0.0])
     norm = float(np.linalg.norm(away))
     away = away / norm if norm > 1e-9 else np.array([1.0, 0.0, 0.0])
-    direction = normal + 0.9 * away + 0.35 * z + 0.3 * np.cross(z, away)
-    direction /= np.linalg.norm(direction)
+    side = np.cross(z, away)
+    if abs(float(normal @ z)) > 0.7:  # a table: look down from in front of the robot
+        direction = z + 0.9 * away + 0.3 * side
+    else:  # a board: from the robot's side of it, to the side of the arm
+        toward_robot = normal if float(normal @ -origin) > 0.0 else -normal
+        direction = toward_robot + 1.1 * side + 0.45 * z
+    direction = direction / np.linalg.norm(direction)
     return CameraView(origin + distance_m * direction, origin.copy(), z)
 
 
