@@ -18,12 +18,12 @@ import logging
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from bt_pipeline.data.moderation import is_excluded
-from bt_pipeline.data.records import FloatArray, Recording
+from bt_pipeline.data.records import DemoRecord, FloatArray, Recording
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.cleaning import cleaned_path, task_dir
@@ -192,16 +192,12 @@ def _raw_tracks(recordings: list[Recording]) -> tuple[ReplayTrack, ...]:
                 warnings.append("clamped")
             if isinstance(meta.get("ik_failures"), int) and meta["ik_failures"] > 0:
                 warnings.append("ik_failures")
-            track = ReplayTrack(
-                key=key,
-                kind="raw",
-                file=recording.path,
-                demo=name,
-                positions=record.ee_pos,
-                times_s=record.timestamps - record.timestamps[0],
-                demonstrator=record.demonstrator,
-                theta_deg=record.theta_deg,
-                rho=record.rho,
+            track = _track(
+                key,
+                "raw",
+                recording.path,
+                name,
+                record,
                 flags=record.flags,
                 excluded=excluded,
                 session=str(meta.get("session", "")),
@@ -233,21 +229,29 @@ def _cleaned_tracks(recording: Recording) -> tuple[ReplayTrack, ...]:
         if demo and demo != "demo_0":
             label = f"{label} · {demo}"
         utility = record.attrs.get("utility_cleaned")
+        utility = None if utility is None else float(utility)
         tracks.append(
-            ReplayTrack(
-                key=f"cleaned · {label}",
-                kind="cleaned",
-                file=recording.path,
-                demo=name,
-                positions=record.ee_pos,
-                times_s=record.timestamps - record.timestamps[0],
-                demonstrator=record.demonstrator,
-                theta_deg=record.theta_deg,
-                rho=record.rho,
-                utility=None if utility is None else float(utility),
-            )
+            _track(f"cleaned · {label}", "cleaned", recording.path, name, record, utility=utility)
         )
     return tuple(tracks)
+
+
+def _track(
+    key: str, kind: TrackKind, file: Path, demo: str, record: DemoRecord, **extra: Any
+) -> ReplayTrack:
+    """A track of `record` (demo `demo` of `file`); `extra` sets the other fields."""
+    return ReplayTrack(
+        key=key,
+        kind=kind,
+        file=file,
+        demo=demo,
+        positions=record.ee_pos,
+        times_s=record.timestamps - record.timestamps[0],
+        demonstrator=record.demonstrator,
+        theta_deg=record.theta_deg,
+        rho=record.rho,
+        **extra,
+    )
 
 
 def plural(n: int, noun: str) -> str:

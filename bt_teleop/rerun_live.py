@@ -230,7 +230,7 @@ class RerunHub:
         grpc_port: int = 9876,
         web_port: int = 9090,
         memory_limit: str = "256MiB",
-        newest_first: bool = True,
+        newest_first: bool = False,
     ) -> None:
         """Start serving (``serve``); nothing is started for ``save`` and ``off``.
 

@@ -10,9 +10,7 @@ from __future__ import annotations
 import math
 import threading
 import urllib.request
-from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -27,21 +25,9 @@ from bt_teleop.replay import load_library, replay_sync
 from bt_teleop.rerun_live import RerunHub, SessionLogger
 from bt_teleop.script import run_script
 from bt_teleop.session import Session
-from bt_teleop.testing import FakeTab, app_factory, tab_factory, wait_until
+from bt_teleop.testing import guide_script, wait_until
 from bt_teleop.ui import ClientUI
 from bt_teleop.viewer import Trail, guide_loop_world
-
-
-@pytest.fixture
-def make_app(tmp_path: Path) -> Iterator[Callable[..., TeleopApp]]:
-    with app_factory(tmp_path / "recordings") as make:
-        yield make
-
-
-@pytest.fixture
-def tabs() -> Iterator[Callable[..., FakeTab]]:
-    with tab_factory() as open_tab:
-        yield open_tab
 
 
 def only_session(app: TeleopApp) -> ClientUI:
@@ -178,27 +164,11 @@ def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
 # -- clean and replay ---------------------------------------------------------------------------
 
 
-def circle_script(rho: float, theta_deg: float) -> dict[str, Any]:
-    """A 3 s scripted take along the wiping guide under (θ, ρ) (the scripted operator's JSON)."""
-    from bt_pipeline.data.shapes import canonical_loop, similarity_transform
-
-    loop = similarity_transform(canonical_loop("wiping", 30), theta_deg, rho)
-    times = np.linspace(0.0, 3.0, 31)
-    rows = np.column_stack([times, np.vstack([loop, loop[:1]])])
-    return {
-        "task": "wiping",
-        "demonstrator": f"r{rho}",
-        "theta_deg": theta_deg,
-        "rho": rho,
-        "waypoints": rows.tolist(),
-    }
-
-
 @pytest.fixture
 def three_recordings(tmp_path: Path) -> Path:
     root = tmp_path / "recordings"
     for rho, theta in ((0.8, 0.0), (1.0, 5.0), (0.7, -5.0)):
-        run_script(circle_script(rho, theta), root)
+        run_script(guide_script(f"r{rho}", theta, rho), root)
     return root
 
 

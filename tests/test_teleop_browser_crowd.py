@@ -10,16 +10,14 @@ import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
 import pytest
 from playwright.sync_api import Page, expect
 
 from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.recording import read_recording
-from bt_pipeline.data.shapes import canonical_loop, similarity_transform
 from bt_teleop.app import TeleopApp
 from bt_teleop.script import run_script
-from bt_teleop.testing import app_factory, chromium_page, wait_until
+from bt_teleop.testing import app_factory, chromium_page, guide_script, wait_until
 from bt_teleop.ui import ClientUI
 
 PAGE_TIMEOUT_MS = 90_000
@@ -35,16 +33,7 @@ def page() -> Iterator[Page]:
 
 def guide_take(root: Path, rho: float, theta_deg: float, name: str) -> Path:
     """A scripted 3 s take along the wiping guide (a careful demonstrator)."""
-    loop = similarity_transform(canonical_loop("wiping", 30), theta_deg, rho)
-    rows = np.column_stack([np.linspace(0.0, 3.0, 31), np.vstack([loop, loop[:1]])])
-    script = {
-        "task": "wiping",
-        "demonstrator": name,
-        "theta_deg": theta_deg,
-        "rho": rho,
-        "waypoints": rows.tolist(),
-    }
-    return run_script(script, root)
+    return run_script(guide_script(name, theta_deg, rho), root)
 
 
 def open_tab(page: Page, app: TeleopApp) -> ClientUI:

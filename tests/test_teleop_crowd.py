@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -21,38 +21,11 @@ from bt_teleop.cleaning import clean_task
 from bt_teleop.library import library_markdown, load_library
 from bt_teleop.rerun_live import RerunHub, session_blueprint
 from bt_teleop.script import run_script
-from bt_teleop.testing import FakeTab, app_factory, tab_factory, wait_until
+from bt_teleop.testing import FakeTab, guide_script, wait_until
 from bt_teleop.ui import ClientUI
 from bt_teleop.ui_panels import NO_DEMOS
 
 TOKEN = "operator-secret-1"
-
-
-@pytest.fixture
-def make_app(tmp_path: Path) -> Iterator[Callable[..., TeleopApp]]:
-    with app_factory(tmp_path / "recordings") as make:
-        yield make
-
-
-@pytest.fixture
-def tabs() -> Iterator[Callable[..., FakeTab]]:
-    with tab_factory() as open_tab:
-        yield open_tab
-
-
-def guide_script(rho: float, theta_deg: float, name: str, seconds: float = 3.0) -> dict:
-    """A scripted take along the wiping guide under (θ, ρ)."""
-    from bt_pipeline.data.shapes import canonical_loop, similarity_transform
-
-    loop = similarity_transform(canonical_loop("wiping", 30), theta_deg, rho)
-    times = np.linspace(0.0, seconds, 31)
-    return {
-        "task": "wiping",
-        "demonstrator": name,
-        "theta_deg": theta_deg,
-        "rho": rho,
-        "waypoints": np.column_stack([times, np.vstack([loop, loop[:1]])]).tolist(),
-    }
 
 
 def still_script(name: str) -> dict:
@@ -103,7 +76,7 @@ def test_a_junk_take_is_saved_flagged_says_why_and_can_be_discarded(make_app, ta
 
 def test_flagged_and_excluded_demos_are_never_best_nor_scored(tmp_path: Path) -> None:
     root = tmp_path / "rec"
-    good = [run_script(guide_script(r, t, f"g{r}"), root) for r, t in ((0.8, 0.0), (1.0, 5.0))]
+    good = [run_script(guide_script(f"g{r}", t, r), root) for r, t in ((0.8, 0.0), (1.0, 5.0))]
     library = load_library(root, "wiping")
     alone = {t.file: t.utility for t in library.raw}
     junk = run_script(still_script("junk"), root)
@@ -126,7 +99,7 @@ def test_flagged_and_excluded_demos_are_never_best_nor_scored(tmp_path: Path) ->
 def test_clean_skips_flagged_and_excluded_demos(tmp_path: Path) -> None:
     root = tmp_path / "rec"
     good = [
-        run_script(guide_script(r, t, f"g{r}"), root)
+        run_script(guide_script(f"g{r}", t, r), root)
         for r, t in ((0.8, 0.0), (1.0, 5.0), (0.9, -5.0))
     ]
     junk = run_script(still_script("junk"), root)
@@ -153,7 +126,7 @@ def test_clean_without_recordings_names_no_server_path(tmp_path: Path) -> None:
 
 def test_a_tab_moderates_its_own_demos_and_an_operator_anyones(make_app, tabs, tmp_path) -> None:
     root = tmp_path / "recordings"
-    theirs = run_script(guide_script(1.0, 0.0, "someone"), root)  # another session's demo
+    theirs = run_script(guide_script("someone"), root)  # another session's demo
     app = make_app(operator_token=TOKEN)
     ui = tab_ui(app, tabs, 1)
     mine = record(ui, 0.5)
@@ -213,7 +186,7 @@ def test_small_things_of_the_page(make_app, tabs, tmp_path) -> None:
     assert c.theta_deg == 12.0  # the last valid value, not NaN and not a blank box
     c.theta_input._impl.value = ""
     assert c.theta_deg == 12.0
-    run_script(guide_script(1.0, 0.0, "solo"), tmp_path / "recordings")
+    run_script(guide_script("solo"), tmp_path / "recordings")
     app.versions.bump("wiping")
     wait_until(lambda: ui.library is not None and len(ui.library.raw) == 1, what="library")
     assert "1 demo of wiping" in c.library_text.content and "1 demos" not in c.library_text.content
