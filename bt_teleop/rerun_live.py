@@ -36,6 +36,7 @@ import queue
 import threading
 import urllib.parse
 from collections.abc import Callable
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Literal, get_args
@@ -48,7 +49,7 @@ from bt_pipeline.clean.pipeline import TaskCleanResult
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError
-from bt_teleop.escape import display_text
+from bt_teleop.escape import display_text, markdown_text
 from bt_teleop.naming import utc_stamp
 from bt_teleop.rerun_proxy import RerunProxy
 
@@ -158,8 +159,14 @@ class SessionLogger:
         and Stage 1's DMP rollouts behind V_E (reproduced with the job's `seed`)."""
         from bt_pipeline.viz.rerun_clean import log_clean_result
 
+        # Names typed in browsers reach the viewer's Markdown summary: escape them (escape.py).
+        demos = tuple(
+            replace(d, demonstrator=markdown_text(d.demonstrator, 40)) for d in result.demos
+        )
+        shown = replace(result, demos=demos)
+
         def job(rec: rr.RecordingStream) -> None:
-            log_clean_result(rec, result)
+            log_clean_result(rec, shown)
             rec.log(f"{result.task}/plane/rollouts", rr.LineStrips2D(_rollouts(result, seed)))
 
         self._submit(job)

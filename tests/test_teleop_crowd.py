@@ -99,8 +99,8 @@ def test_flagged_and_excluded_demos_are_never_best_nor_scored(tmp_path: Path) ->
 def test_clean_skips_flagged_and_excluded_demos(tmp_path: Path) -> None:
     root = tmp_path / "rec"
     good = [
-        run_script(guide_script(f"g{r}", t, r), root)
-        for r, t in ((0.8, 0.0), (1.0, 5.0), (0.9, -5.0))
+        run_script(guide_script(name, t, r), root)
+        for name, r, t in (("<script>x</script> |", 0.8, 0.0), ("g1", 1.0, 5.0), ("g2", 0.9, -5.0))
     ]
     junk = run_script(still_script("junk"), root)
     from bt_pipeline.clean.pipeline import CleanOptions
@@ -113,6 +113,24 @@ def test_clean_skips_flagged_and_excluded_demos(tmp_path: Path) -> None:
     sources = [str(d.attrs.get("cleaned_from", "")) for d in read_recording(output).demos.values()]
     assert len(result.demos) == 2
     assert all(str(junk) not in s and str(good[2]) not in s for s in sources)
+
+    # The live viewer gets the result with the names escaped, and the DMP rollouts.
+    import rerun as rr
+
+    hub = RerunHub("save", tmp_path / "rr")
+    logger = hub.session_logger("clean")
+    logger.log_clean_result(result, seed=0)
+    logger.close()
+    (rrd,) = (tmp_path / "rr" / "rerun").glob("*.rrd")
+    summary, rollouts = "", 0
+    for chunk in rr.chunk.RrdReader(rrd).stream().to_chunks():
+        batch = chunk.to_record_batch()
+        if str(chunk.entity_path) == "/wiping/summary":
+            summary += " ".join(str(v) for v in batch.column(batch.num_columns - 1).to_pylist())
+        if str(chunk.entity_path) == "/wiping/plane/rollouts":
+            rollouts += chunk.num_rows
+    assert "&#60;script&#62;" in summary and "<script>" not in summary
+    assert rollouts >= 1
 
 
 def test_clean_without_recordings_names_no_server_path(tmp_path: Path) -> None:
