@@ -12,6 +12,8 @@ text that renders as exactly the characters typed (minus invisible control chara
                          or HTML written as a numeric character reference (``&#60;`` for ``<``),
                          so it renders as text inside paragraphs and table cells alike
     html_text(s)      -> display_text, then HTML-escaped (``add_html`` content, attributes)
+    breakable(s)      -> plain text that may wrap after ``_ - / .`` (a zero-width space):
+                         notifications show long file names whole instead of cutting them
 
 What is stored keeps the name as typed (:func:`bt_teleop.naming.clean_demonstrator`); file
 names are sanitised separately (:func:`bt_teleop.naming.sanitize_name`).
@@ -22,7 +24,9 @@ from __future__ import annotations
 import html
 import unicodedata
 
-__all__ = ["MARKDOWN_SPECIALS", "display_text", "html_text", "markdown_text"]
+__all__ = ["MARKDOWN_SPECIALS", "breakable", "display_text", "html_text", "markdown_text"]
+
+ZERO_WIDTH_SPACE = "\u200b"
 
 MARKDOWN_SPECIALS = frozenset("\\`*_{}[]()<>#+-.!|~&\"'=:;/$@^%")
 """Characters written as character references by :func:`markdown_text`."""
@@ -83,3 +87,10 @@ def html_text(text: object, max_chars: int = 64) -> str:
         max_chars: Longest shown text [characters] before escaping (see :func:`display_text`).
     """
     return html.escape(display_text(text, max_chars), quote=True)
+
+
+def breakable(text: object, max_chars: int = 300) -> str:
+    """:func:`display_text` with a zero-width space after every ``_``, ``-``, ``/`` and ``.``,
+    so a narrow box (a notification) wraps a long file name instead of cutting it."""
+    line = display_text(text, max_chars)
+    return "".join(ch + ZERO_WIDTH_SPACE if ch in "_-/." else ch for ch in line)

@@ -16,8 +16,8 @@ Data flow (everything a tab does stays in the tab)::
 Callbacks never block: they store a value or queue a command. The worker is the only thread
 that changes the tab's scene and the only one that swaps its Session (task switch).
 
-The parts live beside it: the panels in :mod:`bt_teleop.ui_panels`, the 3-D view in
-:mod:`bt_teleop.tab_scene`, what every tab shares in :mod:`bt_teleop.ui_context`.
+Beside it: panels :mod:`~bt_teleop.ui_panels`, takes and moderation :mod:`~bt_teleop.ui_takes`,
+3-D view :mod:`~bt_teleop.tab_scene`, what tabs share :mod:`~bt_teleop.ui_context`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.cleaning import CleanJob
-from bt_teleop.escape import display_text
+from bt_teleop.escape import breakable, display_text
 from bt_teleop.library import TaskLibrary, library_markdown, load_library
 from bt_teleop.replay import ReplayPlayer
 from bt_teleop.rerun_live import SessionLogger
@@ -141,7 +141,7 @@ class ClientUI:
         """Become an operator when `typed` is the app's operator token (else stop being one)."""
         self.takes.set_operator_token(typed)
 
-    def reset_view(self, client_id: int | None = None) -> None:
+    def reset_view(self) -> None:
         """Put the camera back to the task's default view."""
         self._queue(lambda: TabScene.frame(self.client.camera, self.session.scene))
 
@@ -412,9 +412,9 @@ class ClientUI:
         self.tab_scene.clear_replay_paths()
 
     def _notify(self, title: str, body: str, color: Any = None) -> None:
-        body = "\n".join(display_text(line, 300) for line in body.split("\n"))  # see escape.py
-        self.messages.append((title, body))
+        self.messages.append((title, "\n".join(display_text(x, 300) for x in body.split("\n"))))
+        shown = "\n".join(map(breakable, body.split("\n")))  # escape.py; wraps long names
         try:
-            self.client.add_notification(title, body, auto_close_seconds=6.0, color=color)
+            self.client.add_notification(title, shown, auto_close_seconds=6.0, color=color)
         except Exception:  # the tab may be gone
             LOGGER.debug("notification not shown: %s: %s", title, body)

@@ -51,7 +51,7 @@ class TabActions(Protocol):
     def redraw_guide(self) -> None: ...
     def set_stay_on_plane(self, on: bool) -> None: ...
     def set_gripper(self, open: bool) -> None: ...
-    def reset_view(self, client_id: int | None) -> None: ...
+    def reset_view(self) -> None: ...
     def discard_take(self) -> None: ...
     def moderate(self, action: str, key: str) -> None: ...
     def set_operator_token(self, typed: str) -> None: ...
@@ -128,10 +128,6 @@ class TabControls:
             self._rho = _finite_or(self.rho_input, self._rho)
             tab.redraw_guide()
 
-        @self.reset_view_button.on_click
-        async def _(event: viser.GuiEvent) -> None:
-            tab.reset_view(None if event.client is None else event.client.client_id)
-
         @self.moderate_input.on_update
         async def _(_: viser.GuiEvent) -> None:
             self._moderation_buttons()
@@ -163,6 +159,7 @@ class TabControls:
             (self.clean_button, tab.clean),
             (self.stop_replay_button, tab.stop_replay),
             (self.discard_take_button, tab.discard_take),
+            (self.reset_view_button, tab.reset_view),
         ):
             button.on_click(_async_action(action))
 

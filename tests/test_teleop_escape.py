@@ -10,7 +10,7 @@ import re
 import pytest
 from markdown_it import MarkdownIt
 
-from bt_teleop.escape import display_text, html_text, markdown_text
+from bt_teleop.escape import breakable, display_text, html_text, markdown_text
 
 HOSTILE = [
     "<script>alert(1)</script>",
@@ -74,3 +74,11 @@ def test_long_text_is_cut_with_an_ellipsis() -> None:
 def test_html_text_escapes_markup_and_quotes() -> None:
     assert html_text('<a href="x">') == "&lt;a href=&quot;x&quot;&gt;"
     assert html_text("it's") == "it&#x27;s"
+
+
+def test_breakable_text_wraps_at_separators_and_reads_the_same() -> None:
+    name = "script-alert-1-script_20261201T173559Z_4d9f83.hdf5"
+    text = breakable(name)
+    assert text.replace("\u200b", "") == name
+    assert max(len(part) for part in text.split("\u200b")) <= 17  # no long unbreakable run
+    assert breakable("<b>x</b>\x00") == "<b>x</\u200bb>"  # plain text, controls gone
