@@ -209,6 +209,12 @@ def test_small_things_of_the_page(make_app, tabs, tmp_path) -> None:
     wait_until(lambda: ui.library is not None and len(ui.library.raw) == 1, what="library")
     assert "1 demo of wiping" in c.library_text.content and "1 demos" not in c.library_text.content
     assert not c.play_button.disabled
+    from bt_teleop.cleaning import CleanProgress
+
+    c.show_clean_progress(CleanProgress("wiping", "running", 0, 10, "reading"), this_task=True)
+    assert c.clean_progress.visible and c.clean_progress.value > 0.0  # never an empty bar
+    c.show_clean_progress(CleanProgress("wiping", "running", 5, 10, "epoch 5"), this_task=True)
+    assert c.clean_progress.value == pytest.approx(50.0)
 
 
 # -- Rerun --------------------------------------------------------------------------------------
