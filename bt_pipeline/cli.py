@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json as jsonlib
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import Annotated, Literal
@@ -127,6 +128,7 @@ def teleop(
     recordings: Path = Path("recordings"),
     rerun: Literal["serve", "save", "off"] = "serve",
     max_sessions: int = 8,
+    operator_token: str | None = None,
     script: Path | None = None,
 ) -> None:
     """Open the teleoperation web app: drag a target, a simulated FR3 follows; record demos.
@@ -141,6 +143,9 @@ def teleop(
         rerun: "serve" streams to Rerun's web viewer on localhost, "save" writes .rrd files next
             to the recordings, "off" disables Rerun.
         max_sessions: Most browser tabs at once; more get a "full, try later" message.
+        operator_token: A secret (at least 8 characters); a tab that types it in the Recordings
+            panel may exclude or restore anyone's demo. Without it, a tab moderates only its own
+            demos. $BT_OPERATOR_TOKEN is used when the flag is not given.
         script: Run a scripted operator (JSON) without a browser: record, save, print the path.
     """
     if script is not None:
@@ -158,6 +163,7 @@ def teleop(
             recordings=recordings,
             rerun=rerun,
             max_sessions=max_sessions,
+            operator_token=operator_token or os.environ.get("BT_OPERATOR_TOKEN") or None,
         )
     )
 

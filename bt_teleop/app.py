@@ -70,6 +70,9 @@ class AppOptions:
     """serve (live web viewer), save (.rrd files) or off."""
     max_sessions: int = 8
     """Most browser tabs with a robot at once."""
+    operator_token: str | None = None
+    """Typed into a tab's *Operator token* box, lets that tab exclude or restore anyone's demo
+    (None: every tab moderates only its own demos)."""
     save_incomplete: bool = True
     """A closed tab's recording in progress: save it flagged incomplete, or discard it."""
     publish_hz: float = 30.0
@@ -84,6 +87,9 @@ class AppOptions:
     """Preferred port of Rerun's gRPC server (serve mode)."""
     rerun_web_port: int = 9090
     """Preferred port of Rerun's web viewer (serve mode)."""
+    rerun_newest_first: bool = False
+    """A Rerun viewer that connects late gets the newest data first (serve mode; off: with 4
+    sessions it lagged more in benchmarks/bench_teleop_rerun.py)."""
     session: SessionConfig = field(default_factory=SessionConfig)
     """Control and recording rates of every session."""
     fancy_lighting: bool = False
@@ -99,6 +105,8 @@ class AppOptions:
             raise ConfigError(
                 f"unknown --rerun {self.rerun!r}; valid values are {', '.join(RERUN_MODES)}"
             )
+        if self.operator_token is not None and len(self.operator_token) < 8:
+            raise ConfigError("--operator-token must have at least 8 characters")
         if not (self.publish_hz > 0.0 and self.publish_hz <= 240.0):
             raise ConfigError(f"publish_hz must be in (0, 240]; got {self.publish_hz}")
         parse_robot(self.robot)
@@ -127,8 +135,10 @@ class TeleopApp:
         self.rerun = RerunHub(
             options.rerun,
             options.recordings,
+            host=options.host,
             grpc_port=options.rerun_grpc_port,
             web_port=options.rerun_web_port,
+            newest_first=options.rerun_newest_first,
         )
         self.versions = TaskVersions()
         self.cleaner = CleanRunner(
@@ -152,6 +162,7 @@ class TeleopApp:
             publish_hz=options.publish_hz,
             save_incomplete=options.save_incomplete,
             initial_task=options.initial_task,
+            operator_token=options.operator_token,
             fancy_lighting=options.fancy_lighting,
             event_loop=self.server.get_event_loop(),
         )

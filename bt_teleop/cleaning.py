@@ -35,7 +35,7 @@ from typing import Any, Literal
 
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
 from bt_pipeline.data.tasks import Task, parse_task
-from bt_pipeline.exceptions import BtError, ConfigError, DemoError
+from bt_pipeline.exceptions import BtError, ConfigError, DemoError, RecordingError
 
 CLEANED_DIRNAME = ".cleaned"
 """Folder under the recordings root that holds cleaned output (hidden: never scanned as input)."""
@@ -293,34 +293,55 @@ def clean_task(
     Returns:
         The cleaned file and the cleaner's result.
 
+    Demos flagged by the take checks (attr ``flags``) and excluded files are skipped (logged).
+
     Raises:
         RecordingError: No readable recordings.
-        DemoError: No demos, or a demo that cannot be cleaned.
+        DemoError: No usable demos, or a demo that cannot be cleaned.
     """
     from bt_pipeline.clean.driver import cleaned_recording
     from bt_pipeline.data.demo import demos_from_recording
+    from bt_pipeline.data.moderation import is_excluded
     from bt_pipeline.data.paths import expand_paths
     from bt_pipeline.data.recording import read_recordings, write_recording
 
     options = options or CleanOptions(progress=False)
     parsed = parse_task(task)
     source_dir = task_dir(recordings_dir, parsed)
-    if not source_dir.is_dir():
-        raise DemoError(f"no recordings of {parsed} yet: {source_dir} does not exist")
-    recordings = [r for r in read_recordings(expand_paths([source_dir]), strict=False)]
+    try:
+        files = expand_paths([source_dir]) if source_dir.is_dir() else []
+    except RecordingError:  # an empty folder
+        files = []
+    if not files:  # the message names no server path: the page shows it
+        raise DemoError(f"no recordings of {parsed} yet: record some demos first")
+    recordings = [r for r in read_recordings(files, strict=False)]
     sources = {}
     records = {}
     demos = []
+    skipped: list[str] = []
     for recording in recordings:
         if recording.task != parsed:
             LOGGER.warning("skipping %s: it holds %s demos", recording.path, recording.task)
             continue
         label = str(recording.path) if recording.path else ""
-        sources[label] = recording
-        records.update({(label, name): rec for name, rec in recording.demos.items()})
-        demos.extend(demos_from_recording(recording, options.n_samples, file=label))
+        if recording.path is not None and is_excluded(recording.path):
+            skipped.append(f"{recording.path.name} (excluded)")
+            continue
+        usable = {name: rec for name, rec in recording.demos.items() if not rec.flags}
+        for name, rec in recording.demos.items():
+            if rec.flags:  # a take that failed the app's checks (docs/teleop.md)
+                skipped.append(f"{Path(label).name}:{name} ({','.join(rec.flags)})")
+        if not usable:
+            continue
+        kept = replace(recording, demos=usable)
+        sources[label] = kept
+        records.update({(label, name): rec for name, rec in usable.items()})
+        demos.extend(demos_from_recording(kept, options.n_samples, file=label))
+    for note in skipped:
+        LOGGER.info("clean %s: skipping %s", parsed, note)
     if not demos:
-        raise DemoError(f"no demos of {parsed} found in {source_dir}")
+        why = f" ({len(skipped)} skipped: flagged or excluded)" if skipped else ""
+        raise DemoError(f"no usable demos of {parsed} to clean{why}")
     result = clean_demos(
         demos, options, on_epoch=None if on_epoch is None else lambda s: on_epoch(s.epoch)
     )

@@ -15,7 +15,7 @@ never share a file.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -115,6 +115,10 @@ class DemoRecorder:
         self._gripper.append(float(gripper_opening_m))
         self._states.append(np.array(state, dtype=np.float64))
         self.clamped_samples += int(clamped)
+
+    def times(self) -> FloatArray:
+        """Sample times from the first sample, shape (T,) [s] (a copy)."""
+        return np.array(self._t, dtype=np.float64)
 
     def ee_positions(self) -> FloatArray:
         """End-effector positions so far, shape (T, 3) [m] (a copy, e.g. for a trail)."""
@@ -226,10 +230,14 @@ def finish_demo(
     *,
     incomplete: bool,
     session_id: str,
+    flags: str = "",
     control_hz: float,
     record_hz: float,
 ) -> Path:
     """Turn a recorder's samples into a demo file; returns the file written.
+
+    `flags` is the demo attr ``flags`` (the failed take checks, comma-separated; none when
+    empty).
 
     Raises:
         RecordingError: Too few samples, or the demo cannot be written (nothing is written).
@@ -242,5 +250,7 @@ def finish_demo(
         "ik_failures": recorder.ik_failures,
     }
     demo = recorder.to_demo(ep_meta)
+    if flags:
+        demo = replace(demo, attrs={**demo.attrs, "flags": flags})
     env = env_args(scene, control_hz=control_hz, record_hz=record_hz)
     return save_demo(demo, scene, recordings_dir, env)

@@ -2,10 +2,10 @@
 
 One :class:`RerunHub` per app decides where data goes (``--rerun``):
 
-* ``serve`` (default): a hub stream hosts Rerun's gRPC server and Rerun's bundled web viewer
-  is served over HTTP (``rr.serve_grpc`` + ``rr.serve_web_viewer``); every session streams its
-  own recording (recording id = session id) to that server, so the viewer lists one recording
-  per browser tab. :attr:`RerunHub.viewer_url` is the link the UI shows.
+* ``serve`` (default): Rerun's gRPC proxy and web viewer run as a child process bound to the
+  app's ``--host`` (:mod:`bt_teleop.rerun_proxy`); every session streams its own recording
+  (recording id = session id) to it. :meth:`RerunHub.session_url` is the link a tab shows: the
+  web viewer, connected to the proxy, opened on that tab's own recording.
 * ``save``: every session writes ``<recordings>/rerun/<UTC time>_<session>.rrd`` (the footer is
   written when the session ends). Nothing is served.
 * ``off``: nothing is logged.
@@ -15,31 +15,43 @@ events, which only enqueue; a worker thread does the Rerun calls::
 
     publisher thread --put_nowait--> bounded queue (drops when full) --> worker --> RecordingStream
 
+Robot states reach the stream at most :data:`MAX_STATE_HZ` times per second of simulation
+time, batched: one ``send_columns`` per worker pass. A viewer opened at any time thus has
+little to catch up on (see docs/teleop.md for the measured latency).
+
 Entities of a session's recording (timeline ``sim_time``, simulation seconds of the session):
 ``/ee/position`` (Points3D) and ``/joints`` (Scalars, fr3_joint1..7), sent as columns;
-``/demos/<file stem>`` (static LineStrips3D) when a demo is saved; and after Clean everything
-:func:`bt_pipeline.viz.rerun_clean.log_clean_result` logs under ``/<task>``.
+``/demos/<file stem>`` (static LineStrips3D) when a demo is saved; ``/replay/<raw|cleaned>``
+(LineStrips3D) when a demo is replayed on the robot; after Clean everything
+:func:`bt_pipeline.viz.rerun_clean.log_clean_result` logs under ``/<task>``, plus Stage 1's DMP
+rollouts behind the value map V_E under ``/<task>/plane/rollouts``. The blueprint
+(:func:`session_blueprint`) puts the 3-D robot content in a 3-D view and each task's 2-D plane
+content in 2-D views.
 """
 
 from __future__ import annotations
 
 import logging
 import queue
-import socket
 import threading
 import urllib.parse
 from collections.abc import Callable
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Literal, get_args
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 
 from bt_pipeline.clean.pipeline import TaskCleanResult
 from bt_pipeline.data.records import FloatArray
+from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError
+from bt_teleop.escape import display_text, markdown_text
 from bt_teleop.naming import utc_stamp
+from bt_teleop.rerun_proxy import RerunProxy
 
 RerunMode = Literal["serve", "save", "off"]
 """Where sessions log: a live viewer, .rrd files, or nowhere."""
@@ -55,6 +67,32 @@ LOGGER = logging.getLogger("bt.teleop")
 _Job = Callable[[rr.RecordingStream], None]
 _STOP = object()
 _MAX_PENDING_STATES = 512
+MAX_STATE_HZ = 30.0
+"""Most robot states per second of simulation time that reach the stream."""
+ROLLOUTS_SHOWN = 20
+"""DMP rollouts of the value map drawn per task (of its ``n_rollouts``)."""
+
+
+def session_blueprint() -> rrb.Blueprint:
+    """A session's layout: the robot in 3-D; per task, the cleaner's 2-D views (raw, best, x^d,
+    aligned references, V_E; cleaned) and the DMP rollouts over V_E; all in 2-D views, so no
+    2-D entity sits under a 3-D view."""
+    from bt_pipeline.viz.rerun_clean import task_layout
+
+    live = rrb.Spatial3DView(
+        name="robot: end effector, saved and replayed demos",
+        origin="/",
+        contents=["/ee/**", "/demos/**", "/replay/**"],
+    )
+    tabs: list[rrb.Container | rrb.View] = [live]
+    for task in TASKS:
+        rollouts = rrb.Spatial2DView(
+            name=f"{task}: DMP rollouts behind V_E",
+            origin=f"/{task}",
+            contents=[f"/{task}/plane/value_map", f"/{task}/plane/rollouts/**"],
+        )
+        tabs.append(rrb.Tabs(task_layout(task), rollouts, name=task))
+    return rrb.Blueprint(rrb.Tabs(*tabs), rrb.SelectionPanel(state="collapsed"))
 
 
 class SessionLogger:
@@ -67,6 +105,7 @@ class SessionLogger:
         """Items dropped because the queue was full."""
         self._queue: queue.Queue[object] = queue.Queue(maxsize=queue_size)
         self._states: list[tuple[float, FloatArray, FloatArray]] = []
+        self._next_state_s = -np.inf
         self._flush_pending = False
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -80,10 +119,16 @@ class SessionLogger:
         return self.rec is not None
 
     def log_state(self, sim_time_s: float, ee_pos: FloatArray, joint_pos: FloatArray) -> None:
-        """Queue one robot snapshot: end-effector position (3,) [m], arm joints (7,) [rad]."""
+        """Queue one robot snapshot: end-effector position (3,) [m], arm joints (7,) [rad].
+
+        At most :data:`MAX_STATE_HZ` snapshots per second of simulation time are kept; the
+        others are dropped (a bounded rate)."""
         if self.rec is None:
             return
         with self._lock:
+            if sim_time_s < self._next_state_s - 1e-9:
+                return
+            self._next_state_s = max(self._next_state_s + 1.0 / MAX_STATE_HZ, float(sim_time_s))
             self._states.append((float(sim_time_s), np.array(ee_pos), np.array(joint_pos)))
             if len(self._states) > _MAX_PENDING_STATES:  # the worker is far behind: drop
                 del self._states[0]
@@ -100,11 +145,31 @@ class SessionLogger:
         entity = f"demos/{rr.escape_entity_path_part(name)}"
         self._submit(lambda rec: rec.log(entity, rr.LineStrips3D([path]), static=True))
 
-    def log_clean_result(self, result: TaskCleanResult) -> None:
-        """Queue a Clean job's result (scores, value map, aligned references, cleaned demos)."""
+    def log_replay(self, key: str, ee_pos: FloatArray, kind: str) -> None:
+        """Queue a replayed demo's path (T, 3) [m] as ``/replay/<kind>`` (its label: `key`)."""
+        path = np.array(ee_pos, dtype=np.float32)
+        label = display_text(key, 120)  # see escape.py
+        entity = f"replay/{rr.escape_entity_path_part(kind)}"
+        color = (40, 200, 110) if kind == "cleaned" else (255, 140, 0)
+        strips = rr.LineStrips3D([path], labels=[label], colors=[color])
+        self._submit(lambda rec: rec.log(entity, strips))
+
+    def log_clean_result(self, result: TaskCleanResult, seed: int = 0) -> None:
+        """Queue a Clean job's result (scores, value map, aligned references, cleaned demos)
+        and Stage 1's DMP rollouts behind V_E (reproduced with the job's `seed`)."""
         from bt_pipeline.viz.rerun_clean import log_clean_result
 
-        self._submit(lambda rec: log_clean_result(rec, result))
+        # Names typed in browsers reach the viewer's Markdown summary: escape them (escape.py).
+        demos = tuple(
+            replace(d, demonstrator=markdown_text(d.demonstrator, 40)) for d in result.demos
+        )
+        shown = replace(result, demos=demos)
+
+        def job(rec: rr.RecordingStream) -> None:
+            log_clean_result(rec, shown)
+            rec.log(f"{result.task}/plane/rollouts", rr.LineStrips2D(_rollouts(result, seed)))
+
+        self._submit(job)
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Log what is queued, then flush and close the stream (writes an .rrd footer)."""
@@ -140,6 +205,7 @@ class SessionLogger:
             self._flush_pending = False
         if not states:
             return
+        # One batch per worker pass, whatever its size: the stream gets columns, not rows.
         times = np.array([s[0] for s in states])
         index = [rr.TimeColumn(SIM_TIMELINE, duration=times)]
         ee = np.stack([s[1] for s in states])
@@ -167,21 +233,25 @@ class RerunHub:
         mode: RerunMode,
         recordings_dir: str | Path,
         *,
+        host: str = "127.0.0.1",
         grpc_port: int = 9876,
         web_port: int = 9090,
-        memory_limit: str = "512MiB",
+        memory_limit: str = "256MiB",
+        newest_first: bool = False,
     ) -> None:
         """Start serving (``serve``); nothing is started for ``save`` and ``off``.
 
         Args:
             mode: serve, save or off.
             recordings_dir: Root folder of the recordings (``save`` writes under it).
-            grpc_port: Preferred port of the gRPC server (a free one when busy).
+            host: Interface the proxy and web viewer bind (the app's ``--host``).
+            grpc_port: Preferred port of the gRPC proxy (a free one when busy).
             web_port: Preferred port of the web viewer (a free one when busy).
-            memory_limit: Log data the gRPC server keeps for viewers that connect late.
+            memory_limit: Log data the proxy keeps for viewers that connect late.
+            newest_first: A viewer that connects late gets the newest data first.
 
         Raises:
-            ConfigError: Unknown mode.
+            ConfigError: Unknown mode, or the proxy did not start.
         """
         if mode not in RERUN_MODES:
             valid = ", ".join(RERUN_MODES)
@@ -189,29 +259,38 @@ class RerunHub:
         self.mode: RerunMode = mode
         self.recordings_dir = Path(recordings_dir)
         self.grpc_url: str | None = None
-        """``rerun+http://127.0.0.1:<port>/proxy`` in serve mode."""
+        """``rerun+http://<host>:<port>/proxy`` in serve mode."""
         self.viewer_url: str | None = None
-        """The web viewer, connected to the gRPC server, in serve mode."""
-        self._hub: rr.RecordingStream | None = None
+        """The web viewer, connected to the proxy, in serve mode."""
+        self.proxy: RerunProxy | None = None
         if mode == "serve":
-            self._hub = rr.RecordingStream(APP_ID, recording_id="bt_teleop_hub")
-            grpc = _free_port(grpc_port)
-            self.grpc_url = self._hub.serve_grpc(grpc_port=grpc, server_memory_limit=memory_limit)
-            web = _free_port(web_port)
-            rr.serve_web_viewer(web_port=web, open_browser=False, connect_to=self.grpc_url)
+            self.proxy = RerunProxy(
+                host, grpc_port, web_port, memory_limit, newest_first=newest_first
+            )
+            self.grpc_url = self.proxy.grpc_url
             query = urllib.parse.urlencode({"url": self.grpc_url})
-            self.viewer_url = f"http://localhost:{web}/?{query}"
+            self.viewer_url = f"{self.proxy.web_url}?{query}"
+
+    def session_url(self, session_id: str) -> str | None:
+        """The web viewer opened on session `session_id`'s own recording (serve mode only)."""
+        if self.proxy is None or self.grpc_url is None:
+            return None
+        route = "about:recording?" + urllib.parse.urlencode(
+            {"app_id": APP_ID, "recording_id": session_id}
+        )
+        query = urllib.parse.urlencode([("url", self.grpc_url), ("url", route)])
+        return f"{self.proxy.web_url}?{query}"
 
     def session_logger(self, session_id: str, queue_size: int = 64) -> SessionLogger:
-        """A logger for one session (one recording, id `session_id`)."""
+        """A logger for one session (one recording, id `session_id`), its blueprint sent."""
         if self.mode == "off":
             return SessionLogger(None)
         rec = rr.RecordingStream(APP_ID, recording_id=session_id, send_properties=False)
         if self.mode == "serve":
             assert self.grpc_url is not None
-            rec.connect_grpc(self.grpc_url)
+            rec.connect_grpc(self.grpc_url, default_blueprint=session_blueprint())
         else:
-            rec.save(self.rrd_path(session_id))
+            rec.save(self.rrd_path(session_id), default_blueprint=session_blueprint())
         rec.send_recording_name(f"bt teleop session {session_id}")
         return SessionLogger(rec, queue_size)
 
@@ -223,22 +302,21 @@ class RerunHub:
         return folder / f"{utc_stamp(datetime.now(UTC))}_{safe}.rrd"
 
     def close(self) -> None:
-        """Stop the gRPC server (the web viewer's HTTP server lives until the process exits)."""
-        if self._hub is not None:
-            self._hub.disconnect()
-            self._hub = None
+        """Stop the proxy and web viewer (serve mode)."""
+        if self.proxy is not None:
+            self.proxy.close()
+            self.proxy = None
 
 
-def _free_port(preferred: int) -> int:
-    """`preferred` if it can be bound on every interface (as Rerun binds), else a free port."""
-    for candidate in (preferred, 0):
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-            try:
-                probe.bind(("0.0.0.0", candidate))  # Rerun binds all interfaces
-            except OSError:
-                continue
-            return int(probe.getsockname()[1])
-    raise ConfigError("no free port for Rerun")
+def _rollouts(result: TaskCleanResult, seed: int) -> list[FloatArray]:
+    """Stage 1's DMP rollouts behind V_E (paper Sec. III-B step 3), as the cleaner ran them
+    (default value-map settings, the job's seed): the first :data:`ROLLOUTS_SHOWN`, (spp, 2)."""
+    from bt_pipeline.clean.stage1.value_map import ValueMapConfig, rollout_states
+
+    config = ValueMapConfig()
+    states = rollout_states(result.stage1.dmp, result.stage1.reference, config, seed)
+    paths = states.reshape(config.n_rollouts, config.samples_per_period, 2)
+    return [p.astype(np.float32) for p in paths[:ROLLOUTS_SHOWN]]
 
 
-__all__ = ["APP_ID", "RERUN_MODES", "RerunHub", "RerunMode", "SessionLogger"]
+__all__ = ["APP_ID", "RERUN_MODES", "RerunHub", "RerunMode", "SessionLogger", "session_blueprint"]

@@ -43,7 +43,7 @@ from bt_teleop.ik import IkController
 from bt_teleop.recorder import DemoInfo, site_quat
 from bt_teleop.scene import HOME_KEY, SceneModel, load_scene
 from bt_teleop.session_config import SessionConfig, SessionStatus, whole_steps
-from bt_teleop.session_recording import RecordingSlot
+from bt_teleop.session_recording import RecordingSlot, SavedTake
 from bt_teleop.workspace import (
     project_onto_plane,
     slew_toward,
@@ -176,6 +176,11 @@ class Session:
             ConfigError: Nothing is being recorded.
             RecordingError: The demo is too short (it is discarded) or cannot be written.
         """
+        return self.stop_and_check().path
+
+    def stop_and_check(self) -> SavedTake:
+        """:meth:`stop_and_save`, also returning what the take checks found (a take that fails
+        them is saved with the demo attr ``flags``)."""
         with self._state_lock:
             recorder = self._demo.take()
             if recorder is None:

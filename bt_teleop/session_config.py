@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.ik import IkSettings
+from bt_teleop.take_checks import TakeCheckConfig
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,8 @@ class SessionConfig:
     incomplete (True) or discard it (False)."""
     ik: IkSettings = field(default_factory=IkSettings)
     """IK weights and limits."""
+    take_checks: TakeCheckConfig = field(default_factory=TakeCheckConfig)
+    """Thresholds of the checks on Stop & save (:mod:`bt_teleop.take_checks`)."""
 
     def __post_init__(self) -> None:
         for name in ("control_hz", "record_hz", "max_speed_m_s", "max_turn_rad_s", "max_lag_s"):

@@ -5,8 +5,10 @@
     start(info, data, tick)        the first sample is the current state (timestamp 0)
     sample_due(data, tick)         every 1 / record_hz of simulation time: one sample
     take() -> DemoRecorder | None  stop: the samples leave the slot (save or drop them)
-    save(recorder)                 Stop & save: a new format-v1 file, written atomically
-    save_incomplete(recorder)      a closed tab: flagged ``incomplete`` in ep_meta, or dropped
+    save(recorder) -> SavedTake    Stop & save: the take checks (bt_teleop.take_checks), then
+                                   a new format-v1 file with attr ``flags``, written atomically
+    save_incomplete(recorder)      a closed tab: flagged ``closed_mid_take`` (and ep_meta
+                                   ``incomplete``), or dropped
 
 :class:`RecordingSlot` holds no lock of its own: :class:`bt_teleop.session.Session` calls it
 under its state lock, except :meth:`RecordingSlot.save`, which it calls after taking the
@@ -20,6 +22,7 @@ recorder out, so disk I/O never stalls the control loop.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -30,10 +33,21 @@ from bt_pipeline.exceptions import ConfigError
 from bt_teleop.recorder import DemoInfo, DemoRecorder, finish_demo, take_sample
 from bt_teleop.scene import SceneModel
 from bt_teleop.session_config import SessionConfig, whole_steps
+from bt_teleop.take_checks import TakeCheck, check_take
 
-__all__ = ["RecordingSlot"]
+__all__ = ["RecordingSlot", "SavedTake"]
 
 LOGGER = logging.getLogger("bt.teleop")
+
+
+@dataclass(frozen=True)
+class SavedTake:
+    """A take written to disk, with what the take checks found."""
+
+    path: Path
+    """The file written."""
+    check: TakeCheck
+    """The checks' result (its flags are the demo attr ``flags``)."""
 
 
 class RecordingSlot:
@@ -94,27 +108,44 @@ class RecordingSlot:
         recorder, self._recorder = self._recorder, None
         return recorder
 
-    def save(self, recorder: DemoRecorder, *, incomplete: bool = False) -> Path:
-        """Write `recorder`'s demo to a new file; returns its path.
+    def check(self, recorder: DemoRecorder, *, incomplete: bool = False) -> TakeCheck:
+        """The take checks of `recorder`'s demo (``closed_mid_take`` when `incomplete`)."""
+        info = recorder.info
+        return check_take(
+            recorder.ee_positions(),
+            recorder.times(),
+            task=self.scene.task,
+            plane=self.scene.plane,
+            theta_deg=info.theta_deg,
+            rho=info.rho,
+            closed_mid_take=incomplete,
+            config=self.config.take_checks,
+        )
+
+    def save(self, recorder: DemoRecorder, *, incomplete: bool = False) -> SavedTake:
+        """Check `recorder`'s demo and write it to a new file, flagged when a check failed.
 
         Raises:
-            RecordingError: The demo is too short (nothing is written) or cannot be written.
+            RecordingError: The demo has fewer samples than the format allows (nothing is
+                written) or cannot be written.
         """
+        check = self.check(recorder, incomplete=incomplete)
         path = finish_demo(
             recorder,
             self.scene,
             self.recordings_dir,
             incomplete=incomplete,
             session_id=self.session_id,
+            flags=check.attr,
             control_hz=self.config.control_hz,
             record_hz=self.config.record_hz,
         )
-        LOGGER.info("session %s saved %s", self.session_id, path)
-        return path
+        LOGGER.info("session %s saved %s %s", self.session_id, path, check.attr)
+        return SavedTake(path, check)
 
     def save_incomplete(self, recorder: DemoRecorder | None, keep: bool) -> Path | None:
-        """Settle a demo cut short: saved flagged ``incomplete`` when `keep` and it has at least
-        the minimum number of samples, else dropped; the file saved, or None."""
+        """Settle a demo cut short: saved flagged ``closed_mid_take`` when `keep` and it has at
+        least the minimum number of samples, else dropped; the file saved, or None."""
         if recorder is None or not keep or recorder.n_samples < MIN_SAMPLES:
             return None
-        return self.save(recorder, incomplete=True)
+        return self.save(recorder, incomplete=True).path

@@ -5,6 +5,7 @@ the task-shape guide, the live trail and replayed paths, drawn into the tab's ow
 
     TabScene(scene_api, task scene, on_drag)   lighting, robot, gizmo, marker, floor, trail
     show_task(task scene)                      a task switch: redraw robot, gizmo, marker, floor
+    frame(camera, task scene)                  the task's default camera (and "Reset view")
     draw_guide(task scene, θ, ρ)               the blue loop the demonstrator traces
     show(status, trail)                        one frame (inside the tab's ``client.atomic()``)
     draw_replay_paths / clear_replay_paths     raw (orange) and cleaned (green) paths
@@ -21,7 +22,8 @@ from dataclasses import dataclass
 import viser
 
 from bt_pipeline.data.records import FloatArray
-from bt_teleop.replay import ReplayTrack, TaskLibrary
+from bt_teleop.framing import default_view, plane_wxyz
+from bt_teleop.library import ReplayTrack, TaskLibrary
 from bt_teleop.scene import SceneModel
 from bt_teleop.session_config import SessionStatus
 from bt_teleop.viewer import MjSceneView, Trail, draw_path, floor_height, guide_loop_world
@@ -121,6 +123,14 @@ class TabScene:
             if handle is not None:
                 handle.remove()
 
+    @staticmethod
+    def frame(camera: viser.CameraHandle, scene: SceneModel) -> None:
+        """Point a tab's `camera` at `scene`'s task plane, guide and trail (:mod:`framing`)."""
+        view = default_view(scene.plane)
+        camera.up_direction = tuple(view.up)
+        camera.position = tuple(view.position)
+        camera.look_at = tuple(view.look_at)
+
     def _draw_task(self, scene: SceneModel) -> None:
         """(Re)draw what depends on the task: gizmo, target marker, floor."""
         self.gizmo = self.scene_api.add_transform_controls(
@@ -129,7 +139,7 @@ class TabScene:
             disable_rotations=True,
             depth_test=False,
             position=scene.ready_pos,
-            wxyz=scene.ee_quat,
+            wxyz=plane_wxyz(scene.plane),  # arrows along the task plane's axes u, v, normal
         )
 
         @self.gizmo.on_update

@@ -47,6 +47,8 @@ __all__ = [
     "chromium_page",
     "circle_uv",
     "decode_frame",
+    "guide_script",
+    "shared_dir",
     "tab_factory",
     "wait_until",
 ]
@@ -218,6 +220,32 @@ def wait_until(
             return value
         time.sleep(poll_s)
     raise TimeoutError(f"timed out after {timeout_s} s waiting for {what or condition}")
+
+
+def guide_script(
+    name: str, theta_deg: float = 0.0, rho: float = 1.0, seconds: float = 3.0
+) -> dict[str, Any]:
+    """The scripted operator's JSON (:mod:`bt_teleop.script`) for a careful wiping take: one
+    loop along the guide under (θ [deg], ρ) in `seconds` [s], by demonstrator `name`."""
+    from bt_pipeline.data.shapes import canonical_loop, similarity_transform
+
+    loop = similarity_transform(canonical_loop("wiping", 30), theta_deg, rho)
+    times = np.linspace(0.0, seconds, 31)
+    return {
+        "task": "wiping",
+        "demonstrator": name,
+        "theta_deg": theta_deg,
+        "rho": rho,
+        "waypoints": np.column_stack([times, np.vstack([loop, loop[:1]])]).tolist(),
+    }
+
+
+def shared_dir() -> Path:
+    """``../shared`` beside the clone (CI), or ``$BT_SHARED_DIR`` when set (a worktree)."""
+    import os
+
+    override = os.environ.get("BT_SHARED_DIR")
+    return Path(override) if override else Path(__file__).resolve().parents[2] / "shared"
 
 
 def circle_uv(t_s: float, radius_m: float = 0.06, period_s: float = 4.0) -> FloatArray:

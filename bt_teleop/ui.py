@@ -16,8 +16,8 @@ Data flow (everything a tab does stays in the tab)::
 Callbacks never block: they store a value or queue a command. The worker is the only thread
 that changes the tab's scene and the only one that swaps its Session (task switch).
 
-The parts live beside it: the panels in :mod:`bt_teleop.ui_panels`, the 3-D view in
-:mod:`bt_teleop.tab_scene`, what every tab shares in :mod:`bt_teleop.ui_context`.
+Beside it: panels :mod:`~bt_teleop.ui_panels`, takes and moderation :mod:`~bt_teleop.ui_takes`,
+3-D view :mod:`~bt_teleop.tab_scene`, what tabs share :mod:`~bt_teleop.ui_context`.
 """
 
 from __future__ import annotations
@@ -38,13 +38,16 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.cleaning import CleanJob
-from bt_teleop.replay import ReplayPlayer, TaskLibrary, library_markdown, load_library
+from bt_teleop.escape import breakable, display_text
+from bt_teleop.library import TaskLibrary, library_markdown, load_library
+from bt_teleop.replay import ReplayPlayer
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
 from bt_teleop.session import Session
 from bt_teleop.tab_scene import Frame, TabScene
 from bt_teleop.ui_context import TaskVersions, UiContext
 from bt_teleop.ui_panels import TabControls, status_markdown
+from bt_teleop.ui_takes import TakeDesk
 
 __all__ = ["ClientUI", "Frame", "TaskVersions", "UiContext", "status_markdown"]
 
@@ -62,8 +65,6 @@ class ClientUI:
         self.logger: SessionLogger = ctx.rerun.session_logger(session_id)
         self.messages: list[tuple[str, str]] = []
         """(title, body) of every notification shown (newest last)."""
-        self.saved: list[Path] = []
-        """Demo files this tab saved."""
         self.last_frame: Frame | None = None
         self.library: TaskLibrary | None = None
         self.replay: ReplayPlayer | None = None
@@ -79,8 +80,11 @@ class ClientUI:
         self._library_version = -1
         self._seen_job: CleanJob | None = None
         self._status_text = ""
-        self.controls = TabControls(client.gui, ctx)
+        self.controls = TabControls(client.gui, ctx, session_id)
         """The tab's GUI handles."""
+        self.takes = TakeDesk(ctx, session_id, self.controls, self.logger, self._notify)
+        """Saved takes, their checks' verdict and moderation."""
+        self.saved = self.takes.saved
         self.controls.connect(self)
         self.session: Session = self._new_session(ctx.initial_task)
         self.tab_scene = TabScene(
@@ -91,6 +95,7 @@ class ClientUI:
         )
         """The tab's 3-D view."""
         self._task_shown()
+        TabScene.frame(client.camera, self.session.scene)
         self._worker = threading.Thread(target=self._run, name=f"bt-tab-{session_id}", daemon=True)
         self._worker.start()
 
@@ -123,6 +128,22 @@ class ClientUI:
     def stop_replay(self) -> None:
         """Stop a replay and remove its paths."""
         self._queue(self._do_stop_replay)
+
+    def discard_take(self) -> None:
+        """Discard the flagged take just saved: exclude it (the file is kept; Restore undoes)."""
+        self._queue(lambda: self.takes.discard_flagged(self.task))
+
+    def moderate(self, action: str, key: str) -> None:
+        """Exclude or restore the raw demo `key` (own demos, or any as an operator)."""
+        self._queue(lambda: self.takes.moderate(action, key, self.library))
+
+    def set_operator_token(self, typed: str) -> None:
+        """Become an operator when `typed` is the app's operator token (else stop being one)."""
+        self.takes.set_operator_token(typed)
+
+    def reset_view(self) -> None:
+        """Put the camera back to the task's default view."""
+        self._queue(lambda: TabScene.frame(self.client.camera, self.session.scene))
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
         """Wait until every action asked for so far has run; whether it happened in time.
@@ -226,7 +247,7 @@ class ClientUI:
             if text != self._status_text:
                 self._status_text = text
                 c.status_text.content = text
-            c.record_button.disabled = status.recording
+            c.record_button.disabled = status.recording or self.replay is not None
             c.save_button.disabled = not status.recording
             c.discard_button.disabled = not status.recording
         self._frames += 1
@@ -302,6 +323,8 @@ class ClientUI:
         self.library = library
         self.controls.library_text.content = library_markdown(library)
         self.controls.show_replay_keys([track.key for track in library.tracks])
+        excluded = {t.key for t in library.raw if t.excluded}
+        self.controls.show_moderation_keys([t.key for t in library.raw], excluded)
 
     def _poll_clean(self) -> None:
         job = self.ctx.cleaner.current
@@ -312,9 +335,10 @@ class ClientUI:
         if job.owner is self and job.finished and self._seen_job is not job:
             self._seen_job = job
             if progress.state == "done":
-                self._notify("Clean done", f"{job.task}: cleaned demos in {progress.output}")
+                name = "" if progress.output is None else progress.output.name
+                self._notify("Clean done", f"{job.task}: cleaned demos in .cleaned/{name}")
                 if job.result is not None:
-                    self.logger.log_clean_result(job.result)
+                    self.logger.log_clean_result(job.result, self.ctx.cleaner.options.seed)
             else:
                 self._notify("Clean failed", progress.message, color="red")
 
@@ -347,6 +371,7 @@ class ClientUI:
         old.close(save_incomplete=False)
         self.session = self._new_session(task)
         self.tab_scene.show_task(self.session.scene)
+        TabScene.frame(self.client.camera, self.session.scene)
         self._task_shown()
         self.controls.task_input.value = task
 
@@ -354,17 +379,11 @@ class ClientUI:
         self._do_stop_replay()
         self.tab_scene.trail.clear()
         c = self.controls
-        self.session.start_recording(
-            c.name_input.value, float(c.theta_input.value), float(c.rho_input.value)
-        )
+        self.session.start_recording(c.name_input.value, c.theta_deg, c.rho)
+        self.takes.started()
 
     def _do_save(self) -> None:
-        trail = self.session.trail()
-        path = self.session.stop_and_save()
-        self.saved.append(path)
-        self.ctx.versions.bump(self.task)
-        self.logger.log_demo(path.stem, trail)
-        self._notify("Saved", f"{path.parent.name}/{path.name}")
+        self.takes.save(self.session)
 
     def _do_discard(self) -> None:
         self.session.discard()
@@ -384,6 +403,7 @@ class ClientUI:
         self.tab_scene.draw_replay_paths(track, self.library)
         self.replay = ReplayPlayer(self.session, track)
         self.replay.start()
+        self.logger.log_replay(track.key, track.positions, track.kind)
 
     def _do_stop_replay(self) -> None:
         if self.replay is not None:
@@ -392,8 +412,9 @@ class ClientUI:
         self.tab_scene.clear_replay_paths()
 
     def _notify(self, title: str, body: str, color: Any = None) -> None:
-        self.messages.append((title, body))
+        self.messages.append((title, "\n".join(display_text(x, 300) for x in body.split("\n"))))
+        shown = "\n".join(map(breakable, body.split("\n")))  # escape.py; wraps long names
         try:
-            self.client.add_notification(title, body, auto_close_seconds=6.0, color=color)
+            self.client.add_notification(title, shown, auto_close_seconds=6.0, color=color)
         except Exception:  # the tab may be gone
             LOGGER.debug("notification not shown: %s: %s", title, body)

@@ -55,6 +55,8 @@ class UiContext:
     initial_task: Task = "wiping"
     event_loop: asyncio.AbstractEventLoop | None = None
     """viser's event loop (where async GUI callbacks run)."""
+    operator_token: str | None = None
+    """The app's operator token (None: no operators; a tab moderates only its own demos)."""
     fancy_lighting: bool = False
     """viser's environment map and shadows (pretty with a GPU; software WebGL, as in headless
     browsers and GPU-less laptops, takes tens of seconds to prepare them)."""

@@ -2,11 +2,13 @@
 
 ::
 
-    Demonstration   Task, Demonstrator, θ [deg], ρ, Stay on task plane, Gripper
-    Record          Record, Stop & save, Discard, status line (:func:`status_markdown`)
-    Recordings      the task's demos with their scores
+    Demonstration   Task, Demonstrator, θ [deg], ρ, Stay on task plane, Gripper, Reset view
+    Record          Record, Stop & save, Discard, status line (:func:`status_markdown`),
+                    Discard this take (after a take that failed the checks)
+    Recordings      the task's demos with their scores; Demo picker, Exclude, Restore,
+                    Operator token (when the app has one)
     Clean & replay  Clean, progress bar, Replay picker, Play, Stop replay
-    (link)          the live Rerun viewer, or where the session's .rrd goes
+    (link)          this session's recording in the live Rerun viewer, or where its .rrd goes
 
 :class:`TabControls` builds the controls and connects them to a tab's actions
 (:class:`TabActions`, implemented by :class:`bt_teleop.ui.ClientUI`): every callback is async,
@@ -15,6 +17,7 @@ so viser runs them in order, and only stores a value or queues a command.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -22,6 +25,7 @@ import viser
 
 from bt_pipeline.data.tasks import TASKS, Task
 from bt_teleop.cleaning import CleanProgress
+from bt_teleop.escape import html_text, markdown_text
 from bt_teleop.replay import ReplayPlayer
 from bt_teleop.session_config import SessionStatus
 from bt_teleop.ui_context import UiContext
@@ -47,13 +51,18 @@ class TabActions(Protocol):
     def redraw_guide(self) -> None: ...
     def set_stay_on_plane(self, on: bool) -> None: ...
     def set_gripper(self, open: bool) -> None: ...
+    def reset_view(self) -> None: ...
+    def discard_take(self) -> None: ...
+    def moderate(self, action: str, key: str) -> None: ...
+    def set_operator_token(self, typed: str) -> None: ...
 
 
 class TabControls:
     """The GUI handles of one tab, built in folders in its own ``client.gui``."""
 
-    def __init__(self, gui: viser.GuiApi, ctx: UiContext) -> None:
-        """Build the panels; the task starts at ``ctx.initial_task``."""
+    def __init__(self, gui: viser.GuiApi, ctx: UiContext, session_id: str = "") -> None:
+        """Build the panels; the task starts at ``ctx.initial_task``; the Rerun link opens
+        recording `session_id`."""
         with gui.add_folder("Demonstration"):
             self.task_input = gui.add_dropdown("Task", TASKS, initial_value=ctx.initial_task)
             self.name_input = gui.add_text("Demonstrator", initial_value="anonymous")
@@ -61,13 +70,25 @@ class TabControls:
             self.rho_input = gui.add_slider("ρ", min=0.5, max=1.5, step=0.05, initial_value=1.0)
             self.plane_input = gui.add_checkbox("Stay on task plane", initial_value=False)
             self.gripper_input = gui.add_button_group("Gripper", ("Open", "Close"))
+            self.reset_view_button = gui.add_button("Reset view")
         with gui.add_folder("Record"):
             self.record_button = gui.add_button("Record", color="red")
             self.save_button = gui.add_button("Stop & save", disabled=True)
             self.discard_button = gui.add_button("Discard", disabled=True)
             self.status_text = gui.add_markdown("")
+            self.take_text = gui.add_markdown("", visible=False)
+            """Why the last take was flagged (shown until the next Record)."""
+            self.discard_take_button = gui.add_button("Discard this take", visible=False)
         with gui.add_folder("Recordings"):
             self.library_text = gui.add_markdown("Loading the recordings…")
+            self.moderate_input: viser.GuiDropdownHandle[str] = gui.add_dropdown(
+                "Demo", [str(NO_DEMOS)]
+            )
+            self.exclude_button = gui.add_button("Exclude", disabled=True)
+            self.restore_button = gui.add_button("Restore", disabled=True)
+            self.token_input = gui.add_text(
+                "Operator token", initial_value="", visible=ctx.operator_token is not None
+            )
         with gui.add_folder("Clean & replay"):
             self.clean_button = gui.add_button("Clean")
             self.clean_progress = gui.add_progress_bar(0.0, visible=False, animated=True)
@@ -75,11 +96,15 @@ class TabControls:
                 "Replay",
                 [str(NO_DEMOS)],  # str, not a literal type: the options change
             )
-            self.play_button = gui.add_button("Play")
+            self.play_button = gui.add_button("Play", disabled=True)
             self.stop_replay_button = gui.add_button("Stop replay", disabled=True)
-        if ctx.rerun.viewer_url is not None:
+        self._theta = 0.0
+        self._rho = 1.0
+        self._moderation: tuple[list[str], set[str]] = ([], set())
+        link = ctx.rerun.session_url(session_id)
+        if link is not None:
             gui.add_html(
-                f'<p style="padding: 0 0.75em"><a href="{ctx.rerun.viewer_url}" '
+                f'<p style="padding: 0 0.75em"><a href="{html_text(link, 1000)}" '
                 'target="_blank" rel="noopener">Open the live Rerun viewer</a></p>'
             )
         elif ctx.rerun.mode == "save":
@@ -95,11 +120,29 @@ class TabControls:
 
         @self.theta_input.on_update
         async def _(_: viser.GuiEvent) -> None:
+            self._theta = _finite_or(self.theta_input, self._theta)
             tab.redraw_guide()
 
         @self.rho_input.on_update
         async def _(_: viser.GuiEvent) -> None:
+            self._rho = _finite_or(self.rho_input, self._rho)
             tab.redraw_guide()
+
+        @self.moderate_input.on_update
+        async def _(_: viser.GuiEvent) -> None:
+            self._moderation_buttons()
+
+        @self.exclude_button.on_click
+        async def _(_: viser.GuiEvent) -> None:
+            tab.moderate("exclude", self.moderate_input.value)
+
+        @self.restore_button.on_click
+        async def _(_: viser.GuiEvent) -> None:
+            tab.moderate("restore", self.moderate_input.value)
+
+        @self.token_input.on_update
+        async def _(_: viser.GuiEvent) -> None:
+            tab.set_operator_token(self.token_input.value)
 
         @self.plane_input.on_update
         async def _(_: viser.GuiEvent) -> None:
@@ -115,6 +158,8 @@ class TabControls:
             (self.discard_button, tab.discard),
             (self.clean_button, tab.clean),
             (self.stop_replay_button, tab.stop_replay),
+            (self.discard_take_button, tab.discard_take),
+            (self.reset_view_button, tab.reset_view),
         ):
             button.on_click(_async_action(action))
 
@@ -122,21 +167,77 @@ class TabControls:
         async def _(_: viser.GuiEvent) -> None:
             tab.play(self.replay_input.value)
 
+    @property
+    def theta_deg(self) -> float:
+        """θ [deg]: the slider's value, or the last valid one when the box holds no number."""
+        return _finite_or(self.theta_input, self._theta, restore=False)
+
+    @property
+    def rho(self) -> float:
+        """ρ: the slider's value, or the last valid one when the box holds no number."""
+        return _finite_or(self.rho_input, self._rho, restore=False)
+
+    def show_take_check(self, reasons: list[str] | None) -> None:
+        """Say why the last take was flagged and offer to discard it (None: hide both)."""
+        if reasons:
+            self.take_text.content = (
+                "**⚠ Saved but flagged**: "
+                + "; ".join(reasons)
+                + (". It will not be ranked or cleaned.")
+            )
+        self.take_text.visible = bool(reasons)
+        self.discard_take_button.visible = bool(reasons)
+
     def show_clean_progress(self, progress: CleanProgress, *, this_task: bool) -> None:
         """Show the server's clean job: its progress bar (when it cleans `this_task`), and the
         Clean button disabled while any job runs."""
         running = progress.state == "running" and this_task
         self.clean_progress.visible = running
-        if running:
-            self.clean_progress.value = 100.0 * progress.fraction
+        if running:  # reading and Stage 1 come before the first epoch: never show an empty bar
+            self.clean_progress.value = 5.0 + 90.0 * progress.fraction
         self.clean_button.disabled = progress.state == "running"
 
     def show_replay_keys(self, keys: list[str]) -> None:
         """Offer `keys` in the Replay picker, keeping the current choice if it is still there."""
-        keys = keys or [NO_DEMOS]
-        current = self.replay_input.value
-        self.replay_input.options = keys
-        self.replay_input.value = current if current in keys else keys[-1]
+        self.play_button.disabled = not keys
+        _offer(self.replay_input, keys)
+
+    def show_moderation_keys(self, keys: list[str], excluded: set[str]) -> None:
+        """Offer the raw demos `keys` in the Demo picker; Exclude or Restore per the chosen."""
+        self._moderation = (list(keys), set(excluded))
+        _offer(self.moderate_input, keys)
+        self._moderation_buttons()
+
+    def _moderation_buttons(self) -> None:
+        keys, excluded = self._moderation
+        chosen = self.moderate_input.value
+        self.exclude_button.disabled = chosen not in keys or chosen in excluded
+        self.restore_button.disabled = chosen not in excluded
+
+
+def _offer(dropdown: viser.GuiDropdownHandle[str], keys: list[str]) -> None:
+    """Set a picker's options, keeping its choice if still offered (a placeholder if none)."""
+    keys = keys or [NO_DEMOS]
+    current = dropdown.value
+    if tuple(dropdown.options) != tuple(keys):
+        dropdown.options = keys
+    new = current if current in keys else keys[-1]
+    if dropdown.value != new:
+        dropdown.value = new
+
+
+def _finite_or(slider: viser.GuiSliderHandle[Any], last: float, *, restore: bool = True) -> float:
+    """The slider's value as a finite float in its range, else `last` (put back in the box when
+    `restore`: text such as "abc" typed into the number box must not blank it)."""
+    try:
+        value = float(slider.value)
+    except (TypeError, ValueError):
+        value = math.nan
+    if math.isfinite(value) and slider.min <= value <= slider.max:
+        return value
+    if restore:
+        slider.value = last
+    return last
 
 
 def _async_action(action: Callable[[], None]) -> Callable[[viser.GuiEvent], Any]:
@@ -149,13 +250,14 @@ def _async_action(action: Callable[[], None]) -> Callable[[viser.GuiEvent], Any]
 
 
 def status_markdown(status: SessionStatus, replay: ReplayPlayer | None) -> str:
-    """The tab's status line: recording / replay progress, end-effector position, warnings."""
+    """The tab's status line: recording / replay progress, end-effector position, warnings
+    (text from elsewhere is escaped)."""
     if status.recording:
         head = f"**● Recording** · {status.n_samples} samples · {status.duration_s:.1f} s"
     elif replay is not None:
         phase, fraction = replay.progress
         what = "moving to the start of" if phase == "approach" else f"{100 * fraction:.0f} % of"
-        head = f"**▶ Replaying** {what} {replay.track.key}"
+        head = f"**▶ Replaying** {what} {markdown_text(replay.track.key, 120)}"
     else:
         head = "Ready: drag the gizmo, then **Record**"
     x, y, z = (1e3 * status.ee_pos).round().astype(int)
@@ -163,5 +265,5 @@ def status_markdown(status: SessionStatus, replay: ReplayPlayer | None) -> str:
     if status.target_clamped:
         lines.append("⚠ target clamped to the workspace")
     if status.warning:
-        lines.append(f"⚠ {status.warning}")
+        lines.append(f"⚠ {markdown_text(status.warning, 200)}")
     return "  \n".join(lines)

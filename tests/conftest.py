@@ -4,12 +4,14 @@
   :class:`~bt_pipeline.data.records.Recording` of circles drawn in the task's default plane.
 * ``write_example_file(directory, name="example.hdf5", **make_recording_kwargs)`` writes one to
   ``directory / name`` and returns the path.
+* ``make_app(**AppOptions overrides)`` starts a teleop app recording under ``tmp_path``, and
+  ``tabs(app)`` opens a simulated tab on it (:mod:`bt_teleop.testing`); all closed at the end.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -105,3 +107,21 @@ def write_example_file() -> Callable[..., Path]:
         return write_recording(Path(directory) / name, build_recording(**kwargs))
 
     return write
+
+
+@pytest.fixture
+def make_app(tmp_path: Path) -> Iterator[Callable[..., Any]]:
+    """Teleop apps recording under ``tmp_path / "recordings"`` (stopped at the end)."""
+    from bt_teleop.testing import app_factory  # teleop tests only: no viser import elsewhere
+
+    with app_factory(tmp_path / "recordings") as make:
+        yield make
+
+
+@pytest.fixture
+def tabs() -> Iterator[Callable[..., Any]]:
+    """``tabs(app)`` opens a simulated browser tab on a teleop app (closed at the end)."""
+    from bt_teleop.testing import tab_factory
+
+    with tab_factory() as open_tab:
+        yield open_tab

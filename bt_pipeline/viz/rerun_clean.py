@@ -139,7 +139,7 @@ def clean_blueprint(tasks: Iterable[Task | str]) -> rrb.Blueprint:
     if not parsed:
         raise ConfigError("clean_blueprint needs at least one task")
     unique: list[Task] = [t for i, t in enumerate(parsed) if t not in parsed[:i]]
-    layouts = [_task_layout(t) for t in unique]
+    layouts = [task_layout(t) for t in unique]
     layouts += [timeline_views(f"/{t}/timeline", f"{t}: raw vs cleaned in time") for t in unique]
     main = rrb.Tabs(*layouts)
     return rrb.Blueprint(
@@ -361,8 +361,8 @@ def _log_text(
     )
 
 
-def _task_layout(task: Task) -> rrb.Container:
-    """One task's views: curves on top, scores and training below, text at the bottom."""
+def task_layout(task: Task) -> rrb.Container:
+    """One task's views (also composed into the teleop app's session blueprint)."""
     root = f"/{task}"
     plane = f"{root}/plane"
     curves = rrb.Horizontal(

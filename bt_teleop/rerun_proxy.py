@@ -1,0 +1,167 @@
+"""Rerun's gRPC proxy and web viewer as a child process bound to the app's ``--host``.
+
+Rerun 0.41's Python ``serve_grpc`` / ``serve_web_viewer`` listen on every interface and have
+no host setting; the bundled ``rerun`` binary does (``--bind``). So ``bt teleop --rerun serve``
+starts::
+
+    rerun --serve-web --bind <host> --port <grpc> --web-viewer-port <web>
+          --server-memory-limit <limit> [--newest-first]
+
+in a session of its own (so stopping the app stops it and nothing else), waits until its
+gRPC port answers, and every session streams to ``rerun+http://<host>:<grpc>/proxy``.
+Sessions log at most 30 states per simulated second, batched, so the backlog a late viewer
+receives is small and it catches up within seconds (benchmarks/bench_teleop_rerun.py).
+``--newest-first`` (``AppOptions.rerun_newest_first``) is off: in that benchmark it made a
+late viewer of 4 sessions lag more, not less.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import logging
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+from bt_pipeline.exceptions import ConfigError
+
+__all__ = ["RerunProxy", "free_port", "rerun_binary"]
+
+LOGGER = logging.getLogger("bt.teleop")
+START_TIMEOUT_S = 30.0
+"""Longest wait for the proxy's gRPC port to answer [s]."""
+
+
+def rerun_binary() -> Path:
+    """The ``rerun`` executable bundled with rerun-sdk (package ``rerun_cli``), else on PATH.
+
+    The bundled binary is preferred over ``bin/rerun``, a Python wrapper that would leave the
+    real server running when it is stopped.
+
+    Raises:
+        ConfigError: No rerun binary found.
+    """
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        bundled = Path(spec.origin).parent / "rerun"
+        if bundled.is_file() and os.access(bundled, os.X_OK):
+            return bundled
+    found = shutil.which("rerun")
+    if found is None:
+        raise ConfigError("no rerun executable found: pip install rerun-sdk, or use --rerun save")
+    return Path(found)
+
+
+def free_port(preferred: int, host: str) -> int:
+    """`preferred` if it can be bound on `host`, else a free port there.
+
+    Raises:
+        ConfigError: No free port.
+    """
+    for candidate in (preferred, 0):
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+            try:
+                probe.bind((host, candidate))
+            except OSError:
+                continue
+            return int(probe.getsockname()[1])
+    raise ConfigError(f"no free port for Rerun on {host}")
+
+
+def url_host(host: str) -> str:
+    """The host to put in URLs for a server bound to `host` (loopback for "every interface")."""
+    return "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
+
+
+class RerunProxy:
+    """A running ``rerun --serve-web`` child process; :meth:`close` stops it."""
+
+    def __init__(
+        self,
+        host: str,
+        grpc_port: int,
+        web_port: int,
+        memory_limit: str = "256MiB",
+        *,
+        newest_first: bool = False,
+    ) -> None:
+        """Start the proxy and web viewer on `host` (preferred ports; free ones when busy);
+        `newest_first`: a viewer that connects late gets the newest data first.
+
+        Raises:
+            ConfigError: No rerun binary, or it did not start within :data:`START_TIMEOUT_S`.
+        """
+        self.host = host
+        self.grpc_port = free_port(grpc_port, host)
+        self.web_port = free_port(web_port, host)
+        if self.web_port == self.grpc_port:
+            self.web_port = free_port(0, host)
+        self._log = tempfile.TemporaryFile()  # noqa: SIM115  # closed in close()
+        command = [
+            str(rerun_binary()),
+            "--serve-web",
+            "--bind",
+            host,
+            "--port",
+            str(self.grpc_port),
+            "--web-viewer-port",
+            str(self.web_port),
+            "--server-memory-limit",
+            memory_limit,
+            *(["--newest-first"] if newest_first else []),
+        ]
+        self.process = subprocess.Popen(
+            command,
+            stdin=subprocess.DEVNULL,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,  # its own process group: close() stops it and its children
+        )
+        try:
+            self._wait_ready()
+        except ConfigError:
+            self.close()
+            raise
+
+    @property
+    def grpc_url(self) -> str:
+        """Where sessions stream: ``rerun+http://<host>:<port>/proxy``."""
+        return f"rerun+http://{url_host(self.host)}:{self.grpc_port}/proxy"
+
+    @property
+    def web_url(self) -> str:
+        """The web viewer's page (without a recording)."""
+        return f"http://{url_host(self.host)}:{self.web_port}/"
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop the child process (SIGTERM, then SIGKILL after `timeout_s` [s])."""
+        if self.process.poll() is None:
+            try:
+                os.killpg(self.process.pid, signal.SIGTERM)
+                self.process.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait(timeout_s)
+            except ProcessLookupError:
+                pass
+        self._log.close()
+
+    def _wait_ready(self) -> None:
+        deadline = time.monotonic() + START_TIMEOUT_S
+        address = (url_host(self.host), self.grpc_port)
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                break
+            try:
+                with socket.create_connection(address, timeout=0.5):
+                    return
+            except OSError:
+                time.sleep(0.1)
+        self._log.seek(0)
+        tail = self._log.read()[-400:].decode("utf-8", "replace").strip()
+        raise ConfigError(f"Rerun's proxy did not start on {self.host}:{self.grpc_port}: {tail}")

@@ -1,0 +1,107 @@
+"""A tab's takes after Stop & save: the take checks' verdict, "Discard this take", moderation.
+
+::
+
+    save(session)             Stop & save -> file (+ attr flags) -> "Saved" or "Saved but
+                              flagged: <why>" with a Discard this take button
+    discard_flagged()         that take is excluded (sidecar; the file is kept, Restore undoes)
+    moderate(action, key)     exclude / restore a raw demo of the task (bt_teleop.moderation)
+    set_operator_token(text)  the tab becomes an operator when the text is the app's token
+
+Runs on the tab's worker thread (:class:`bt_teleop.ui.ClientUI` queues the calls), except
+:meth:`TakeDesk.set_operator_token`, which only stores a bool.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from bt_pipeline.data.moderation import exclude
+from bt_pipeline.data.tasks import Task
+from bt_pipeline.exceptions import BtError
+from bt_teleop.library import TaskLibrary
+from bt_teleop.moderation import Moderator, token_matches
+from bt_teleop.rerun_live import SessionLogger
+from bt_teleop.session import Session
+from bt_teleop.ui_context import UiContext
+from bt_teleop.ui_panels import TabControls
+
+__all__ = ["TakeDesk"]
+
+Notify = Callable[..., None]
+
+
+class TakeDesk:
+    """What one tab does with its saved takes and the task's demos."""
+
+    def __init__(
+        self,
+        ctx: UiContext,
+        session_id: str,
+        controls: TabControls,
+        logger: SessionLogger,
+        notify: Notify,
+    ) -> None:
+        self.ctx = ctx
+        self.session_id = session_id
+        self.controls = controls
+        self.logger = logger
+        self.notify = notify
+        self.saved: list[Path] = []
+        """Demo files this tab saved."""
+        self.flagged: Path | None = None
+        """The last take, when it failed a check and was neither discarded nor followed."""
+        self.operator = False
+        """Whether the tab typed the operator token."""
+
+    def started(self) -> None:
+        """A new take started: forget the last one's verdict."""
+        self.flagged = None
+        self.controls.show_take_check(None)
+
+    def save(self, session: Session) -> Path:
+        """Stop & save `session`'s take; tell the person whether it passed the checks."""
+        trail = session.trail()
+        take = session.stop_and_check()
+        path = take.path
+        self.saved.append(path)
+        self.ctx.versions.bump(session.scene.task)
+        self.logger.log_demo(path.stem, trail)
+        if take.check.ok:
+            self.notify("Saved", f"{path.parent.name}/\n{path.name}")
+        else:
+            self.flagged = path
+            reasons = take.check.reasons()
+            self.controls.show_take_check(reasons)
+            self.notify("Saved but flagged", f"{path.name}\n{'; '.join(reasons)}", color="yellow")
+        return path
+
+    def discard_flagged(self, task: Task) -> None:
+        """Exclude the flagged take just saved (its file stays; Restore brings it back)."""
+        path, self.flagged = self.flagged, None
+        self.controls.show_take_check(None)
+        if path is None:
+            return
+        exclude(path, reason="discarded by its demonstrator", by=f"session {self.session_id}")
+        self.ctx.versions.bump(task)
+        self.notify("Discarded", f"{path.name}\nexcluded; the file is kept (Restore undoes it)")
+
+    def moderate(self, action: str, key: str, library: TaskLibrary | None) -> None:
+        """Exclude (`action` "exclude") or restore the raw demo `key` of `library`.
+
+        Raises:
+            BtError: The library is not loaded, no such demo, or not this tab's to moderate.
+        """
+        if library is None:
+            raise BtError("the recordings are still loading")
+        track = library.find(key)
+        moderator = Moderator(self.session_id, operator=self.operator)
+        done = moderator.apply("restore" if action == "restore" else "exclude", track)
+        self.ctx.versions.bump(library.task)
+        self.notify("Restored" if action == "restore" else "Excluded", done)
+
+    def set_operator_token(self, typed: Any) -> None:
+        """Become an operator when `typed` is the app's token (else stop being one)."""
+        self.operator = token_matches(str(typed), self.ctx.operator_token)

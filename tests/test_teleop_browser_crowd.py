@@ -1,0 +1,148 @@
+"""The crowdsourcing features in a real browser (Debian's headless Chromium, as
+tests/test_teleop_browser.py): a junk take flagged with a visible reason, a hostile name typed in
+one tab shown as text in a second tab, exclude and restore from the page, Clean succeeding with a
+flagged demo present, and the Rerun link opening the tab's own recording."""
+
+from __future__ import annotations
+
+import urllib.parse
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from playwright.sync_api import Page, expect
+
+from bt_pipeline.data.moderation import is_excluded
+from bt_pipeline.data.recording import read_recording
+from bt_teleop.app import TeleopApp
+from bt_teleop.script import run_script
+from bt_teleop.testing import app_factory, chromium_page, guide_script, wait_until
+from bt_teleop.ui import ClientUI
+
+PAGE_TIMEOUT_MS = 90_000
+expect.set_options(timeout=PAGE_TIMEOUT_MS)  # software WebGL on a busy machine is slow
+HOSTILE = "<script>alert(1)</script>"
+
+
+@pytest.fixture
+def page() -> Iterator[Page]:
+    with chromium_page(timeout_ms=PAGE_TIMEOUT_MS) as tab:
+        yield tab
+
+
+def guide_take(root: Path, rho: float, theta_deg: float, name: str) -> Path:
+    """A scripted 3 s take along the wiping guide (a careful demonstrator)."""
+    return run_script(guide_script(name, theta_deg, rho), root)
+
+
+def open_tab(page: Page, app: TeleopApp) -> ClientUI:
+    before = set(app.sessions())
+    page.goto(app.url, wait_until="commit")
+    expect(page.get_by_role("button", name="Record", exact=True)).to_be_visible(
+        timeout=PAGE_TIMEOUT_MS
+    )
+    uis = app.wait_for_sessions(len(before) + 1, 60.0)
+    (ui,) = [ui for cid, ui in uis.items() if cid not in before]
+    return ui
+
+
+def type_name(page: Page, ui: ClientUI, name: str) -> None:
+    box = page.locator("xpath=//p[normalize-space(.)='Demonstrator']/following::input[1]")
+    box.fill(name)
+    box.press("Enter")
+    wait_until(lambda: ui.controls.name_input.value == name, 30.0, "the name to arrive")
+
+
+def test_junk_take_flagged_and_a_hostile_name_is_text_in_a_second_tab(tmp_path: Path) -> None:
+    root = tmp_path / "recordings"
+    for k, (rho, theta) in enumerate(((0.8, 0.0), (1.0, 5.0), (0.9, -5.0))):
+        guide_take(root, rho, theta, f"careful{k}")
+    with app_factory(root) as make, chromium_page(timeout_ms=PAGE_TIMEOUT_MS) as first:
+        app = make()
+        ui = open_tab(first, app)
+        type_name(first, ui, HOSTILE)
+        first.get_by_role("button", name="Record", exact=True).click()
+        wait_until(lambda: ui.session.recording, 30.0, "the recording to start")
+        first.get_by_role("button", name="Stop & save", exact=True).click()
+        path = wait_until(lambda: ui.saved and ui.saved[-1], 30.0, "the file to be saved")
+        assert read_recording(path).demos["demo_0"].demonstrator == HOSTILE  # kept as typed
+        # The reason, on the spot, and the offer to discard.
+        expect(first.get_by_text("Saved but flagged", exact=False).first).to_be_visible()
+        expect(first.get_by_text("no motion", exact=False).first).to_be_visible()
+        expect(first.get_by_role("button", name="Discard this take")).to_be_visible()
+
+        second = first.context.browser.new_page()  # type: ignore[union-attr]
+        second.set_default_timeout(PAGE_TIMEOUT_MS)
+        other = open_tab(second, app)
+        wait_until(lambda: other.library is not None and len(other.library.raw) == 4, 60.0, "")
+        expect(second.get_by_role("cell", name=HOSTILE[:23] + "…")).to_be_visible()  # as text
+        expect(second.get_by_text("4 demos of wiping, 3 usable", exact=False)).to_be_visible()
+        for k in range(3):  # every row survives the name
+            expect(second.get_by_text(f"careful{k}", exact=True)).to_be_visible()
+        assert second.locator("script", has_text="alert(1)").count() == 0
+        assert second.evaluate("document.querySelectorAll('td script, td b, td img').length") == 0
+        second.screenshot(path=str(tmp_path / "hostile-table.png"))
+
+        first.get_by_role("button", name="Discard this take").click()
+        wait_until(lambda: is_excluded(path), 30.0, "the discarded take to be excluded")
+        assert path.is_file()
+
+
+def test_exclude_restore_and_clean_with_a_flagged_demo(tmp_path: Path, page: Page) -> None:
+    root = tmp_path / "recordings"
+    for k, (rho, theta) in enumerate(((0.8, 0.0), (1.0, 5.0), (0.9, -5.0))):
+        guide_take(root, rho, theta, f"careful{k}")
+    with app_factory(root) as make:
+        app = make(operator_token="operator-secret-1", clean_in_process=False, clean_epochs=1)
+        ui = open_tab(page, app)
+        page.get_by_role("button", name="Record", exact=True).click()  # a junk take of this tab
+        wait_until(lambda: ui.session.recording, 30.0, "the recording to start")
+        page.get_by_role("button", name="Stop & save", exact=True).click()
+        junk = wait_until(lambda: ui.saved and ui.saved[-1], 30.0, "the file to be saved")
+        expect(page.get_by_text("Saved but flagged", exact=False).first).to_be_visible()
+        wait_until(lambda: ui.library is not None and len(ui.library.raw) == 4, 60.0, "")
+
+        # Clean succeeds with the flagged demo present; it cleans the 3 careful ones.
+        page.get_by_role("button", name="Clean", exact=True).click()
+        expect(page.get_by_text("Cleaned: 3 demos", exact=False)).to_be_visible(timeout=240_000)
+        assert all(t.kind == "cleaned" for t in ui.library.cleaned)  # type: ignore[union-attr]
+
+        # Exclude someone else's demo as the operator, then restore it.
+        token = page.locator("xpath=//p[normalize-space(.)='Operator token']/following::input[1]")
+        token.fill("operator-secret-1")
+        token.press("Enter")
+        wait_until(lambda: ui.takes.operator, 30.0, "the operator token")
+        target = next(t for t in ui.library.raw if t.file != junk)  # type: ignore[union-attr]
+        ui.controls.moderate_input.value = target.key
+        exclude = page.get_by_role("button", name="Exclude", exact=True)
+        expect(exclude).to_be_enabled()
+        exclude.click()
+        wait_until(lambda: is_excluded(target.file), 30.0, "the exclusion")
+        expect(page.get_by_text("excluded", exact=False).first).to_be_visible()
+        expect(page.get_by_text("The recordings changed since the last Clean")).to_be_visible()
+        restore = page.get_by_role("button", name="Restore", exact=True)
+        expect(restore).to_be_enabled()
+        restore.click()
+        wait_until(lambda: not is_excluded(target.file), 30.0, "the restore")
+        assert target.file.is_file()
+
+
+def test_the_rerun_link_opens_the_tabs_own_recording(tmp_path: Path, page: Page) -> None:
+    with app_factory(tmp_path / "recordings") as make:
+        app = make(rerun="serve", rerun_grpc_port=0, rerun_web_port=0)
+        ui = open_tab(page, app)
+        link = page.get_by_role("link", name="Open the live Rerun viewer")
+        expect(link).to_be_visible()
+        href = link.get_attribute("href")
+        assert href is not None
+        urls = urllib.parse.parse_qs(urllib.parse.urlsplit(href).query)["url"]
+        route = next(u for u in urls if u.startswith("about:recording"))
+        query = urllib.parse.parse_qs(route.split("?", 1)[1])
+        assert query["recording_id"] == [ui.session_id] and query["app_id"] == ["bt_teleop"]
+        assert any(u.startswith("rerun+http://127.0.0.1:") for u in urls)
+        with urllib.request.urlopen(href, timeout=30) as reply:  # the viewer is served there
+            assert reply.status == 200 and b"rerun" in reply.read().lower()
+        viewer = page.context.browser.new_page()  # type: ignore[union-attr]
+        viewer.goto(href, wait_until="load")
+        expect(viewer.locator("canvas").first).to_be_attached(timeout=PAGE_TIMEOUT_MS)
