@@ -21,7 +21,7 @@ from bt_pipeline.exceptions import ConfigError, RecordingError
 MAX_INDEX_DIGITS = 9
 """Most digits of k in ``demo_<k>`` (k < 10^9; Python refuses int() of > 4300 digits)."""
 MAX_TEXT_CHARS = 10_000
-"""Longest string attr (a name, a source, an ISO time, a JSON document is not capped here)."""
+"""Longest free-text attr (``demonstrator``, extra string attrs); JSON attrs are not capped."""
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,9 @@ class ReadLimits:
         }
         for name, value in positive.items():
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ConfigError(f"read limit {name} must be a positive finite number; got {value}")
+                raise ConfigError(
+                    f"read limit {name} must be a positive finite number; got {value}"
+                )
         lo, hi = self.rho_range
         if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
             raise ConfigError(f"read limit rho_range must be 0 < lo < hi, finite; got {lo}, {hi}")
@@ -72,8 +74,8 @@ DEFAULT_LIMITS = ReadLimits()
 """The limits :func:`~bt_pipeline.data.recording.read_recording` uses unless told otherwise."""
 
 
-def check_text(value: str, what: str, label: str) -> str:
-    """Return `value` if it is storable text: no NUL, at most :data:`MAX_TEXT_CHARS` characters.
+def check_text(value: str, what: str, label: str, max_chars: int | None = MAX_TEXT_CHARS) -> str:
+    """Return `value` if it is storable text: no NUL, at most `max_chars` characters.
 
     Raises:
         RecordingError: ``<label>: <what> ...`` naming the problem.
@@ -83,18 +85,18 @@ def check_text(value: str, what: str, label: str) -> str:
             f"{label}: {what} contains a NUL byte at character {value.index(chr(0))}; text may "
             "not contain NUL"
         )
-    if len(value) > MAX_TEXT_CHARS:
+    if max_chars is not None and len(value) > max_chars:
         raise RecordingError(
-            f"{label}: {what} is {len(value)} characters long; at most {MAX_TEXT_CHARS} are allowed"
+            f"{label}: {what} is {len(value)} characters long; at most {max_chars} are allowed"
         )
     return value
 
 
 def decode_utf8(value: Any, what: str, label: str) -> str:
-    """`value` (str or bytes) as checked text; invalid UTF-8 is an error, not replaced.
+    """`value` (str or bytes) as text without NUL; invalid UTF-8 is an error, not replaced.
 
     Raises:
-        RecordingError: Invalid UTF-8 (with the byte offset), a NUL byte, or too long.
+        RecordingError: Invalid UTF-8 (with the byte offset) or a NUL byte.
     """
     if isinstance(value, bytes):
         try:
@@ -104,7 +106,7 @@ def decode_utf8(value: Any, what: str, label: str) -> str:
                 f"{label}: {what} is not valid UTF-8 (byte {exc.start}: {exc.reason}); text "
                 "attrs must be UTF-8"
             ) from None
-    return check_text(str(value), what, label)
+    return check_text(str(value), what, label, max_chars=None)
 
 
 def check_index_digits(digits: str, name: str, where: str) -> None:
@@ -135,7 +137,7 @@ def check_sample_count(rows: int, label: str, limits: ReadLimits) -> None:
 
 
 def check_plane_origin(origin: np.ndarray, where: str, limits: ReadLimits) -> None:
-    """Refuse a task plane whose origin is farther than ``limits.max_distance_m`` from the world's."""
+    """Refuse a plane origin farther than ``limits.max_distance_m`` from the world origin."""
     distance = float(np.linalg.norm(np.asarray(origin, dtype=np.float64)))
     if not distance <= limits.max_distance_m:
         raise RecordingError(

@@ -254,11 +254,11 @@ def read_dataset(group: h5py.Group, key: str, label: str, max_rows: int | None =
     item = group[key]
     if not isinstance(item, h5py.Dataset):
         raise RecordingError(f"{label}: {key} is a group; expected a dataset")
-    if max_rows is not None and item.shape is not None and item.ndim >= 1:
-        if item.shape[0] > max_rows or item.size > 64 * max_rows:
-            raise RecordingError(
-                f"{label}: {key} has shape {item.shape}; at most {max_rows} rows are read"
-            )
+    shape = item.shape or ()
+    if max_rows is not None and shape and (shape[0] > max_rows or item.size > 64 * max_rows):
+        raise RecordingError(
+            f"{label}: {key} has shape {item.shape}; at most {max_rows} rows are read"
+        )
     return item[()]
 
 
