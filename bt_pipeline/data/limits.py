@@ -170,8 +170,8 @@ def check_demo_magnitudes(
         RecordingError: The first value out of bounds, with its index and the bound.
     """
     offsets = np.asarray(ee_pos, dtype=np.float64) - np.asarray(plane_origin, dtype=np.float64)
-    # Squared distances overflow to inf beyond ~1e154 m; compare norms computed safely.
-    distances = np.linalg.norm(offsets / limits.max_distance_m, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # beyond ~1e154 m the norm is inf: refused
+        distances = np.linalg.norm(offsets / limits.max_distance_m, axis=1)
     far = np.flatnonzero(~(distances <= 1.0))
     if far.size:
         i = int(far[0])

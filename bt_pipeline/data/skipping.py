@@ -9,7 +9,8 @@ Three kinds of input are left out with a one-line note naming them, and the rest
 * a demo a stage **cannot use** (no motion, not periodic, degenerate; :func:`skip_failing`),
   unless ``strict``, when the first one stops the run with a message naming it.
 
-Unreadable files are skipped by :func:`~bt_pipeline.data.recording.read_recordings` the same way.
+* an **unreadable file** (not format v1, or beyond :class:`~bt_pipeline.data.limits.ReadLimits`),
+  unless ``strict``.
 """
 
 from __future__ import annotations
@@ -26,9 +27,9 @@ from bt_pipeline.data.demo import Demo, demos_from_recording
 from bt_pipeline.data.limits import ReadLimits
 from bt_pipeline.data.moderation import exclusion
 from bt_pipeline.data.paths import expand_paths
-from bt_pipeline.data.recording import read_recordings
+from bt_pipeline.data.recording import read_recording
 from bt_pipeline.data.records import DemoRecord, Recording
-from bt_pipeline.exceptions import ConfigError, DemoError
+from bt_pipeline.exceptions import ConfigError, DemoError, RecordingError
 
 log = logging.getLogger("bt")
 R = TypeVar("R")
@@ -80,15 +81,19 @@ def read_usable(
     Raises:
         RecordingError: No recordings found, or an unreadable file when strict.
     """
-    files, notes, readable = expand_paths(paths), [], []
+    files, notes, recordings = expand_paths(paths), [], []
     for file in files:
         excluded = exclusion(file)
-        if excluded is None:
-            readable.append(file)
+        if excluded is not None:
+            reason = f": {excluded['reason']}" if excluded["reason"] else ""
+            notes.append(_note(f"{file}: excluded{reason}"))
             continue
-        reason = f": {excluded['reason']}" if excluded["reason"] else ""
-        notes.append(_note(f"{file}: excluded{reason}"))
-    recordings = read_recordings(readable, strict=strict, limits=limits)
+        try:
+            recordings.append(read_recording(file, limits))
+        except RecordingError as exc:
+            if strict:
+                raise
+            notes.append(_note(str(exc)))
     demos, flagged = [], []
     for recording in recordings:
         label = str(recording.path) if recording.path else ""
