@@ -125,7 +125,7 @@ def test_the_writer_refuses_nul_text_before_any_work(tmp_path, make_recording) -
     recording = make_recording(n_demos=1)
     demo = dataclasses.replace(recording.demos["demo_0"], demonstrator="bad\x00name")
     bad = dataclasses.replace(recording, demos={"demo_0": demo})
-    with pytest.raises(RecordingError, match="cannot write .*demonstrator contains a NUL"):
+    with pytest.raises(RecordingError, match=r"cannot write .*demonstrator contains a NUL"):
         write_recording(tmp_path / "out.hdf5", bad)
     assert not (tmp_path / "out.hdf5").exists()
 
