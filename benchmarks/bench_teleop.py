@@ -33,6 +33,7 @@ import tyro
 
 from bt_teleop.scene import SceneModel, load_scene
 from bt_teleop.session import Session
+from bt_teleop.testing import circle_uv
 
 
 @dataclass(frozen=True)
@@ -52,8 +53,7 @@ class Args:
 
 
 def _circle_target(session: Session, t_s: float) -> None:
-    phase = 2.0 * math.pi * t_s / 4.0
-    session.set_target_uv(0.06 * np.array([math.sin(phase), 1.0 - math.cos(phase)]))
+    session.set_target_uv(circle_uv(t_s))
 
 
 def _drive(session: Session, n_ticks: int) -> None:

@@ -1,6 +1,7 @@
 """Teleop web app speed: scene updates per second sent to a browser and target-to-page delay.
 
-Server side, with 1 and 4 simulated tabs (raw viser websocket clients that read everything):
+Server side, with 1 and 4 simulated tabs (:class:`bt_teleop.testing.FakeTab`: raw viser
+websocket clients that read and count everything):
 
 * scene updates per second per tab: the tab worker's published frames (robot link poses,
   target marker, trail, status text; one ``client.atomic()`` group each) over wall time, with
@@ -27,45 +28,29 @@ from __future__ import annotations
 import math
 import statistics
 import tempfile
-import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import numpy as np
 import tyro
-import viser
 import zstandard
-from websockets.sync.client import connect
 
-from bt_teleop.app import AppOptions, TeleopApp, start_app
+from bt_teleop.app import TeleopApp
+from bt_teleop.testing import (
+    FakeTab,
+    app_factory,
+    chromium_page,
+    circle_uv,
+    decode_frame,
+    tab_factory,
+    wait_until,
+)
 from bt_teleop.ui import ClientUI
 
-CAMERA = {
-    "type": "ViewerCameraMessage",
-    "wxyz": [1.0, 0.0, 0.0, 0.0],
-    "position": [1.0, -1.0, 1.0],
-    "fov": 1.0,
-    "near": 0.01,
-    "far": 100.0,
-    "image_height": 600,
-    "image_width": 800,
-    "look_at": [0.4, 0.0, 0.2],
-    "up_direction": [0.0, 0.0, 1.0],
-}
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--enable-unsafe-swiftshader",
-    "--use-angle=swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
 WATCH_STATUS_JS = """() => {
   window.__bt = [];
   let last = null;
@@ -94,37 +79,9 @@ class Args:
     """Also measure in headless Chromium (/usr/bin/chromium)."""
 
 
-class DrainingTab:
-    """A simulated tab: connects like a browser and reads (and counts) everything sent."""
-
-    def __init__(self, port: int) -> None:
-        self.ws = connect(
-            f"ws://127.0.0.1:{port}",
-            subprotocols=[f"viser-v{viser.__version__}"],  # type: ignore[list-item]
-            max_size=None,
-        )
-        self.bytes = 0
-        self._thread = threading.Thread(target=self._read, daemon=True)
-        self._thread.start()
-        self.ws.send(msgspec.msgpack.encode(CAMERA))
-
-    def _read(self) -> None:
-        try:
-            for frame in self.ws:
-                self.bytes += len(frame)
-        except Exception:  # closed
-            return
-
-    def close(self) -> None:
-        self.ws.close()
-        self._thread.join(5.0)
-
-
 def circle(ui: ClientUI, t_s: float) -> None:
     """Move the tab's target on a 6 cm circle in the task plane (4 s a lap)."""
-    phase = 2.0 * math.pi * t_s / 4.0
-    uv = 0.06 * np.array([math.sin(phase), 1.0 - math.cos(phase)])
-    ui.session.set_target(ui.session.scene.plane.to_world(uv))
+    ui.session.set_target(ui.session.scene.plane.to_world(circle_uv(t_s)))
 
 
 def drive_circles(uis: list[ClientUI], seconds: float) -> None:
@@ -135,11 +92,21 @@ def drive_circles(uis: list[ClientUI], seconds: float) -> None:
         time.sleep(0.01)
 
 
+@contextmanager
+def draining_tabs(app: TeleopApp, n_tabs: int) -> Iterator[tuple[list[FakeTab], list[ClientUI]]]:
+    """`n_tabs` simulated tabs that only count what they receive, and their sessions; on exit
+    the tabs close and their sessions end."""
+    try:
+        with tab_factory() as open_tab:
+            tabs = [open_tab(app, decode=False) for _ in range(n_tabs)]
+            yield tabs, list(app.wait_for_sessions(n_tabs).values())
+    finally:
+        wait_for(lambda: not app.sessions() and app.settled(), 10.0)
+
+
 def server_rates(app: TeleopApp, n_tabs: int, seconds: float) -> tuple[float, float]:
     """(scene updates per second per tab, kB per second per tab), medians over tabs."""
-    tabs = [DrainingTab(app.port) for _ in range(n_tabs)]
-    try:
-        uis = list(app.wait_for_sessions(n_tabs).values())
+    with draining_tabs(app, n_tabs) as (tabs, uis):
         drive_circles(uis, 1.0)  # warm up
         frames0 = [ui.frames for ui in uis]
         bytes0 = [tab.bytes for tab in tabs]
@@ -149,10 +116,6 @@ def server_rates(app: TeleopApp, n_tabs: int, seconds: float) -> tuple[float, fl
         rates = [(ui.frames - f0) / wall for ui, f0 in zip(uis, frames0, strict=True)]
         kbps = [(tab.bytes - b0) / wall / 1e3 for tab, b0 in zip(tabs, bytes0, strict=True)]
         return statistics.median(rates), statistics.median(kbps)
-    finally:
-        for tab in tabs:
-            tab.close()
-        wait_for(lambda: not app.sessions() and app.settled(), 10.0)
 
 
 def step_targets(ui: ClientUI, k: int) -> np.ndarray:
@@ -160,18 +123,21 @@ def step_targets(ui: ClientUI, k: int) -> np.ndarray:
     return ui.session.scene.plane.to_world(np.array([0.03 if k % 2 == 0 else -0.03, 0.0]))
 
 
+def settle_at(ui: ClientUI, goal: np.ndarray, tolerance_m: float, pause_s: float) -> None:
+    """Send the target to `goal` (3,) [m], wait until the end effector is within `tolerance_m`
+    [m] of it (at most 5 s), then `pause_s` [s] more."""
+    ui.session.set_target(goal)
+    wait_for(lambda: np.linalg.norm(ui.session.status().ee_pos - goal) < tolerance_m, 5.0)
+    time.sleep(pause_s)
+
+
 def server_delays(app: TeleopApp, n_tabs: int, steps: int) -> float:
     """Median delay [ms] from set_target to the first published frame that moved."""
-    tabs = [DrainingTab(app.port) for _ in range(n_tabs)]
-    try:
-        uis = list(app.wait_for_sessions(n_tabs).values())
+    with draining_tabs(app, n_tabs) as (_, uis):
         ui = uis[0]
         delays = []
         for k in range(steps):
-            goal = step_targets(ui, k)
-            ui.session.set_target(goal)
-            wait_for(lambda g=goal: np.linalg.norm(ui.session.status().ee_pos - g) < 2e-3, 5.0)
-            time.sleep(0.2)
+            settle_at(ui, step_targets(ui, k), tolerance_m=2e-3, pause_s=0.2)
             before = ui.session.status().ee_pos
             t0 = time.perf_counter()
             ui.session.set_target(step_targets(ui, k + 1))
@@ -186,10 +152,6 @@ def server_delays(app: TeleopApp, n_tabs: int, steps: int) -> float:
             )
             delays.append(1e3 * (frame.wall_time_s - t0))
         return statistics.median(delays)
-    finally:
-        for tab in tabs:
-            tab.close()
-        wait_for(lambda: not app.sessions() and app.settled(), 10.0)
 
 
 class PageSocket:
@@ -208,66 +170,51 @@ class PageSocket:
         self.frames += 1
         if not isinstance(payload, bytes):
             return
-        size = int.from_bytes(payload[:8], "little")
-        compressed = int.from_bytes(payload[8:16], "little")
-        inner = self._zstd.decompress(payload[16 : 16 + compressed], max_output_size=size)
-        for message in msgspec.msgpack.decode(inner)["messages"]:
+        for message in decode_frame(payload, self._zstd):
             if message.get("type") == "SetPositionMessage" and message.get("name") == self.node:
                 self.poses.append((index, np.array(message["position"])))
 
 
 def browser_numbers(app: TeleopApp, seconds: float, steps: int) -> dict[str, float]:
     """Rates and delays seen by headless Chromium (one tab)."""
-    from playwright.sync_api import sync_playwright
+    with chromium_page() as page:
+        sockets: list[PageSocket] = []
 
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(
-            executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS, headless=True
-        )
-        try:
-            page = browser.new_page(viewport={"width": 1000, "height": 700})
-            sockets: list[PageSocket] = []
+        def watch(ws: Any) -> None:
+            sockets.append(PageSocket(""))
+            ws.on("framereceived", sockets[-1].on_frame)
 
-            def watch(ws: Any) -> None:
-                sockets.append(PageSocket(""))
-                ws.on("framereceived", sockets[-1].on_frame)
-
-            page.on("websocket", watch)
-            page.goto(app.url, wait_until="commit")
-            page.get_by_text("End effector").first.wait_for(timeout=120_000)
-            (ui,) = app.wait_for_sessions(1).values()
-            socket = sockets[-1]
-            socket.node = f"/robot/body_{ui.view.moving_bodies[-1]}"  # the tool
-            page.evaluate(WATCH_STATUS_JS)
-            drive_circles([ui], 2.0)  # warm up (shader compilation)
-            page.evaluate("0")  # let Playwright deliver the frames received so far
-            n0, dom0 = len(socket.poses), len(page.evaluate("window.__bt"))
-            start = time.perf_counter()
-            drive_circles([ui], seconds)
-            wall = time.perf_counter() - start
-            page.evaluate("0")
-            received = (len(socket.poses) - n0) / wall
-            rendered = (len(page.evaluate("window.__bt")) - dom0) / wall
-            page_delays = []
-            for k in range(steps):
-                goal = step_targets(ui, k)
-                ui.session.set_target(goal)
-                wait_for(lambda g=goal: np.linalg.norm(ui.session.status().ee_pos - g) < 1e-3, 5)
-                time.sleep(0.5)
-                dom_seen = len(page.evaluate("window.__bt"))
-                t0_ms = time.time() * 1e3
-                ui.session.set_target(step_targets(ui, k + 1))
-                time.sleep(1.0)
-                shown = [t for t, _ in page.evaluate("window.__bt")[dom_seen:] if t >= t0_ms]
-                if shown:
-                    page_delays.append(shown[0] - t0_ms)
-            return {
-                "tool pose updates/s reaching the page (Chromium)": received,
-                "status-text updates/s rendered in the page (Chromium)": rendered,
-                "set_target → pose shown in the page DOM [ms] (Chromium)": _median(page_delays),
-            }
-        finally:
-            browser.close()
+        page.on("websocket", watch)
+        page.goto(app.url, wait_until="commit")
+        page.get_by_text("End effector").first.wait_for(timeout=120_000)
+        (ui,) = app.wait_for_sessions(1).values()
+        socket = sockets[-1]
+        socket.node = f"/robot/body_{ui.tab_scene.view.moving_bodies[-1]}"  # the tool
+        page.evaluate(WATCH_STATUS_JS)
+        drive_circles([ui], 2.0)  # warm up (shader compilation)
+        page.evaluate("0")  # let Playwright deliver the frames received so far
+        n0, dom0 = len(socket.poses), len(page.evaluate("window.__bt"))
+        start = time.perf_counter()
+        drive_circles([ui], seconds)
+        wall = time.perf_counter() - start
+        page.evaluate("0")
+        received = (len(socket.poses) - n0) / wall
+        rendered = (len(page.evaluate("window.__bt")) - dom0) / wall
+        page_delays = []
+        for k in range(steps):
+            settle_at(ui, step_targets(ui, k), tolerance_m=1e-3, pause_s=0.5)
+            dom_seen = len(page.evaluate("window.__bt"))
+            t0_ms = time.time() * 1e3
+            ui.session.set_target(step_targets(ui, k + 1))
+            time.sleep(1.0)
+            shown = [t for t, _ in page.evaluate("window.__bt")[dom_seen:] if t >= t0_ms]
+            if shown:
+                page_delays.append(shown[0] - t0_ms)
+        return {
+            "tool pose updates/s reaching the page (Chromium)": received,
+            "status-text updates/s rendered in the page (Chromium)": rendered,
+            "set_target → pose shown in the page DOM [ms] (Chromium)": _median(page_delays),
+        }
 
 
 def _median(values: list[float]) -> float:
@@ -275,38 +222,27 @@ def _median(values: list[float]) -> float:
 
 
 def wait_for(condition: Callable[[], Any], timeout_s: float) -> Any:
-    """Poll `condition` until truthy; its value (TimeoutError after `timeout_s` [s])."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.002)
-    raise TimeoutError(f"condition not met in {timeout_s} s")
+    """Poll `condition` every 2 ms (delays are measured with it) until truthy; its value."""
+    return wait_until(condition, timeout_s, poll_s=0.002)
 
 
 def main(args: Args) -> None:
     rows: dict[str, list[float]] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        app = start_app(AppOptions(port=0, recordings=Path(tmp), rerun="off", max_sessions=8))
-        try:
-            for _ in range(args.runs):
-                for n in (1, 4):
-                    rate, kbps = server_rates(app, n, args.seconds)
-                    rows.setdefault(f"scene updates/s per tab, {n} tab(s) (server)", []).append(
-                        rate
-                    )
-                    rows.setdefault(f"kB/s per tab, {n} tab(s)", []).append(kbps)
-                    delay = server_delays(app, n, args.steps)
-                    rows.setdefault(
-                        f"set_target → published pose [ms], {n} tab(s) (server)", []
-                    ).append(delay)
-                if args.browser:
-                    for name, value in browser_numbers(app, args.seconds, args.steps).items():
-                        rows.setdefault(name, []).append(value)
-                    wait_for(lambda: not app.sessions() and app.settled(), 10.0)
-        finally:
-            app.stop()
+    with tempfile.TemporaryDirectory() as tmp, app_factory(Path(tmp)) as make_app:
+        app = make_app(max_sessions=8)
+        for _ in range(args.runs):
+            for n in (1, 4):
+                rate, kbps = server_rates(app, n, args.seconds)
+                rows.setdefault(f"scene updates/s per tab, {n} tab(s) (server)", []).append(rate)
+                rows.setdefault(f"kB/s per tab, {n} tab(s)", []).append(kbps)
+                delay = server_delays(app, n, args.steps)
+                rows.setdefault(
+                    f"set_target → published pose [ms], {n} tab(s) (server)", []
+                ).append(delay)
+            if args.browser:
+                for name, value in browser_numbers(app, args.seconds, args.steps).items():
+                    rows.setdefault(name, []).append(value)
+                wait_for(lambda: not app.sessions() and app.settled(), 10.0)
     print(f"\n| measurement | median of {args.runs} runs | runs |")
     print("|---|---|---|")
     for name, values in rows.items():

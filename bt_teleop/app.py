@@ -39,7 +39,8 @@ from bt_teleop.cleaning import CleanRunner
 from bt_teleop.rerun_live import RERUN_MODES, RerunHub, RerunMode
 from bt_teleop.scene import Robot, parse_robot
 from bt_teleop.session import SessionConfig
-from bt_teleop.ui import ClientUI, TaskVersions, UiContext
+from bt_teleop.ui import ClientUI
+from bt_teleop.ui_context import TaskVersions, UiContext
 
 LOGGER = logging.getLogger("bt.teleop")
 CAMERA_POSITION = (1.1, -0.85, 0.7)

@@ -10,12 +10,13 @@ loop per session consumes it::
         project onto the task plane (optional) -> clamp to the workspace box
         -> step the command towards it at bounded speed -> IkController.solve
         -> position actuators (ctrl, with velocity feed-forward) -> mj_step x substeps
-        -> every 1 / record_hz: DemoRecorder.add(ee pose, joints, gripper, mj_getState)
+        -> every 1 / record_hz: RecordingSlot.sample_due (ee pose, joints, gripper, mj_getState)
 
 The loop runs in a background thread at real time (:meth:`Session.start`) or synchronously as
-fast as possible (:meth:`Session.step_for`), with the same tick. Saving writes outside the state
-lock, so disk I/O never stalls the loop. :meth:`Session.close` (a closed tab) saves a recording
-in progress flagged ``incomplete`` in ``ep_meta``, or discards it; never half-written.
+fast as possible (:meth:`Session.step_for`), with the same tick. The recording lifecycle (start,
+samples, save, the ``incomplete`` flag of a closed tab's demo) is in
+:mod:`bt_teleop.session_recording`; saving writes outside the state lock, so disk I/O never
+stalls the loop.
 """
 
 # mujoco ships compiled bindings without type stubs, so pyright cannot see MjModel, mj_step,
@@ -36,12 +37,13 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
-from bt_pipeline.data.records import MIN_SAMPLES, FloatArray
+from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.ik import IkController
-from bt_teleop.recorder import DemoInfo, DemoRecorder, finish_demo, site_quat, take_sample
+from bt_teleop.recorder import DemoInfo, site_quat
 from bt_teleop.scene import HOME_KEY, SceneModel, load_scene
 from bt_teleop.session_config import SessionConfig, SessionStatus, whole_steps
+from bt_teleop.session_recording import RecordingSlot
 from bt_teleop.workspace import (
     project_onto_plane,
     slew_toward,
@@ -89,9 +91,7 @@ class Session:
         self.session_id = session_id or secrets.token_hex(4)
         model = self.scene.model
         self._substeps = whole_steps(1.0 / (self.config.control_hz * model.opt.timestep), "physics")
-        self._ticks_per_sample = whole_steps(
-            self.config.control_hz / self.config.record_hz, "record"
-        )
+        self._demo = RecordingSlot(self.scene, self.recordings_dir, self.session_id, self.config)
         self.dt_s = self._substeps * float(model.opt.timestep)
         """Control period [s]."""
         self.data = mujoco.MjData(model)
@@ -109,8 +109,6 @@ class Session:
         self._stop_event = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
-        self._recorder: DemoRecorder | None = None
-        self._record_tick0 = 0
         self._ticks = 0
         self._ik_failures = 0
         self._warning: str | None = None
@@ -169,11 +167,7 @@ class Session:
         info = DemoInfo(demonstrator, theta_deg, rho, created=datetime.now(UTC))
         with self._state_lock:
             self._check_open()
-            if self._recorder is not None:
-                raise ConfigError("a recording is already in progress; stop or discard it first")
-            self._recorder = DemoRecorder(info, self.data.time, has_gripper=self.scene.has_gripper)
-            self._record_tick0 = self._ticks
-            take_sample(self._recorder, self.scene, self.data)
+            self._demo.start(info, self.data, self._ticks)
 
     def stop_and_save(self) -> Path:
         """Stop the demo in progress and write it to a new file; returns its path.
@@ -183,15 +177,15 @@ class Session:
             RecordingError: The demo is too short (it is discarded) or cannot be written.
         """
         with self._state_lock:
-            recorder = self._take_recorder()
+            recorder = self._demo.take()
             if recorder is None:
                 raise ConfigError("nothing to save: no recording in progress")
-        return self._save(recorder, incomplete=False)
+        return self._demo.save(recorder)
 
     def discard(self) -> bool:
         """Drop the demo in progress without writing anything; whether there was one."""
         with self._state_lock:
-            return self._take_recorder() is not None
+            return self._demo.take() is not None
 
     # -- running the loop ---------------------------------------------------------------------
 
@@ -243,11 +237,9 @@ class Session:
             if self._closed:
                 return None
             self._closed = True
-            recorder = self._take_recorder()
+            recorder = self._demo.take()
         keep = self.config.save_incomplete if save_incomplete is None else save_incomplete
-        if recorder is None or not keep or recorder.n_samples < MIN_SAMPLES:
-            return None
-        return self._save(recorder, incomplete=True)
+        return self._demo.save_incomplete(recorder, keep)
 
     def __enter__(self) -> Session:
         return self
@@ -285,7 +277,7 @@ class Session:
     @property
     def recording(self) -> bool:
         """Whether a demo is being recorded."""
-        return self._recorder is not None
+        return self._demo.recorder is not None
 
     @property
     def ik(self) -> IkController:
@@ -299,7 +291,7 @@ class Session:
             gripper_open = self._gripper_open if self.scene.has_gripper else None
         with self._state_lock:
             data = self.data
-            recorder = self._recorder
+            recorder = self._demo.recorder
             return SessionStatus(
                 sim_time_s=float(data.time),
                 qpos=data.qpos.copy(),
@@ -324,9 +316,7 @@ class Session:
     def trail(self) -> FloatArray:
         """End-effector positions of the demo in progress, shape (T, 3) [m] (empty if none)."""
         with self._state_lock:
-            if self._recorder is None:
-                return np.zeros((0, 3))
-            return self._recorder.ee_positions()
+            return self._demo.trail()
 
     # -- internals ----------------------------------------------------------------------------
 
@@ -352,8 +342,7 @@ class Session:
             if not result.ok:
                 self._ik_failures += 1
                 self._warning = result.warning
-                if self._recorder is not None:
-                    self._recorder.ik_failures += 1
+                self._demo.count_ik_failure()
             elif self._warning is not None and self._warning.startswith("IK"):
                 self._warning = None
             data.ctrl[self._arm_act] = result.q_arm + self._lead_s * result.v_arm
@@ -367,12 +356,7 @@ class Session:
                 self._recover()
             mujoco.mj_kinematics(model, data)  # poses of the state just integrated
             self._ticks += 1
-            recorder = self._recorder
-            if (
-                recorder is not None
-                and (self._ticks - self._record_tick0) % (self._ticks_per_sample) == 0
-            ):
-                take_sample(recorder, self.scene, self.data, clamped=clamped)
+            self._demo.sample_due(data, self._ticks, clamped=clamped)
 
     def _recover(self) -> None:
         """The simulation went unstable (MuJoCo reset it): start again from the ready pose."""
@@ -381,23 +365,6 @@ class Session:
         self.reset()
         self.data.time = time_s
         self._warning = "simulation became unstable; the robot was reset"
-
-    def _take_recorder(self) -> DemoRecorder | None:
-        recorder, self._recorder = self._recorder, None
-        return recorder
-
-    def _save(self, recorder: DemoRecorder, *, incomplete: bool) -> Path:
-        path = finish_demo(
-            recorder,
-            self.scene,
-            self.recordings_dir,
-            incomplete=incomplete,
-            session_id=self.session_id,
-            control_hz=self.config.control_hz,
-            record_hz=self.config.record_hz,
-        )
-        LOGGER.info("session %s saved %s", self.session_id, path)
-        return path
 
     def _run(self) -> None:
         period = self.dt_s

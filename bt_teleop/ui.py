@@ -1,4 +1,4 @@
-"""One browser tab: its GUI, its scene and its session (own robot, target, recorder, trail).
+"""One browser tab: its controller (:class:`ClientUI`) tying the tab's GUI, scene and session.
 
 Data flow (everything a tab does stays in the tab)::
 
@@ -7,7 +7,7 @@ Data flow (everything a tab does stays in the tab)::
                                                             │
     tab worker thread, every 1 / publish_hz [s]:            v
         run queued commands (switch task, record, save, discard, clean, play, ...)
-        Session.status() -> MjSceneView.update(qpos), target marker, trail, status text
+        Session.status() -> TabScene.show (robot, target marker, trail), status text
             (grouped with client.atomic(): one scene update per period)
         -> SessionLogger.log_state (Rerun, off this thread's critical path)
         poll: clean job progress, replay progress, library reloads
@@ -15,6 +15,9 @@ Data flow (everything a tab does stays in the tab)::
 
 Callbacks never block: they store a value or queue a command. The worker is the only thread
 that changes the tab's scene and the only one that swaps its Session (task switch).
+
+The parts live beside it: the panels in :mod:`bt_teleop.ui_panels`, the 3-D view in
+:mod:`bt_teleop.tab_scene`, what every tab shares in :mod:`bt_teleop.ui_context`.
 """
 
 from __future__ import annotations
@@ -26,94 +29,26 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import viser
 
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.tasks import TASKS, Task, parse_task
+from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError
-from bt_teleop.cleaning import CleanJob, CleanRunner
-from bt_teleop.replay import (
-    ReplayPlayer,
-    ReplayTrack,
-    TaskLibrary,
-    library_markdown,
-    load_library,
-)
-from bt_teleop.rerun_live import RerunHub, SessionLogger
-from bt_teleop.scene import Robot, load_scene
-from bt_teleop.session import Session, SessionConfig, SessionStatus
-from bt_teleop.viewer import MjSceneView, Trail, draw_path, floor_height, guide_loop_world
+from bt_teleop.cleaning import CleanJob
+from bt_teleop.replay import ReplayPlayer, TaskLibrary, library_markdown, load_library
+from bt_teleop.rerun_live import SessionLogger
+from bt_teleop.scene import load_scene
+from bt_teleop.session import Session
+from bt_teleop.tab_scene import Frame, TabScene
+from bt_teleop.ui_context import TaskVersions, UiContext
+from bt_teleop.ui_panels import TabControls, status_markdown
+
+__all__ = ["ClientUI", "Frame", "TaskVersions", "UiContext", "status_markdown"]
 
 LOGGER = logging.getLogger("bt.teleop")
-RAW_RGB = (255, 140, 0)
-"""Colour of a replayed raw demo's path."""
-CLEANED_RGB = (40, 200, 110)
-"""Colour of a replayed cleaned demo's path."""
-TRAIL_RGB = (220, 40, 60)
-"""Colour of the live end-effector trail while recording."""
-GUIDE_RGB = (70, 130, 255)
-"""Colour of the task-shape guide."""
-NO_DEMOS = "(no demos yet)"
-
-
-class TaskVersions:
-    """A counter per task, bumped when its files change, so every tab knows when to reload."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._versions: dict[str, int] = {}
-
-    def bump(self, task: str) -> None:
-        """Mark `task`'s files as changed."""
-        with self._lock:
-            self._versions[task] = self._versions.get(task, 0) + 1
-
-    def get(self, task: str) -> int:
-        """The current version of `task`'s files."""
-        with self._lock:
-            return self._versions.get(task, 0)
-
-
-@dataclass(frozen=True)
-class UiContext:
-    """What every tab shares (built once by the app)."""
-
-    recordings_dir: Path
-    robot: Robot
-    cleaner: CleanRunner
-    rerun: RerunHub
-    background: concurrent.futures.Executor
-    """Runs slow reads (loading and scoring a task's demos) off the tab workers."""
-    versions: TaskVersions = field(default_factory=TaskVersions)
-    session_config: SessionConfig = field(default_factory=SessionConfig)
-    publish_hz: float = 30.0
-    """Scene updates per second sent to each tab."""
-    save_incomplete: bool = True
-    """A closed tab's recording in progress: save it flagged incomplete (True) or discard it."""
-    initial_task: Task = "wiping"
-    event_loop: asyncio.AbstractEventLoop | None = None
-    """viser's event loop (where async GUI callbacks run)."""
-    fancy_lighting: bool = False
-    """viser's environment map and shadows (pretty with a GPU; software WebGL, as in headless
-    browsers and GPU-less laptops, takes tens of seconds to prepare them)."""
-
-
-@dataclass(frozen=True)
-class Frame:
-    """The last scene update sent to the tab."""
-
-    index: int
-    """Updates sent so far."""
-    wall_time_s: float
-    """``time.perf_counter()`` when it was queued [s]."""
-    sim_time_s: float
-    """Simulation time of the pose sent [s]."""
-    ee_pos: FloatArray
-    """End-effector position sent, shape (3,) [m]."""
 
 
 class ClientUI:
@@ -144,13 +79,18 @@ class ClientUI:
         self._library_version = -1
         self._seen_job: CleanJob | None = None
         self._status_text = ""
-        self._build_gui()
-        if not ctx.fancy_lighting:
-            _plain_lighting(client.scene)
+        self.controls = TabControls(client.gui, ctx)
+        """The tab's GUI handles."""
+        self.controls.connect(self)
         self.session: Session = self._new_session(ctx.initial_task)
-        self.view = MjSceneView(client.scene, self.session.scene.model, root="/robot")
-        self._draw_task_scene()
-        self.trail = Trail(client.scene, "/trail", TRAIL_RGB)
+        self.tab_scene = TabScene(
+            client.scene,
+            self.session.scene,
+            self._on_drag,
+            fancy_lighting=ctx.fancy_lighting,
+        )
+        """The tab's 3-D view."""
+        self._task_shown()
         self._worker = threading.Thread(target=self._run, name=f"bt-tab-{session_id}", daemon=True)
         self._worker.start()
 
@@ -233,75 +173,23 @@ class ClientUI:
             self.logger.close()
             return path
 
-    # -- GUI ----------------------------------------------------------------------------------
+    # -- what the panels' callbacks ask for (viser's event loop: store or queue, never block) -
 
-    def _build_gui(self) -> None:
-        gui = self.client.gui
-        task = self.ctx.initial_task
-        with gui.add_folder("Demonstration"):
-            self.task_input = gui.add_dropdown("Task", TASKS, initial_value=task)
-            self.name_input = gui.add_text("Demonstrator", initial_value="anonymous")
-            self.theta_input = gui.add_slider("θ [deg]", min=-30, max=30, step=1, initial_value=0)
-            self.rho_input = gui.add_slider("ρ", min=0.5, max=1.5, step=0.05, initial_value=1.0)
-            self.plane_input = gui.add_checkbox("Stay on task plane", initial_value=False)
-            self.gripper_input = gui.add_button_group("Gripper", ("Open", "Close"))
-        with gui.add_folder("Record"):
-            self.record_button = gui.add_button("Record", color="red")
-            self.save_button = gui.add_button("Stop & save", disabled=True)
-            self.discard_button = gui.add_button("Discard", disabled=True)
-            self.status_text = gui.add_markdown("")
-        with gui.add_folder("Recordings"):
-            self.library_text = gui.add_markdown("Loading the recordings…")
-        with gui.add_folder("Clean & replay"):
-            self.clean_button = gui.add_button("Clean")
-            self.clean_progress = gui.add_progress_bar(0.0, visible=False, animated=True)
-            self.replay_input: viser.GuiDropdownHandle[str] = gui.add_dropdown(
-                "Replay",
-                [str(NO_DEMOS)],  # str, not a literal type: the options change
-            )
-            self.play_button = gui.add_button("Play")
-            self.stop_replay_button = gui.add_button("Stop replay", disabled=True)
-        if self.ctx.rerun.viewer_url is not None:
-            gui.add_html(
-                f'<p style="padding: 0 0.75em"><a href="{self.ctx.rerun.viewer_url}" '
-                'target="_blank" rel="noopener">Open the live Rerun viewer</a></p>'
-            )
-        elif self.ctx.rerun.mode == "save":
-            gui.add_markdown("Rerun: this session is saved under `recordings/rerun/`.")
+    def redraw_guide(self) -> None:
+        """Redraw the task-shape guide (θ or ρ changed) with the next frame."""
+        self._guide_dirty = True
 
-        @self.task_input.on_update
-        async def _(_: viser.GuiEvent) -> None:
-            if self.task_input.value != self.task:
-                self.select_task(self.task_input.value)
+    def set_stay_on_plane(self, on: bool) -> None:
+        """Project the target onto the task plane (True) or not."""
+        self.session.set_stay_on_plane(on)
 
-        @self.theta_input.on_update
-        async def _(_: viser.GuiEvent) -> None:
-            self._guide_dirty = True
+    def set_gripper(self, open: bool) -> None:
+        """Open (True) or close (False) the gripper."""
+        self.session.set_gripper(open)
 
-        @self.rho_input.on_update
-        async def _(_: viser.GuiEvent) -> None:
-            self._guide_dirty = True
-
-        @self.plane_input.on_update
-        async def _(_: viser.GuiEvent) -> None:
-            self.session.set_stay_on_plane(self.plane_input.value)
-
-        @self.gripper_input.on_click
-        async def _(_: viser.GuiEvent) -> None:
-            self.session.set_gripper(self.gripper_input.value == "Open")
-
-        for button, action in (
-            (self.record_button, self.record),
-            (self.save_button, self.stop_and_save),
-            (self.discard_button, self.discard),
-            (self.clean_button, self.clean),
-            (self.stop_replay_button, self.stop_replay),
-        ):
-            button.on_click(_async_action(action))
-
-        @self.play_button.on_click
-        async def _(_: viser.GuiEvent) -> None:
-            self.play(self.replay_input.value)
+    def _on_drag(self, position: FloatArray) -> None:
+        if self.replay is None:
+            self.session.set_target(position)
 
     # -- scene --------------------------------------------------------------------------------
 
@@ -313,60 +201,34 @@ class ClientUI:
             config=self.ctx.session_config,
             session_id=self.session_id,
         )
-        session.set_stay_on_plane(self.plane_input.value)
+        session.set_stay_on_plane(self.controls.plane_input.value)
         session.start()
         return session
 
-    def _draw_task_scene(self) -> None:
-        """(Re)draw what depends on the task: gizmo, target marker, floor, guide, controls."""
-        scene_api, scene = self.client.scene, self.session.scene
-        self.gizmo = scene_api.add_transform_controls(
-            "/target",
-            scale=0.18,
-            disable_rotations=True,
-            depth_test=False,
-            position=scene.ready_pos,
-            wxyz=scene.ee_quat,
-        )
-
-        @self.gizmo.on_update
-        async def _(event: viser.TransformControlsEvent) -> None:
-            if self.replay is None:
-                self.session.set_target(event.target.position)
-
-        self.target_marker = scene_api.add_icosphere(
-            "/target_marker", radius=0.008, color=(255, 200, 0), position=scene.ready_pos
-        )
-        floor_z = floor_height(scene.model)
-        if floor_z is not None:
-            scene_api.add_grid("/floor", width=4.0, height=4.0, position=(0.0, 0.0, floor_z))
+    def _task_shown(self) -> None:
+        """The scene shows a (new) task: redraw its guide, reload its recordings."""
         self._guide_dirty = True
-        self.gripper_input.visible = scene.has_gripper
+        self.controls.gripper_input.visible = self.session.scene.has_gripper
         self._library_version = -1  # reload the task's recordings
 
     def _publish(self) -> None:
         status = self.session.status()
+        c = self.controls
         if self._guide_dirty:
             self._guide_dirty = False
-            loop = guide_loop_world(
-                self.session.scene, float(self.theta_input.value), float(self.rho_input.value)
+            self.tab_scene.draw_guide(
+                self.session.scene, float(c.theta_input.value), float(c.rho_input.value)
             )
-            draw_path(self.client.scene, "/guide", loop, GUIDE_RGB, closed=True, thickness=0.003)
         with self.client.atomic():
-            self.view.update(status.qpos)
-            self.target_marker.position = status.target_pos
-            self.target_marker.color = (255, 60, 60) if status.target_clamped else (255, 200, 0)
-            if status.recording:
-                self.trail.set(self.session.trail())
-            if self.replay is not None:
-                self.gizmo.position = status.command_pos
+            trail = self.session.trail() if status.recording else None
+            self.tab_scene.show(status, trail, follow=self.replay is not None)
             text = status_markdown(status, self.replay)
             if text != self._status_text:
                 self._status_text = text
-                self.status_text.content = text
-            self.record_button.disabled = status.recording
-            self.save_button.disabled = not status.recording
-            self.discard_button.disabled = not status.recording
+                c.status_text.content = text
+            c.record_button.disabled = status.recording
+            c.save_button.disabled = not status.recording
+            c.discard_button.disabled = not status.recording
         self._frames += 1
         self.last_frame = Frame(
             self._frames, time.perf_counter(), status.sim_time_s, status.ee_pos.copy()
@@ -429,7 +291,7 @@ class ClientUI:
                 library = future.result()
             except Exception as exc:
                 LOGGER.exception("loading the %s recordings failed", task)
-                self.library_text.content = f"Cannot read the recordings: {exc}"
+                self.controls.library_text.content = f"Cannot read the recordings: {exc}"
             else:
                 if library.task == self.task:
                     self._show_library(library)
@@ -438,22 +300,15 @@ class ClientUI:
 
     def _show_library(self, library: TaskLibrary) -> None:
         self.library = library
-        self.library_text.content = library_markdown(library)
-        keys = [track.key for track in library.tracks] or [NO_DEMOS]
-        current = self.replay_input.value
-        self.replay_input.options = keys
-        self.replay_input.value = current if current in keys else keys[-1]
+        self.controls.library_text.content = library_markdown(library)
+        self.controls.show_replay_keys([track.key for track in library.tracks])
 
     def _poll_clean(self) -> None:
         job = self.ctx.cleaner.current
         if job is None:
             return
         progress = job.progress()
-        running = progress.state == "running" and job.task == self.task
-        self.clean_progress.visible = running
-        if running:
-            self.clean_progress.value = 100.0 * progress.fraction
-        self.clean_button.disabled = progress.state == "running"
+        self.controls.show_clean_progress(progress, this_task=job.task == self.task)
         if job.owner is self and job.finished and self._seen_job is not job:
             self._seen_job = job
             if progress.state == "done":
@@ -467,13 +322,13 @@ class ClientUI:
         player = self.replay
         if player is None or not player.finished:
             if player is not None:
-                self.stop_replay_button.disabled = False
+                self.controls.stop_replay_button.disabled = False
             return
         self.replay, self.last_replay = None, player
-        self.stop_replay_button.disabled = True
+        self.controls.stop_replay_button.disabled = True
         status = self.session.status()
         self.session.set_target(status.ee_pos)
-        self.gizmo.position = status.ee_pos
+        self.tab_scene.gizmo.position = status.ee_pos
         if player.result is not None:
             error_mm = 1e3 * player.result.rms_error_m
             self._notify("Replay done", f"{player.track.key}: tracked within {error_mm:.1f} mm RMS")
@@ -484,24 +339,23 @@ class ClientUI:
         if task == self.task:
             return
         if self.session.recording:
-            self.task_input.value = self.task
+            self.controls.task_input.value = self.task
             raise BtError("stop or discard the recording before switching task")
         self._do_stop_replay()
         old = self.session
         self._time_offset_s += old.status().sim_time_s + 1.0
         old.close(save_incomplete=False)
         self.session = self._new_session(task)
-        self.view.remove()
-        self.view = MjSceneView(self.client.scene, self.session.scene.model, root="/robot")
-        self.trail.clear()
-        self._draw_task_scene()
-        self.task_input.value = task
+        self.tab_scene.show_task(self.session.scene)
+        self._task_shown()
+        self.controls.task_input.value = task
 
     def _do_record(self) -> None:
         self._do_stop_replay()
-        self.trail.clear()
+        self.tab_scene.trail.clear()
+        c = self.controls
         self.session.start_recording(
-            self.name_input.value, float(self.theta_input.value), float(self.rho_input.value)
+            c.name_input.value, float(c.theta_input.value), float(c.rho_input.value)
         )
 
     def _do_save(self) -> None:
@@ -514,7 +368,7 @@ class ClientUI:
 
     def _do_discard(self) -> None:
         self.session.discard()
-        self.trail.clear()
+        self.tab_scene.trail.clear()
 
     def _do_clean(self) -> None:
         self.ctx.cleaner.start(self.task, owner=self)
@@ -527,7 +381,7 @@ class ClientUI:
             raise BtError("the recordings are still loading")
         track = self.library.find(key)
         self._do_stop_replay()
-        self._draw_replay_paths(track)
+        self.tab_scene.draw_replay_paths(track, self.library)
         self.replay = ReplayPlayer(self.session, track)
         self.replay.start()
 
@@ -535,19 +389,7 @@ class ClientUI:
         if self.replay is not None:
             self.replay.stop()
             self._poll_replay()
-        for name in ("/replay/raw", "/replay/cleaned"):
-            handle = self.client.scene.get_handle_by_name(name)
-            if handle is not None:
-                handle.remove()
-
-    def _draw_replay_paths(self, track: ReplayTrack) -> None:
-        tracks = [track]
-        if track.kind == "cleaned" and self.library is not None:  # its raw source, to compare
-            raw_key = "raw · " + track.key.removeprefix("cleaned · ")
-            tracks += [t for t in self.library.raw if t.key == raw_key]
-        for shown in tracks:
-            color = CLEANED_RGB if shown.kind == "cleaned" else RAW_RGB
-            draw_path(self.client.scene, f"/replay/{shown.kind}", shown.positions, color)
+        self.tab_scene.clear_replay_paths()
 
     def _notify(self, title: str, body: str, color: Any = None) -> None:
         self.messages.append((title, body))
@@ -555,47 +397,3 @@ class ClientUI:
             self.client.add_notification(title, body, auto_close_seconds=6.0, color=color)
         except Exception:  # the tab may be gone
             LOGGER.debug("notification not shown: %s: %s", title, body)
-
-
-def _async_action(action: Callable[[], None]) -> Callable[[viser.GuiEvent], Any]:
-    """An async (in-order) click callback that queues `action`."""
-
-    async def callback(_: viser.GuiEvent) -> None:
-        action()
-
-    return callback
-
-
-def _plain_lighting(scene_api: viser.SceneApi) -> None:
-    """Cheap lighting: no environment map, no shadows; sky, ambient and a key light."""
-    scene_api.configure_environment_map(None)
-    scene_api.configure_default_lights(enabled=False, cast_shadow=False)
-    scene_api.add_light_hemisphere(
-        "/lights/sky", sky_color=(255, 255, 255), ground_color=(90, 90, 100), intensity=1.2
-    )
-    scene_api.add_light_ambient("/lights/ambient", intensity=0.6)
-    scene_api.add_light_directional(
-        "/lights/key", intensity=1.6, position=(1.5, -1.0, 2.5), cast_shadow=False
-    )
-
-
-def status_markdown(status: SessionStatus, replay: ReplayPlayer | None) -> str:
-    """The tab's status line: recording / replay progress, end-effector position, warnings."""
-    if status.recording:
-        head = f"**● Recording** · {status.n_samples} samples · {status.duration_s:.1f} s"
-    elif replay is not None:
-        phase, fraction = replay.progress
-        what = "moving to the start of" if phase == "approach" else f"{100 * fraction:.0f} % of"
-        head = f"**▶ Replaying** {what} {replay.track.key}"
-    else:
-        head = "Ready: drag the gizmo, then **Record**"
-    x, y, z = (1e3 * status.ee_pos).round().astype(int)
-    lines = [head, f"End effector ({x}, {y}, {z}) mm"]
-    if status.target_clamped:
-        lines.append("⚠ target clamped to the workspace")
-    if status.warning:
-        lines.append(f"⚠ {status.warning}")
-    return "  \n".join(lines)
-
-
-__all__ = ["ClientUI", "Frame", "TaskVersions", "UiContext", "status_markdown"]

@@ -15,7 +15,11 @@ from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth import make_d1
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.evaluate.reproduce import reproduce
-from bt_pipeline.evaluate.reproduce_jobs import PAPER_ILEED_D1_GAIN, ReproduceConfig, truth_demos
+from bt_pipeline.evaluate.reproduce_jobs import (
+    PAPER_ILEED_D1_GAIN,
+    ReproduceConfig,
+    truth_demos,
+)
 from bt_pipeline.evaluate.reproduce_report import Cell, verdict
 from bt_pipeline.exceptions import ConfigError
 

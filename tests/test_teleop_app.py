@@ -1,132 +1,47 @@
 """The teleop web app without a browser: server, one session per tab, files, Clean, replay, Rerun.
 
-Tabs are simulated by :class:`FakeTab`, a raw viser websocket client: it connects with viser's
-protocol version, sends the first camera message (what makes viser call ``on_client_connect``),
-decodes everything the server sends, and closes like a tab. GUI actions are driven through the
-same handles the browser drives (setting a handle's value runs its callbacks).
+Tabs are simulated by :class:`bt_teleop.testing.FakeTab`, a raw viser websocket client that
+behaves like a tab. GUI actions are driven through the same handles the browser drives
+(setting a handle's value runs its callbacks).
 """
 
 from __future__ import annotations
 
 import math
 import threading
-import time
 import urllib.request
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import numpy as np
 import pytest
 import viser
-import zstandard
-from websockets.sync.client import connect
 
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import ConfigError
-from bt_teleop.app import AppOptions, TeleopApp, start_app
+from bt_teleop.app import AppOptions, TeleopApp
 from bt_teleop.cleaning import CleanRunner, cleaned_path
 from bt_teleop.replay import load_library, replay_sync
 from bt_teleop.rerun_live import RerunHub, SessionLogger
 from bt_teleop.script import run_script
 from bt_teleop.session import Session
+from bt_teleop.testing import FakeTab, app_factory, tab_factory, wait_until
 from bt_teleop.ui import ClientUI
 from bt_teleop.viewer import Trail, guide_loop_world
-
-CAMERA = {
-    "type": "ViewerCameraMessage",
-    "wxyz": [1.0, 0.0, 0.0, 0.0],
-    "position": [1.0, -1.0, 1.0],
-    "fov": 1.0,
-    "near": 0.01,
-    "far": 100.0,
-    "image_height": 600,
-    "image_width": 800,
-    "look_at": [0.4, 0.0, 0.2],
-    "up_direction": [0.0, 0.0, 1.0],
-}
-
-
-class FakeTab:
-    """A browser tab as the server sees it: a viser websocket client that reads everything."""
-
-    def __init__(self, port: int) -> None:
-        self.ws = connect(
-            f"ws://127.0.0.1:{port}",
-            subprotocols=[f"viser-v{viser.__version__}"],  # type: ignore[list-item]
-            max_size=None,
-        )
-        self.messages: list[dict[str, Any]] = []
-        self._thread = threading.Thread(target=self._read, daemon=True)
-        self._thread.start()
-        self.ws.send(msgspec.msgpack.encode(CAMERA))
-
-    def _read(self) -> None:
-        decompress = zstandard.ZstdDecompressor()
-        try:
-            for frame in self.ws:
-                assert isinstance(frame, bytes)
-                size = int.from_bytes(frame[:8], "little")
-                compressed = int.from_bytes(frame[8:16], "little")
-                payload = decompress.decompress(frame[16 : 16 + compressed], max_output_size=size)
-                self.messages.extend(msgspec.msgpack.decode(payload)["messages"])
-        except Exception:  # closed
-            return
-
-    def text(self) -> str:
-        """Every message received, as text (to look for strings)."""
-        return " ".join(str(m) for m in list(self.messages))
-
-    def close(self) -> None:
-        self.ws.close()
-        self._thread.join(5.0)
-
-
-def wait_until(condition: Callable[[], Any], timeout_s: float = 30.0, what: str = "") -> Any:
-    """Poll `condition` until it is truthy; its value (fails the test after `timeout_s`)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.02)
-    pytest.fail(f"timed out after {timeout_s} s waiting for {what or condition}")
 
 
 @pytest.fixture
 def make_app(tmp_path: Path) -> Iterator[Callable[..., TeleopApp]]:
-    apps: list[TeleopApp] = []
-
-    def make(**kwargs: Any) -> TeleopApp:
-        defaults: dict[str, Any] = {
-            "port": 0,
-            "recordings": tmp_path / "recordings",
-            "rerun": "off",
-            "clean_epochs": 2,
-        }
-        app = start_app(AppOptions(**(defaults | kwargs)))
-        apps.append(app)
-        return app
-
-    yield make
-    for app in apps:
-        app.stop()
+    with app_factory(tmp_path / "recordings") as make:
+        yield make
 
 
 @pytest.fixture
-def tabs() -> Iterator[Callable[[TeleopApp], FakeTab]]:
-    opened: list[FakeTab] = []
-
-    def open_tab(app: TeleopApp) -> FakeTab:
-        tab = FakeTab(app.port)
-        opened.append(tab)
-        return tab
-
-    yield open_tab
-    for tab in opened:
-        tab.close()
+def tabs() -> Iterator[Callable[..., FakeTab]]:
+    with tab_factory() as open_tab:
+        yield open_tab
 
 
 def only_session(app: TeleopApp) -> ClientUI:
@@ -136,10 +51,10 @@ def only_session(app: TeleopApp) -> ClientUI:
 
 def record(ui: ClientUI, seconds: float) -> Path:
     """Record for `seconds` [s] of simulation time through the GUI buttons, then save."""
-    ui.record_button.value = True  # what a click does
+    ui.controls.record_button.value = True  # what a click does
     assert ui.wait_idle()
     wait_until(lambda: ui.session.status().duration_s >= seconds, what="recording")
-    ui.save_button.value = True
+    ui.controls.save_button.value = True
     assert ui.wait_idle()
     return ui.saved[-1]
 
@@ -187,16 +102,16 @@ def test_every_tab_has_its_own_robot(make_app, tabs) -> None:
     assert ui_a.session is not ui_b.session and ui_a.session_id != ui_b.session_id
     start_b = ui_b.session.status().ee_pos
     goal = ui_a.session.scene.plane.to_world(np.array([0.06, 0.04]))
-    ui_a.gizmo.position = goal  # what a drag does, then the callback sets the target
+    ui_a.tab_scene.gizmo.position = goal  # what a drag does, then the callback sets the target
     ui_a.session.set_target(goal)
     wait_until(lambda: np.linalg.norm(ui_a.session.status().ee_pos - goal) < 5e-3, what="A")
     assert np.linalg.norm(ui_b.session.status().ee_pos - start_b) < 1e-3
     # Each tab's robot is drawn into that tab only: the moved link poses go to A's socket.
     wait_until(lambda: ui_a.frames > 5 and ui_b.frames > 5, what="scene updates")
     assert "/robot/body_" in tab_a.text() and "/robot/body_" in tab_b.text()
-    ui_a.task_input.value = "pick_and_place"
+    ui_a.controls.task_input.value = "pick_and_place"
     assert ui_a.wait_idle()
-    assert ui_a.task == "pick_and_place" and ui_a.gripper_input.visible
+    assert ui_a.task == "pick_and_place" and ui_a.controls.gripper_input.visible
     assert ui_b.task == "wiping"
 
 
@@ -204,7 +119,7 @@ def test_a_closed_tab_saves_its_recording_flagged_incomplete(make_app, tabs) -> 
     app = make_app()
     tab = tabs(app)
     ui = only_session(app)
-    ui.record_button.value = True
+    ui.controls.record_button.value = True
     wait_until(lambda: ui.session.status().n_samples >= 40, what="samples")
     tab.close()
     wait_until(lambda: not app.sessions() and app.settled(), what="the session to end")
@@ -218,7 +133,7 @@ def test_a_closed_tab_discards_its_recording_when_configured(make_app, tabs) -> 
     app = make_app(save_incomplete=False)
     tab = tabs(app)
     ui = only_session(app)
-    ui.record_button.value = True
+    ui.controls.record_button.value = True
     wait_until(lambda: ui.session.status().n_samples >= 40, what="samples")
     tab.close()
     wait_until(lambda: not app.sessions() and app.settled(), what="the session to end")
@@ -238,7 +153,7 @@ def test_a_name_from_the_browser_never_leaves_the_recordings_folder(make_app, ta
     app = make_app()
     tabs(app)
     ui = only_session(app)
-    ui.name_input.value = "../../etc/passwd"
+    ui.controls.name_input.value = "../../etc/passwd"
     path = record(ui, 0.5)
     task_dir = (app.options.recordings / "wiping").resolve()
     assert path.resolve().parent == task_dir
@@ -251,12 +166,13 @@ def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
     app = make_app()
     tabs(app)
     ui = only_session(app)
-    ui.theta_input.value = 10
-    ui.rho_input.value = 1.2
+    ui.controls.theta_input.value = 10
+    ui.controls.rho_input.value = 1.2
     record(ui, 0.5)
     wait_until(lambda: ui.library is not None and len(ui.library.raw) == 1, what="library")
-    assert "10°, 1.20" in ui.library_text.content and "★" in ui.library_text.content
-    assert ui.replay_input.options == (ui.library.raw[0].key,)  # type: ignore[union-attr]
+    listed = ui.controls.library_text.content
+    assert "10°, 1.20" in listed and "★" in listed
+    assert ui.controls.replay_input.options == (ui.library.raw[0].key,)  # type: ignore[union-attr]
 
 
 # -- clean and replay ---------------------------------------------------------------------------
@@ -307,12 +223,12 @@ def test_clean_button_then_replay_a_cleaned_demo(three_recordings, make_app, tab
     app = make_app(recordings=three_recordings, clean_in_process=False)
     tabs(app)
     ui = only_session(app)
-    ui.clean_button.value = True
+    ui.controls.clean_button.value = True
     wait_until(lambda: "Clean done" in [m[0] for m in ui.messages], 240.0, "clean")
     wait_until(lambda: ui.library is not None and ui.library.cleaned, what="cleaned demos")
     key = ui.library.cleaned[0].key  # type: ignore[union-attr]
-    ui.replay_input.value = key
-    ui.play_button.value = True
+    ui.controls.replay_input.value = key
+    ui.controls.play_button.value = True
     assert ui.wait_idle()
     assert ui.client.scene.get_handle_by_name("/replay/cleaned") is not None
     assert ui.client.scene.get_handle_by_name("/replay/raw") is not None  # its source, to compare

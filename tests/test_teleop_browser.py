@@ -11,66 +11,32 @@ from __future__ import annotations
 
 import io
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 from PIL import Image
-from playwright.sync_api import Page, expect, sync_playwright
+from playwright.sync_api import Page, expect
 
 from bt_pipeline.data.recording import read_recording
-from bt_teleop.app import AppOptions, TeleopApp, start_app
+from bt_teleop.app import TeleopApp
+from bt_teleop.testing import app_factory, chromium_page, wait_until
 from bt_teleop.ui import ClientUI
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--enable-unsafe-swiftshader",
-    "--use-angle=swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-"""Flags from integration-facts; Playwright adds a fresh temporary --user-data-dir itself."""
 PAGE_TIMEOUT_MS = 90_000
-VIEWPORT = {"width": 1000, "height": 700}
-
-
-def wait_until(condition: Callable[[], Any], timeout_s: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
 
 
 @pytest.fixture
 def app(tmp_path: Path) -> Iterator[TeleopApp]:
-    running = start_app(AppOptions(port=0, recordings=tmp_path / "recordings", rerun="off"))
-    yield running
-    running.stop()
+    with app_factory(tmp_path / "recordings") as make:
+        yield make()
 
 
 @pytest.fixture
 def page() -> Iterator[Page]:
-    if not CHROMIUM.is_file():
-        pytest.fail(f"{CHROMIUM} is missing: apt-get install -y chromium (as .ci/run does)")
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(
-            executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True
-        )
-        try:
-            tab = browser.new_page(viewport=VIEWPORT)  # type: ignore[arg-type]
-            tab.set_default_timeout(PAGE_TIMEOUT_MS)
-            yield tab
-        finally:
-            browser.close()
+    with chromium_page(timeout_ms=PAGE_TIMEOUT_MS) as tab:  # names the fix if Chromium is missing
+        yield tab
 
 
 def screenshot(page: Page) -> np.ndarray:
@@ -82,14 +48,14 @@ def screenshot(page: Page) -> np.ndarray:
 def robot_pixels(page: Page, ui: ClientUI) -> tuple[np.ndarray, np.ndarray]:
     """(mask of pixels that change when the robot is hidden (H, W), the shown screenshot)."""
     shown = screenshot(page)
-    ui.view.set_visible(False)
+    ui.tab_scene.view.set_visible(False)
     try:
         deadline = time.monotonic() + 60.0
         hidden = screenshot(page)
         while not np.any(hidden != shown) and time.monotonic() < deadline:
             hidden = screenshot(page)  # the next frame drawn without the robot
     finally:
-        ui.view.set_visible(True)
+        ui.tab_scene.view.set_visible(True)
     return np.abs(shown - hidden).sum(axis=2) > 30, shown
 
 
@@ -106,7 +72,7 @@ def test_record_in_the_browser_and_see_the_robot(app: TeleopApp, page: Page) -> 
     name = page.locator("xpath=//p[normalize-space(.)='Demonstrator']/following::input[1]")
     name.fill("Ada Lovelace")
     name.press("Enter")
-    wait_until(lambda: ui.name_input.value == "Ada Lovelace", 30.0, "the name to arrive")
+    wait_until(lambda: ui.controls.name_input.value == "Ada Lovelace", 30.0, "the name to arrive")
 
     record.click()
     wait_until(lambda: ui.session.recording, 30.0, "the recording to start")

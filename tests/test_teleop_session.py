@@ -22,6 +22,7 @@ from bt_teleop import ik as ik_module
 from bt_teleop.recorder import STATE_SIGNATURE
 from bt_teleop.scene import SceneModel, load_scene
 from bt_teleop.session import Session, SessionConfig
+from bt_teleop.testing import circle_uv
 
 RADIUS_M = 0.06
 PERIOD_S = 4.0
@@ -30,12 +31,6 @@ PERIOD_S = 4.0
 @pytest.fixture(scope="module")
 def scenes() -> dict[str, SceneModel]:
     return {task: load_scene(task) for task in TASKS}
-
-
-def _circle(t_s: float) -> np.ndarray:
-    """A circle from the plane origin upwards in v (inside every workspace), (2,) [m]."""
-    phase = 2.0 * math.pi * t_s / PERIOD_S
-    return RADIUS_M * np.array([math.sin(phase), 1.0 - math.cos(phase)])
 
 
 def _files(root: Path) -> list[Path]:
@@ -50,7 +45,7 @@ def test_tracks_a_reachable_circle_in_the_task_plane(
     errors, positions = [], []
     for k in range(round(6.0 / session.dt_s)):
         t_s = k * session.dt_s
-        session.set_target_uv(_circle(t_s))
+        session.set_target_uv(circle_uv(t_s, RADIUS_M, PERIOD_S))
         session.step(1)
         if t_s >= 1.5:  # after settling
             status = session.status()
@@ -70,7 +65,7 @@ def test_recorded_file_validates_and_its_states_replay(
     session = Session(scene, tmp_path)
     session.start_recording("Zoë / ../x", theta_deg=12.5, rho=1.2)
     for k in range(round(1.0 / session.dt_s)):
-        session.set_target_uv(_circle(k * session.dt_s))
+        session.set_target_uv(circle_uv(k * session.dt_s, RADIUS_M, PERIOD_S))
         session.step(1)
     assert session.status().n_samples == 51
     path = session.stop_and_save()

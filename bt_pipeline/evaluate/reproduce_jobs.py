@@ -1,16 +1,8 @@
 """The jobs of ``bt reproduce``: each (seed, set, task) generates, cleans and evaluates.
 
-Data flow, one job per (seed, set, task), jobs in parallel with ``workers``::
-
-    make_d1 / make_d2 (bt_pipeline.data.synth) ──demos_from_recording──▶ noisy demos
-        ──clean_demos (default variant)──▶ cleaned demos (+ distance of both to the true shapes)
-        ──evaluate_demos (4 learners × noisy/cleaned, R rollouts each)──▶ TaskEvaluation
-    all jobs ──▶ DIR/rewards.png (Fig. 11), DIR/<set>.<task>.rollouts.png (Figs. 8-10, seed 0),
-                 DIR/results.json (every row), DIR/report.md (tables, paper side by side, verdict)
-
-Presets (docs/evaluation.md): ``--quick`` is the CI-sized run: D1 and D2 for the three tasks,
-the learners' quick presets, 20 rollouts; the full run uses the learners' full presets and the
-paper's 50 rollouts. Results depend only on the config and seeds, not on ``workers``.
+One job per (seed, set, task), run in parallel with ``workers``; the data flow and the outputs
+are in :mod:`bt_pipeline.evaluate.reproduce`. Results depend only on the config and seeds, not on
+``workers``.
 """
 
 from __future__ import annotations

@@ -1,0 +1,227 @@
+"""The test harness of the teleop app, shared by ``tests/`` and ``benchmarks/``.
+
+::
+
+    app_factory(recordings) -> make(**AppOptions overrides) -> TeleopApp   (all stopped on exit)
+    tab_factory() -> open_tab(app) -> FakeTab      a raw viser websocket client (closed on exit)
+    chromium_page() -> Playwright Page             Debian's headless Chromium, software WebGL
+    wait_until(condition, timeout_s, what)         poll until truthy; TimeoutError otherwise
+    circle_uv(t_s)                                 a reachable circle in task-plane coordinates
+
+:class:`FakeTab` is a browser tab as the server sees it: it connects with viser's protocol
+version, sends the first camera message (what makes viser call ``on_client_connect``), reads
+(and, unless told not to, decodes) everything the server sends, and closes like a tab.
+Playwright is imported only by :func:`chromium_page` (a dev dependency; never
+``playwright install``: it drives Debian's ``/usr/bin/chromium``).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import msgspec
+import numpy as np
+import viser
+import zstandard
+from websockets.sync.client import connect
+
+from bt_pipeline.data.records import FloatArray
+from bt_teleop.app import AppOptions, TeleopApp, start_app
+
+if TYPE_CHECKING:
+    from playwright.sync_api import Page, ViewportSize
+
+__all__ = [
+    "CAMERA_MESSAGE",
+    "CHROMIUM",
+    "CHROMIUM_ARGS",
+    "VIEWPORT",
+    "FakeTab",
+    "app_factory",
+    "chromium_page",
+    "circle_uv",
+    "decode_frame",
+    "tab_factory",
+    "wait_until",
+]
+
+CAMERA_MESSAGE: dict[str, Any] = {
+    "type": "ViewerCameraMessage",
+    "wxyz": [1.0, 0.0, 0.0, 0.0],
+    "position": [1.0, -1.0, 1.0],
+    "fov": 1.0,
+    "near": 0.01,
+    "far": 100.0,
+    "image_height": 600,
+    "image_width": 800,
+    "look_at": [0.4, 0.0, 0.2],
+    "up_direction": [0.0, 0.0, 1.0],
+}
+"""The first message a viser page sends (its camera); the server then calls on_client_connect."""
+CHROMIUM = Path("/usr/bin/chromium")
+"""Debian's Chromium (``apt-get install -y chromium``, as ``.ci/run`` does)."""
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--enable-unsafe-swiftshader",
+    "--use-angle=swiftshader",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+"""Flags from integration-facts; Playwright adds a fresh temporary --user-data-dir itself."""
+VIEWPORT: ViewportSize = {"width": 1000, "height": 700}
+"""Page size [px] of :func:`chromium_page`."""
+
+
+def decode_frame(frame: bytes, decompressor: zstandard.ZstdDecompressor) -> list[dict[str, Any]]:
+    """The messages of one websocket frame viser sent (sizes, zstd, msgpack)."""
+    size = int.from_bytes(frame[:8], "little")
+    compressed = int.from_bytes(frame[8:16], "little")
+    payload = decompressor.decompress(frame[16 : 16 + compressed], max_output_size=size)
+    return msgspec.msgpack.decode(payload)["messages"]
+
+
+class FakeTab:
+    """A browser tab as the server sees it: a viser websocket client that reads everything."""
+
+    def __init__(self, port: int, *, decode: bool = True) -> None:
+        """Connect to the app on `port`; keep the decoded messages when `decode` (else only
+        count the bytes, which costs the benchmarks no CPU)."""
+        self.ws = connect(
+            f"ws://127.0.0.1:{port}",
+            subprotocols=[f"viser-v{viser.__version__}"],  # type: ignore[list-item]
+            max_size=None,
+        )
+        self.decode = decode
+        self.messages: list[dict[str, Any]] = []
+        """Every message received (when decoding)."""
+        self.bytes = 0
+        """Bytes received so far."""
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+        self.ws.send(msgspec.msgpack.encode(CAMERA_MESSAGE))
+
+    def _read(self) -> None:
+        decompressor = zstandard.ZstdDecompressor()
+        try:
+            for frame in self.ws:
+                assert isinstance(frame, bytes)
+                self.bytes += len(frame)
+                if self.decode:
+                    self.messages.extend(decode_frame(frame, decompressor))
+        except Exception:  # closed
+            return
+
+    def text(self) -> str:
+        """Every message received, as text (to look for strings)."""
+        return " ".join(str(m) for m in list(self.messages))
+
+    def close(self) -> None:
+        """Close like a tab."""
+        self.ws.close()
+        self._thread.join(5.0)
+
+
+@contextmanager
+def tab_factory() -> Iterator[Callable[..., FakeTab]]:
+    """``open_tab(app, decode=True)`` opens a :class:`FakeTab` on `app`; all closed on exit."""
+    opened: list[FakeTab] = []
+
+    def open_tab(app: TeleopApp, *, decode: bool = True) -> FakeTab:
+        tab = FakeTab(app.port, decode=decode)
+        opened.append(tab)
+        return tab
+
+    try:
+        yield open_tab
+    finally:
+        for tab in opened:
+            tab.close()
+
+
+@contextmanager
+def app_factory(recordings: Path) -> Iterator[Callable[..., TeleopApp]]:
+    """``make(**overrides)`` starts an app on a free port, recording under `recordings`, with
+    Rerun off and 2 clean epochs unless overridden; every app is stopped on exit."""
+    apps: list[TeleopApp] = []
+
+    def make(**overrides: Any) -> TeleopApp:
+        defaults: dict[str, Any] = {
+            "port": 0,
+            "recordings": recordings,
+            "rerun": "off",
+            "clean_epochs": 2,
+        }
+        app = start_app(AppOptions(**(defaults | overrides)))
+        apps.append(app)
+        return app
+
+    try:
+        yield make
+    finally:
+        for app in apps:
+            app.stop()
+
+
+@contextmanager
+def chromium_page(
+    viewport: ViewportSize = VIEWPORT, timeout_ms: float | None = None
+) -> Iterator[Page]:
+    """A page in headless Chromium (:data:`CHROMIUM` with :data:`CHROMIUM_ARGS`).
+
+    Args:
+        viewport: Page size [px].
+        timeout_ms: Playwright's default timeout of the page [ms]; its own when None.
+
+    Raises:
+        FileNotFoundError: Chromium is not installed (the message says how to install it).
+    """
+    from playwright.sync_api import sync_playwright
+
+    if not CHROMIUM.is_file():
+        raise FileNotFoundError(
+            f"{CHROMIUM} is missing: apt-get install -y chromium (as .ci/run does)"
+        )
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(
+            executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True
+        )
+        try:
+            page = browser.new_page(viewport=viewport)
+            if timeout_ms is not None:
+                page.set_default_timeout(timeout_ms)
+            yield page
+        finally:
+            browser.close()
+
+
+def wait_until(
+    condition: Callable[[], Any], timeout_s: float = 30.0, what: str = "", poll_s: float = 0.02
+) -> Any:
+    """Poll `condition` every `poll_s` [s] until it is truthy; its value.
+
+    Raises:
+        TimeoutError: Not truthy after `timeout_s` [s] (the message names `what`).
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(poll_s)
+    raise TimeoutError(f"timed out after {timeout_s} s waiting for {what or condition}")
+
+
+def circle_uv(t_s: float, radius_m: float = 0.06, period_s: float = 4.0) -> FloatArray:
+    """A circle from the task plane's origin upwards in v (inside every workspace) at time
+    `t_s` [s]: (u, v), shape (2,) [m]."""
+    phase = 2.0 * math.pi * t_s / period_s
+    return radius_m * np.array([math.sin(phase), 1.0 - math.cos(phase)])
