@@ -4,12 +4,14 @@
   :class:`~bt_pipeline.data.records.Recording` of circles drawn in the task's default plane.
 * ``write_example_file(directory, name="example.hdf5", **make_recording_kwargs)`` writes one to
   ``directory / name`` and returns the path.
+* ``make_app(**options)`` starts a teleop app on a free port (stopped after the test);
+  ``tabs(app)`` opens a simulated browser tab on it (closed after the test).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -105,3 +107,21 @@ def write_example_file() -> Callable[..., Path]:
         return write_recording(Path(directory) / name, build_recording(**kwargs))
 
     return write
+
+
+@pytest.fixture
+def make_app(tmp_path: Path) -> Iterator[Callable[..., Any]]:
+    """``make(**AppOptions overrides)`` starts a teleop app (bt_teleop.testing.app_factory)."""
+    from bt_teleop.testing import app_factory  # viser and MuJoCo only for the tests using it
+
+    with app_factory(tmp_path / "recordings") as make:
+        yield make
+
+
+@pytest.fixture
+def tabs() -> Iterator[Callable[..., Any]]:
+    """``open_tab(app)`` opens a simulated tab (bt_teleop.testing.FakeTab) on an app."""
+    from bt_teleop.testing import tab_factory
+
+    with tab_factory() as open_tab:
+        yield open_tab

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 import threading
 import urllib.request
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -27,21 +26,9 @@ from bt_teleop.replay import load_library, replay_sync
 from bt_teleop.rerun_live import RerunHub, SessionLogger
 from bt_teleop.script import run_script
 from bt_teleop.session import Session
-from bt_teleop.testing import FakeTab, app_factory, tab_factory, wait_until
+from bt_teleop.testing import wait_until
 from bt_teleop.ui import ClientUI
 from bt_teleop.viewer import Trail, guide_loop_world
-
-
-@pytest.fixture
-def make_app(tmp_path: Path) -> Iterator[Callable[..., TeleopApp]]:
-    with app_factory(tmp_path / "recordings") as make:
-        yield make
-
-
-@pytest.fixture
-def tabs() -> Iterator[Callable[..., FakeTab]]:
-    with tab_factory() as open_tab:
-        yield open_tab
 
 
 def only_session(app: TeleopApp) -> ClientUI:

@@ -8,7 +8,6 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -19,26 +18,14 @@ import pytest
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop import app as app_module
-from bt_teleop.app import AppOptions, TeleopApp, is_loopback, start_app
+from bt_teleop.app import AppOptions, is_loopback, start_app
 from bt_teleop.cleaning import CleanRunner
 from bt_teleop.recorder import DemoInfo
 from bt_teleop.script import run_script
-from bt_teleop.testing import FakeTab, app_factory, tab_factory, wait_until
+from bt_teleop.testing import FakeTab, wait_until
 from bt_teleop.ui import ClientUI
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture
-def make_app(tmp_path: Path) -> Iterator[Callable[..., TeleopApp]]:
-    with app_factory(tmp_path / "recordings") as make:
-        yield make
-
-
-@pytest.fixture
-def tabs() -> Iterator[Callable[..., FakeTab]]:
-    with tab_factory() as open_tab:
-        yield open_tab
 
 
 def _closed(tab: FakeTab) -> bool:

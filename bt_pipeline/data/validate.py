@@ -254,8 +254,8 @@ def read_dataset(group: h5py.Group, key: str, label: str, max_rows: int | None =
     item = group[key]
     if not isinstance(item, h5py.Dataset):
         raise RecordingError(f"{label}: {key} is a group; expected a dataset")
-    shape = item.shape or ()
-    if max_rows is not None and shape and (shape[0] > max_rows or item.size > 64 * max_rows):
+    shape, size = item.shape or (), item.size or 0  # None for an empty (null) dataspace
+    if max_rows is not None and shape and (shape[0] > max_rows or size > 64 * max_rows):
         raise RecordingError(
             f"{label}: {key} has shape {item.shape}; at most {max_rows} rows are read"
         )
