@@ -2,9 +2,10 @@
 
 Every mutation must give exit 0 or 2, exactly one ``bt: error:`` line when 2, no traceback, no
 hang (each run has a time limit) and an unchanged input (sha256). ``bt score --strict`` runs on
-every mutation in this process (fast); ``bt clean --strict`` on every k-th one, and a sample of
-both through the real command line (subprocesses). Prints counts per mutation kind and exit code,
-and every failure.
+every mutation in this process (fast); ``bt clean --strict`` on every k-th round of the
+mutation kinds (so on each kind); ``bt score`` also through the real command line
+(subprocesses) for the first few. Prints counts per mutation kind and exit code, and every
+failure.
 
     nice -n 10 .venv/bin/python benchmarks/bench_fuzz.py --mutations 500 --clean-every 10 --cli 30
 """
@@ -17,7 +18,13 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from bt_pipeline.testing.fuzz import check_command, check_in_process, mutate, write_valid
+from bt_pipeline.testing.fuzz import (
+    MUTATIONS,
+    check_command,
+    check_in_process,
+    mutate,
+    write_valid,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -41,7 +48,7 @@ def main() -> None:
             runs: list[tuple[str, list[str], bool]] = [
                 ("score", ["score", "--strict", str(path)], False)
             ]
-            if seed % args.clean_every == 0:
+            if (seed // len(MUTATIONS)) % args.clean_every == 0:  # every kind in turn
                 out = str(folder / f"out{seed}")
                 clean = ["clean", "--strict", "--epochs", "1", "--no-rrd", str(path), "--out", out]
                 runs.append(("clean", clean, False))
