@@ -247,7 +247,7 @@ def clean_paths(
     task_notes = {
         group[0].task: notes for (_, group, _), (_, notes) in zip(jobs, outcomes, strict=True)
     }
-    for note in usable.notes:
+    for note in reversed(usable.notes):  # prepended: they keep their order, before the rest
         tasks = [d.task for d, _ in usable.flagged if note.startswith(f"skipped {d.label}:")]
         task = tasks[0] if tasks else results[0].task
         task_notes[task] = [note, *task_notes.get(task, [])]
