@@ -36,6 +36,9 @@ from bt_teleop.app import TeleopApp
 from bt_teleop.testing import app_factory, circle_uv, tab_factory, wait_until
 from bt_teleop.ui import ClientUI
 
+REFUSALS = ("Not done", "Error")
+"""Titles of the notices a tab shows when an action fails."""
+
 
 class TickClock:
     """Wraps a session's ``_tick`` to keep the largest gaps between ticks."""
@@ -112,6 +115,9 @@ def main() -> None:
         for thread in drivers:
             thread.join(60.0)
         wait_until(app.settled, 60.0, "tabs to settle")
+        for ui in uis:
+            ui.wait_idle(120.0)  # the last Stop & save may still be queued
+        refused = [body for ui in uis for title, body in ui.messages if title in REFUSALS]
         rss_end = process.memory_info().rss
         received = sum(tab.bytes for tab in tabs)
         saved_ui = sum(len(ui.saved) for ui in uis)
@@ -127,6 +133,7 @@ def main() -> None:
     print(f"stalls > 50 ms: {int(np.sum(gaps - period > 0.05))}")
     print(f"memory (RSS): {rss_start / 2**20:.0f} MiB at start, {rss_end / 2**20:.0f} MiB at end")
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
+    print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")
     shutil.rmtree(tmp, ignore_errors=True)
 
