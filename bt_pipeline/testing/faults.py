@@ -75,7 +75,8 @@ def prepare(scenario: str, folder: Path, previous: bool = True) -> list[str]:
         write_recording(
             folder / "s.hdf5", make_demo_set("wiping", 3, seed=0).recording, overwrite=True
         )
-        return [*bt, "synth", "--out", str(folder / "s.hdf5"), "--seed", "1", "--overwrite"]
+        out = str(folder / "s.hdf5")
+        return [*bt, "synth", "--out", out, "--demos", "3", "--seed", "1", "--overwrite"]
     if scenario == "clean":
         command = [*bt, "clean", str(source), "--out", str(folder / "out"), "--epochs", "3"]
         if previous and not (folder / "out" / "bt-outputs.json").exists():
