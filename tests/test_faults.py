@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bt_pipeline.data.output_set import STAGING_PREFIX
-from bt_pipeline.testing.faults import check, prepare, run_trial
+from bt_pipeline.testing.faults import check, prepare, run_trial, snapshot
 
 REPO = Path(__file__).resolve().parents[1]
 DELAYS = np.random.default_rng(10).uniform(0.3, 6.0, size=6)
@@ -45,3 +45,16 @@ def test_the_check_finds_a_torn_output_and_leftovers(tmp_path) -> None:
     assert not any("left behind" in p for p in problems)
     (folder / f"{STAGING_PREFIX}x").mkdir()  # not a staging folder recovery knows: reported
     assert any("left behind" in p for p in check("synth", folder, old=None))
+
+
+def test_a_writer_that_finishes_passes_the_check(tmp_path) -> None:
+    """The check accepts the new content of a finished `bt synth --overwrite` (not only the old)."""
+    import os
+    import subprocess
+
+    folder = tmp_path / "synth"
+    command = prepare("synth", folder)
+    old = snapshot(folder / "s.hdf5")
+    subprocess.run(command, check=True, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert snapshot(folder / "s.hdf5") is not None
+    assert check("synth", folder, old) == ()

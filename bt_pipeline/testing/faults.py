@@ -97,7 +97,7 @@ def run_trial(
 ) -> Trial:
     """Start `scenario`'s writer, SIGKILL its process group after `delay_s` [s], check."""
     command = prepare(scenario, folder, previous)
-    old = _snapshot(folder / "s.hdf5") if scenario == "synth" else None
+    old = snapshot(folder / "s.hdf5") if scenario == "synth" else None
     env = {**os.environ, "PYTHONPATH": str(repo)} if repo is not None else None
     process = subprocess.Popen(
         command,
@@ -139,7 +139,7 @@ def check(
             if rrd.stat().st_size == 0:
                 problems.append(f"empty {rrd.name}")
     if scenario == "synth" and old is not None:
-        now = _snapshot(folder / "s.hdf5")
+        now = snapshot(folder / "s.hdf5")
         new = _snapshot_of(make_demo_set("wiping", 3, seed=1).recording.demos)
         if now is None or not (_same(now, old) or _same(now, new)):
             problems.append("s.hdf5 holds neither its old nor its new content")
@@ -151,7 +151,8 @@ def _leftovers(folder: Path) -> list[Path]:
     return [p for p in folder.rglob(".*") if ".tmp" in p.name or p.name.startswith(STAGING_PREFIX)]
 
 
-def _snapshot(path: Path) -> tuple[np.ndarray, ...] | None:
+def snapshot(path: Path) -> tuple[np.ndarray, ...] | None:
+    """The positions of every demo of the recording at `path`, or None when it is unreadable."""
     try:
         return _snapshot_of(read_recording(path).demos)
     except RecordingError:
