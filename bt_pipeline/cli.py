@@ -28,25 +28,50 @@ Required = tyro.conf.arg(help_behavior_hint="(required)")
 log = logging.getLogger("bt")
 
 
-def score(paths: tyro.conf.Positional[Paths], json: bool = False, samples: int = 300) -> None:
+def score(
+    paths: tyro.conf.Positional[Paths],
+    json: bool = False,
+    samples: int = 300,
+    strict: bool = False,
+    max_distance: float = 10.0,
+) -> None:
     """Score every demo (demo utility score, paper Eq. 8) and mark the best one per task.
+
+    Excluded files are skipped and flagged demos listed with ⚠ but not ranked; unless --strict,
+    unreadable files and demos that cannot be scored are skipped too, each with a note.
 
     Args:
         paths: Format-v1 recordings: files, directories or glob patterns.
         json: Print one JSON object on stdout instead of tables.
         samples: N, samples per demo after resampling uniformly in time.
+        strict: Stop at the first unreadable file or unscorable demo instead of skipping it.
+        max_distance: Largest distance [m] of a sample from its task plane's origin; farther is
+            an error naming the demo.
     """
-    from bt_pipeline.data.demo import group_by_task, load_demos
+    from bt_pipeline.data.demo import group_by_task
+    from bt_pipeline.data.limits import ReadLimits
+    from bt_pipeline.data.skipping import read_usable, skip_failing
+    from bt_pipeline.exceptions import DemoError
     from bt_pipeline.score.utility import score_demos
     from bt_pipeline.viz.tables import print_score_tables, score_json
 
     _require(paths)
-    demos = load_demos(paths, n_samples=samples)
-    results = [score_demos(group) for group in group_by_task(demos).values()]
+    limits = ReadLimits(max_distance_m=max_distance)
+    usable = read_usable(paths, samples, strict=strict, limits=limits)
+    results, notes = [], list(usable.notes)
+    for group in group_by_task(usable.demos).values():
+        result, skipped = skip_failing(
+            score_demos, group, lambda d: score_demos([d]), strict=strict
+        )
+        notes += skipped
+        if result is not None:
+            results.append(result)
+    if not results and not usable.flagged:
+        raise DemoError(f"no demo could be scored: {'; '.join(notes)}")
     if json:
-        print(jsonlib.dumps(score_json(results), indent=2))
+        print(jsonlib.dumps(score_json(results, usable.flagged, notes), indent=2))
     else:
-        print_score_tables(results)
+        print_score_tables(results, usable.flagged, notes)
 
 
 def synth(
@@ -90,8 +115,13 @@ def clean(
     variant: Literal["default", "paper"] = "default",
     strict: bool = False,
     json: bool = False,
+    max_distance: float = 10.0,
 ) -> None:
     """Clean every task's demos (paper Algorithm 1) and write DIR/<task>.cleaned.hdf5.
+
+    Excluded files and flagged demos are skipped; unless --strict, so are unreadable files and
+    demos that cannot be cleaned (no motion, not periodic), each with a note naming it. The
+    outputs of a run appear together (staged, then published; DIR/bt-outputs.json lists them).
 
     Args:
         paths: Format-v1 recordings: files, directories or glob patterns.
@@ -103,18 +133,27 @@ def clean(
         executor: Where tasks run: "local" (this process), "processes" or "ray" (docs/scale.md).
         ray_address: Ray cluster address (with --executor ray); unset starts a local Ray.
         variant: "default" (bt's design) or "paper" (the paper's configuration, for comparison).
-        strict: Stop at the first unreadable file instead of skipping it with a warning.
+        strict: Stop at the first unreadable file or unusable demo instead of skipping it.
         json: Print one JSON summary on stdout instead of tables.
+        max_distance: Largest distance [m] of a sample from its task plane's origin; farther is
+            an error naming the demo.
     """
     from bt_pipeline.clean.driver import clean_paths
     from bt_pipeline.clean.pipeline import CleanOptions
+    from bt_pipeline.data.limits import ReadLimits
     from bt_pipeline.viz.tables import clean_json, print_clean_summary
 
     _require(paths)
     options = CleanOptions(
         seed=seed, epochs=epochs, variant=variant, write_rrd=rrd, workers=workers, strict=strict
     )
-    summaries = clean_paths(paths, out, options, ExecutorConfig(executor, workers, ray_address))
+    summaries = clean_paths(
+        paths,
+        out,
+        options,
+        ReadLimits(max_distance_m=max_distance),
+        ExecutorConfig(executor, workers, ray_address),
+    )
     if json:
         print(jsonlib.dumps(clean_json(summaries), indent=2))
     else:

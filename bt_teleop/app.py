@@ -7,7 +7,9 @@
 
     TeleopApp
       viser server (binds options.host, 127.0.0.1 by default)
-        on_client_connect  -> slot free? ClientUI(client) : "full, try later" message
+        on_client_connect  -> slot free? ClientUI(client) : "full, try later" message, then
+                              the socket is closed (REFUSED_CLOSE_S later; at once when more
+                              than max_sessions refused sockets are still open)
         on_client_disconnect -> ClientUI.close(): a recording in progress is saved flagged
                                 incomplete (or discarded: save_incomplete=False)
       shared by the tabs: CleanRunner (one clean job at a time, in a process),
@@ -20,10 +22,13 @@ Rerun's gRPC server and the executor.
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures
+import ipaddress
 import logging
 import secrets
 import signal
+import sys
 import threading
 import time
 import warnings
@@ -47,6 +52,13 @@ CAMERA_POSITION = (1.1, -0.85, 0.7)
 """Where a new tab's camera starts [m]: the FR3 and its table fill the view."""
 CAMERA_LOOK_AT = (0.42, 0.0, 0.2)
 """What a new tab's camera looks at [m]."""
+REFUSED_CLOSE_S = 2.0
+"""How long a refused tab's socket stays open to deliver the "full" message [s]."""
+EXPOSED_WARNING = (
+    "bt teleop: WARNING: --host {host} exposes the app to every machine that can reach this "
+    "one: anyone can record, clean and watch sessions. Use 127.0.0.1 (the default) with an SSH "
+    "tunnel, or a reverse proxy with a login in front (docs/security.md)."
+)
 FULL_MESSAGE = (
     "## This teleop server is full\n\n"
     "{n} people are recording right now, the most this server allows. "
@@ -131,6 +143,7 @@ class TeleopApp:
         self._pending: set[int] = set()  # tabs being set up (they hold a slot)
         self._departed: set[int] = set()  # tabs that left while being set up
         self._closing: set[ClientUI] = set()  # tabs being closed after a disconnect
+        self._refused: set[int] = set()  # refused tabs whose socket is not closed yet
         self._stopping = False
         self.rerun = RerunHub(
             options.rerun,
@@ -233,8 +246,7 @@ class TeleopApp:
                 refused = False
                 self._pending.add(client.client_id)
         if refused:
-            client.gui.add_markdown(FULL_MESSAGE.format(n=self.options.max_sessions))
-            LOGGER.info("tab %d refused: %d sessions", client.client_id, self.options.max_sessions)
+            self._refuse(client)
             return
         ui: ClientUI | None = None
         try:
@@ -254,8 +266,39 @@ class TeleopApp:
         elif ui is not None:
             LOGGER.info("tab %d: session %s", client.client_id, ui.session_id)
 
+    def refused_open(self) -> int:
+        """Refused tabs whose socket is still open (at most ``max_sessions``)."""
+        with self._lock:
+            return len(self._refused)
+
+    def _refuse(self, client: viser.ClientHandle) -> None:
+        """Tell a tab the server is full, then close its socket (bounded: no pile of sockets)."""
+        with self._lock:
+            crowded = len(self._refused) >= self.options.max_sessions
+            self._refused.add(client.client_id)
+        LOGGER.info("tab %d refused: %d sessions", client.client_id, self.options.max_sessions)
+        if not crowded:
+            client.gui.add_markdown(FULL_MESSAGE.format(n=self.options.max_sessions))
+        delay = 0.0 if crowded else REFUSED_CLOSE_S
+        timer = threading.Timer(delay, self._close_socket, args=(client.client_id,))
+        timer.daemon = True
+        timer.start()
+
+    def _close_socket(self, client_id: int) -> None:
+        """Close a client's websocket. viser 1.1 has no public call for one client; its server
+        keeps the live connections by client id (as its own ``disconnect_all_clients`` uses)."""
+        ws_server = self.server._websock_server  # private: viser has no per-client close
+        loop = ws_server._background_event_loop
+        connection = ws_server._live_connections.get(client_id)
+        if loop is not None and connection is not None and not loop.is_closed():
+            asyncio.run_coroutine_threadsafe(connection.close(1013, "server full"), loop)
+        else:
+            with self._lock:
+                self._refused.discard(client_id)
+
     def _on_disconnect(self, client: viser.ClientHandle) -> None:
         with self._lock:
+            self._refused.discard(client.client_id)
             ui = self._uis.pop(client.client_id, None)
             if ui is None and client.client_id in self._pending:
                 self._departed.add(client.client_id)
@@ -275,8 +318,24 @@ class TeleopApp:
 
 
 def start_app(options: AppOptions | None = None) -> TeleopApp:
-    """Start the app in background threads and return it (stop it with ``.stop()``)."""
-    return TeleopApp(options or AppOptions())
+    """Start the app in background threads and return it (stop it with ``.stop()``).
+
+    A host other than a loopback address prints :data:`EXPOSED_WARNING` on stderr.
+    """
+    options = options or AppOptions()
+    if not is_loopback(options.host):
+        print(EXPOSED_WARNING.format(host=options.host), file=sys.stderr, flush=True)
+    return TeleopApp(options)
+
+
+def is_loopback(host: str) -> bool:
+    """Whether `host` names this machine only (127.0.0.0/8, ::1, localhost)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def serve(options: AppOptions | None = None) -> None:

@@ -1,15 +1,8 @@
 """The teleop app's Clean button: clean one task's recordings in a background process.
 
-Where files go::
-
-    <recordings>/<task>/*.hdf5                 raw demos, one file per demo (the input)
-    <recordings>/.cleaned/<task>.cleaned.hdf5  the cleaned demos of the task (format v1)
-    <recordings>/.cleaned/<task>.rrd           the cleaning result for the Rerun viewer
-
-The output folder is hidden on purpose: every directory scan of bt
-(:func:`bt_pipeline.data.recording.expand_paths`) skips hidden folders, so neither the app's list of
-raw recordings nor ``bt score recordings`` / ``bt clean recordings`` ever takes cleaned demos for
-raw input. Each clean replaces the task's previous output, atomically.
+Where the files go is in :mod:`bt_teleop.clean_task`: ``<recordings>/.cleaned/`` is hidden on
+purpose, so every directory scan of bt (:func:`bt_pipeline.data.paths.expand_paths`) skips it and
+cleaned demos are never taken for raw input.
 
 A job runs in a spawned process (torch training holds a core; the sessions' control loops keep
 the other), with one thread in the app reading its progress queue::
@@ -18,8 +11,13 @@ the other), with one thread in the app reading its progress queue::
                                          -> write <task>.cleaned.hdf5 (+ .rrd) -> queue(result)
                             -> thread:  queue -> CleanJob.progress() (the UI polls it)
 
-At most one job runs at a time in an app (the machine has few cores); starting a second one
-raises a ConfigError that names the task being cleaned.
+At most one job runs per task; jobs of different tasks run side by side, so a slow or stuck job
+never blocks another task or tab. Every job has a time limit (``timeout_s``, 15 min by default)
+after which its process is stopped and the job fails with a message saying so, and a job can be
+cancelled (the Cancel clean button). A job's outputs are published as one set
+(:class:`~bt_pipeline.data.output_set.OutputSet`): a stopped job leaves the previous output.
+Demos the cleaner cannot use, flagged and excluded demos are skipped with a note (as ``bt
+clean`` does); the notes reach the tab that started the job.
 """
 
 from __future__ import annotations
@@ -28,35 +26,22 @@ import logging
 import multiprocessing
 import queue
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
-from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
+from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult
 from bt_pipeline.data.tasks import Task, parse_task
-from bt_pipeline.exceptions import BtError, ConfigError, DemoError, RecordingError
+from bt_pipeline.exceptions import BtError, ConfigError
+from bt_teleop.clean_task import CLEANED_DIRNAME, clean_task, cleaned_dir, cleaned_path, task_dir
 
-CLEANED_DIRNAME = ".cleaned"
-"""Folder under the recordings root that holds cleaned output (hidden: never scanned as input)."""
 LOGGER = logging.getLogger("bt.teleop")
 
-JobState = Literal["running", "done", "failed"]
-
-
-def cleaned_dir(recordings_dir: str | Path) -> Path:
-    """``<recordings>/.cleaned``."""
-    return Path(recordings_dir) / CLEANED_DIRNAME
-
-
-def cleaned_path(recordings_dir: str | Path, task: str) -> Path:
-    """``<recordings>/.cleaned/<task>.cleaned.hdf5``."""
-    return cleaned_dir(recordings_dir) / f"{parse_task(task)}.cleaned.hdf5"
-
-
-def task_dir(recordings_dir: str | Path, task: str) -> Path:
-    """``<recordings>/<task>``: the raw demos of `task`."""
-    return Path(recordings_dir) / parse_task(task)
+JobState = Literal["running", "done", "failed", "cancelled"]
+DEFAULT_TIMEOUT_S = 900.0
+"""Longest a clean job may run before it is stopped [s]."""
 
 
 @dataclass(frozen=True)
@@ -75,6 +60,8 @@ class CleanProgress:
     """What is happening, or why the job failed."""
     output: Path | None = None
     """The cleaned file, once done."""
+    notes: tuple[str, ...] = ()
+    """Demos skipped (flagged, excluded, unusable), one line each, once done."""
 
     @property
     def fraction(self) -> float:
@@ -120,7 +107,7 @@ class CleanJob:
 
 
 class CleanRunner:
-    """Runs clean jobs for the app, one at a time, each in its own process."""
+    """Runs the app's clean jobs: one per task at a time, each in a process, time-limited."""
 
     def __init__(
         self,
@@ -129,35 +116,53 @@ class CleanRunner:
         *,
         processes: bool = True,
         on_finish: Callable[[CleanJob], None] | None = None,
+        timeout_s: float = DEFAULT_TIMEOUT_S,
     ) -> None:
         """Prepare a runner.
 
         Args:
             recordings_dir: Root folder of the recordings.
             options: Cleaner settings (progress bars are turned off); defaults when None.
-            processes: Run jobs in a spawned process (True) or in a thread of this process.
+            processes: Run jobs in a spawned process (True) or in a thread of this process (a
+                thread cannot be stopped: a cancelled or timed-out thread job is abandoned, its
+                result ignored).
             on_finish: Called (from a runner thread) when a job ends, done or failed.
+            timeout_s: Longest a job may run [s]; then it is stopped and fails.
         """
+        if not (timeout_s > 0.0):
+            raise ConfigError(f"clean timeout must be positive; got {timeout_s} s")
         self.recordings_dir = Path(recordings_dir)
         self.options = replace(options or CleanOptions(), progress=False)
         self.processes = processes
         self.on_finish = on_finish
+        self.timeout_s = timeout_s
         self._lock = threading.Lock()
-        self._job: CleanJob | None = None
-        self._process: Any = None  # multiprocessing.Process (its type depends on the context)
-        self._thread: threading.Thread | None = None
+        self._jobs: dict[Task, CleanJob] = {}
+        self._last: CleanJob | None = None
+        self._processes: dict[Task, Any] = {}  # multiprocessing.Process (type depends on context)
+        self._threads: dict[Task, threading.Thread] = {}
         self._closed = False
 
     @property
     def current(self) -> CleanJob | None:
-        """The job running now, or the last one."""
-        return self._job
+        """The job started last (running or not), or None."""
+        return self._last
+
+    def job_for(self, task: str) -> CleanJob | None:
+        """The running or last job of `task`, or None."""
+        with self._lock:
+            return self._jobs.get(parse_task(task))
+
+    def jobs(self) -> list[CleanJob]:
+        """The running or last job of every task that had one."""
+        with self._lock:
+            return list(self._jobs.values())
 
     def start(self, task: str, owner: object = None) -> CleanJob:
         """Start cleaning `task`'s recordings in the background.
 
         Raises:
-            ConfigError: A job is already running (its task is named), or the runner is closed.
+            ConfigError: A job for `task` is already running, or the runner is closed.
             UnknownTaskError: `task` is unknown.
         """
         parsed = parse_task(task)
@@ -165,42 +170,59 @@ class CleanRunner:
         with self._lock:
             if self._closed:
                 raise ConfigError("the app is shutting down; no new clean jobs")
-            if self._job is not None and not self._job.finished:
+            running = self._jobs.get(parsed)
+            if running is not None and not running.finished:
                 raise ConfigError(
-                    f"a clean job for {self._job.task} is running; try again when it finishes"
+                    f"a clean job for {parsed} is running; try again when it finishes or cancel it"
                 )
             job = CleanJob(parsed, epochs, owner)
-            self._job = job
+            self._jobs[parsed] = self._last = job
             messages: Any
             if self.processes:
                 context = multiprocessing.get_context("spawn")
                 messages = context.Queue()
-                self._process = context.Process(
+                process = context.Process(
                     target=run_clean_job,
                     args=(self.recordings_dir, parsed, self.options, messages, True),
                     name=f"bt-clean-{parsed}",
                     daemon=True,
                 )
-                self._process.start()
-                target, args = self._read_process, (job, messages, self._process)
+                process.start()
+                self._processes[parsed] = process
+                target, args = self._read_process, (job, messages, process)
             else:
                 messages = queue.Queue()
                 target, args = self._run_inline, (job, messages)
-            self._thread = threading.Thread(
+            thread = threading.Thread(
                 target=target, args=args, name=f"bt-clean-{parsed}", daemon=True
             )
-            self._thread.start()
+            self._threads[parsed] = thread
+            thread.start()
         return job
 
-    def close(self, timeout_s: float = 5.0) -> None:
-        """Stop a running job (its output is not written) and join the threads."""
+    def cancel(self, task: str, reason: str = "cancelled") -> bool:
+        """Stop `task`'s running job (its output is not written); True when one was running."""
+        parsed = parse_task(task)
         with self._lock:
-            self._closed = True
-            process, thread = self._process, self._thread
+            job, process = self._jobs.get(parsed), self._processes.get(parsed)
+        if job is None or job.finished:
+            return False
+        job._update(state="cancelled", message=reason)
         if process is not None and process.is_alive():
             process.terminate()
+        return True
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop every running job (their outputs are not written) and join the threads."""
+        with self._lock:
+            self._closed = True
+            tasks = list(self._jobs)
+            threads = list(self._threads.values())
+        for task in tasks:
+            self.cancel(task, "the app stopped")
+        for process in list(self._processes.values()):
             process.join(timeout_s)
-        if thread is not None:
+        for thread in threads:
             thread.join(timeout_s)
 
     def _run_inline(self, job: CleanJob, messages: queue.Queue[Any]) -> None:
@@ -215,6 +237,8 @@ class CleanRunner:
 
     def _read_process(self, job: CleanJob, messages: Any, process: Any) -> None:
         self._consume(job, messages, process.is_alive)
+        if process.is_alive() and job.progress().state != "done":
+            process.terminate()  # timed out or cancelled
         process.join(5.0)
         self._finished(job)
 
@@ -226,7 +250,14 @@ class CleanRunner:
                 LOGGER.exception("on_finish of the clean job for %s failed", job.task)
 
     def _consume(self, job: CleanJob, messages: Any, alive: Any) -> None:
-        while True:
+        deadline = time.monotonic() + self.timeout_s
+        while not job.finished:
+            if time.monotonic() > deadline:
+                job._update(
+                    state="failed",
+                    message=f"stopped after {self.timeout_s:g} s (the clean time limit)",
+                )
+                return
             try:
                 kind, *payload = messages.get(timeout=0.2)
             except queue.Empty:
@@ -234,13 +265,15 @@ class CleanRunner:
                     job._update(state="failed", message="the clean process stopped unexpectedly")
                     return
                 continue
+            if job.finished:  # cancelled meanwhile: its result is dropped
+                return
             if kind == "epoch":
                 job._update(epoch=payload[0], message=f"refining: epoch {payload[0]}")
             elif kind == "stage":
                 job._update(message=payload[0])
             elif kind == "done":
                 job.result = payload[1]
-                job._update(state="done", output=Path(payload[0]), message="done")
+                job._update(state="done", output=Path(payload[0]), message="done", notes=payload[2])
                 return
             else:
                 job._update(state="failed", message=str(payload[0]))
@@ -257,7 +290,7 @@ def run_clean_job(
     """Clean `task`'s raw recordings and write the output; report through `messages`.
 
     Messages are tuples: ``("stage", text)``, ``("epoch", k)``, then ``("done", output path,
-    TaskCleanResult)`` or ``("failed", message)``. Runs in the job's process (or thread).
+    TaskCleanResult, notes)`` or ``("failed", message)``. Runs in the job's process (or thread).
     """
     try:
         if single_thread:
@@ -265,96 +298,20 @@ def run_clean_job(
 
             torch.set_num_threads(1)  # leave the other cores to the sessions
         messages.put(("stage", "reading recordings"))
+        notes: list[str] = []
         output, result = clean_task(
-            recordings_dir, task, options, on_epoch=lambda k: messages.put(("epoch", k))
+            recordings_dir,
+            task,
+            options,
+            on_epoch=lambda k: messages.put(("epoch", k)),
+            notes=notes,
         )
-        messages.put(("done", str(output), result))
+        messages.put(("done", str(output), result, tuple(notes)))
     except BtError as exc:
         messages.put(("failed", str(exc)))
     except Exception as exc:  # reported in the UI; the app keeps running
         LOGGER.exception("clean job for %s failed", task)
         messages.put(("failed", f"{type(exc).__name__}: {exc}"))
-
-
-def clean_task(
-    recordings_dir: str | Path,
-    task: str,
-    options: CleanOptions | None = None,
-    on_epoch: Any = None,
-) -> tuple[Path, TaskCleanResult]:
-    """Clean the raw demos in ``<recordings>/<task>/`` and write the cleaned file (and .rrd).
-
-    Args:
-        recordings_dir: Root folder of the recordings.
-        task: The task.
-        options: Cleaner settings; defaults when None. ``write_rrd`` also writes the .rrd.
-        on_epoch: Called with the 1-based epoch number after every refinement epoch.
-
-    Returns:
-        The cleaned file and the cleaner's result.
-
-    Demos flagged by the take checks (attr ``flags``) and excluded files are skipped (logged).
-
-    Raises:
-        RecordingError: No readable recordings.
-        DemoError: No usable demos, or a demo that cannot be cleaned.
-    """
-    from bt_pipeline.clean.driver import cleaned_recording
-    from bt_pipeline.data.demo import demos_from_recording
-    from bt_pipeline.data.moderation import is_excluded
-    from bt_pipeline.data.paths import expand_paths
-    from bt_pipeline.data.recording import read_recordings, write_recording
-
-    options = options or CleanOptions(progress=False)
-    parsed = parse_task(task)
-    source_dir = task_dir(recordings_dir, parsed)
-    try:
-        files = expand_paths([source_dir]) if source_dir.is_dir() else []
-    except RecordingError:  # an empty folder
-        files = []
-    if not files:  # the message names no server path: the page shows it
-        raise DemoError(f"no recordings of {parsed} yet: record some demos first")
-    recordings = [r for r in read_recordings(files, strict=False)]
-    sources = {}
-    records = {}
-    demos = []
-    skipped: list[str] = []
-    for recording in recordings:
-        if recording.task != parsed:
-            LOGGER.warning("skipping %s: it holds %s demos", recording.path, recording.task)
-            continue
-        label = str(recording.path) if recording.path else ""
-        if recording.path is not None and is_excluded(recording.path):
-            skipped.append(f"{recording.path.name} (excluded)")
-            continue
-        usable = {name: rec for name, rec in recording.demos.items() if not rec.flags}
-        for name, rec in recording.demos.items():
-            if rec.flags:  # a take that failed the app's checks (docs/teleop.md)
-                skipped.append(f"{Path(label).name}:{name} ({','.join(rec.flags)})")
-        if not usable:
-            continue
-        kept = replace(recording, demos=usable)
-        sources[label] = kept
-        records.update({(label, name): rec for name, rec in usable.items()})
-        demos.extend(demos_from_recording(kept, options.n_samples, file=label))
-    for note in skipped:
-        LOGGER.info("clean %s: skipping %s", parsed, note)
-    if not demos:
-        why = f" ({len(skipped)} skipped: flagged or excluded)" if skipped else ""
-        raise DemoError(f"no usable demos of {parsed} to clean{why}")
-    result = clean_demos(
-        demos, options, on_epoch=None if on_epoch is None else lambda s: on_epoch(s.epoch)
-    )
-    output = write_recording(
-        cleaned_path(recordings_dir, parsed),
-        cleaned_recording(result, records, sources, options),
-        overwrite=True,
-    )
-    if options.write_rrd:
-        from bt_pipeline.viz.rerun_clean import save_clean_rrd
-
-        save_clean_rrd(result, output.with_name(f"{parsed}.rrd"))
-    return output, result
 
 
 __all__ = [

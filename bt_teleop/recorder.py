@@ -35,6 +35,10 @@ from bt_pipeline.exceptions import ConfigError, RecordingError
 from bt_teleop.naming import clean_demonstrator, demo_path
 from bt_teleop.scene import SCENES_DIR, SceneModel
 
+THETA_RANGE_DEG = (-30.0, 30.0)
+"""θ a demonstrator may declare [deg]: the θ slider's range, enforced on the server too."""
+RHO_RANGE = (0.5, 1.5)
+"""ρ a demonstrator may declare: the ρ slider's range, enforced on the server too."""
 STATE_SIGNATURE = int(mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_CTRL)
 """What ``states`` holds per sample: ``mj_getState`` with the full physics state and ctrl."""
 
@@ -63,6 +67,14 @@ class DemoInfo:
             object.__setattr__(self, name, float(value))
         if not math.isnan(self.rho) and self.rho <= 0.0:
             raise ConfigError(f"rho must be positive (1 = canonical size); got {self.rho}")
+        # A browser can send any number; hold it to the sliders' ranges (NaN = unknown).
+        for name, (lo, hi) in (("theta_deg", THETA_RANGE_DEG), ("rho", RHO_RANGE)):
+            value = getattr(self, name)
+            if not math.isnan(value) and not lo <= value <= hi:
+                raise ConfigError(
+                    f"{name} must lie in [{lo:g}, {hi:g}] (the slider's range) or be unknown; "
+                    f"got {value:g}"
+                )
         if self.created.tzinfo is None:
             raise ConfigError("created must be a timezone-aware time (UTC)")
 

@@ -28,6 +28,7 @@ import logging
 import queue
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -78,7 +79,7 @@ class ClientUI:
         self._guide_dirty = True
         self._library_future: concurrent.futures.Future[TaskLibrary] | None = None
         self._library_version = -1
-        self._seen_job: CleanJob | None = None
+        self._seen_jobs: weakref.WeakSet[CleanJob] = weakref.WeakSet()
         self._status_text = ""
         self.controls = TabControls(client.gui, ctx, session_id)
         """The tab's GUI handles."""
@@ -120,6 +121,10 @@ class ClientUI:
     def clean(self) -> None:
         """Start cleaning this task's recordings in the background."""
         self._queue(self._do_clean)
+
+    def cancel_clean(self) -> None:
+        """Stop the clean job of this task (its previous output stays)."""
+        self._queue(self._do_cancel_clean)
 
     def play(self, key: str) -> None:
         """Replay the demo `key` of this task's library on this tab's robot."""
@@ -327,20 +332,22 @@ class ClientUI:
         self.controls.show_moderation_keys([t.key for t in library.raw], excluded)
 
     def _poll_clean(self) -> None:
-        job = self.ctx.cleaner.current
-        if job is None:
-            return
-        progress = job.progress()
-        self.controls.show_clean_progress(progress, this_task=job.task == self.task)
-        if job.owner is self and job.finished and self._seen_job is not job:
-            self._seen_job = job
+        cleaner = self.ctx.cleaner
+        mine = cleaner.job_for(self.task)
+        self.controls.show_clean_progress(None if mine is None else mine.progress())
+        for job in cleaner.jobs():
+            if job.owner is not self or not job.finished or job in self._seen_jobs:
+                continue
+            self._seen_jobs.add(job)
+            progress = job.progress()
             if progress.state == "done":
                 name = "" if progress.output is None else progress.output.name
-                self._notify("Clean done", f"{job.task}: cleaned demos in .cleaned/{name}")
+                skipped = f"; {len(progress.notes)} skipped" if progress.notes else ""
+                self._notify("Clean done", f"{job.task}: cleaned demos in .cleaned/{name}{skipped}")
                 if job.result is not None:
                     self.logger.log_clean_result(job.result, self.ctx.cleaner.options.seed)
             else:
-                self._notify("Clean failed", progress.message, color="red")
+                self._notify(f"Clean {progress.state}", progress.message, color="red")
 
     def _poll_replay(self) -> None:
         player = self.replay
@@ -392,6 +399,10 @@ class ClientUI:
     def _do_clean(self) -> None:
         self.ctx.cleaner.start(self.task, owner=self)
         self._notify("Cleaning", f"cleaning the {self.task} recordings in the background")
+
+    def _do_cancel_clean(self) -> None:
+        if self.ctx.cleaner.cancel(self.task, "cancelled from a tab"):
+            self._notify("Clean cancelled", f"{self.task}: the previous cleaned demos stay")
 
     def _do_play(self, key: str) -> None:
         if self.session.recording:

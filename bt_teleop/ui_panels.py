@@ -26,6 +26,7 @@ import viser
 from bt_pipeline.data.tasks import TASKS, Task
 from bt_teleop.cleaning import CleanProgress
 from bt_teleop.escape import html_text, markdown_text
+from bt_teleop.recorder import RHO_RANGE, THETA_RANGE_DEG
 from bt_teleop.replay import ReplayPlayer
 from bt_teleop.session_config import SessionStatus
 from bt_teleop.ui_context import UiContext
@@ -46,6 +47,7 @@ class TabActions(Protocol):
     def stop_and_save(self) -> None: ...
     def discard(self) -> None: ...
     def clean(self) -> None: ...
+    def cancel_clean(self) -> None: ...
     def play(self, key: str) -> None: ...
     def stop_replay(self) -> None: ...
     def redraw_guide(self) -> None: ...
@@ -66,8 +68,10 @@ class TabControls:
         with gui.add_folder("Demonstration"):
             self.task_input = gui.add_dropdown("Task", TASKS, initial_value=ctx.initial_task)
             self.name_input = gui.add_text("Demonstrator", initial_value="anonymous")
-            self.theta_input = gui.add_slider("θ [deg]", min=-30, max=30, step=1, initial_value=0)
-            self.rho_input = gui.add_slider("ρ", min=0.5, max=1.5, step=0.05, initial_value=1.0)
+            lo, hi = THETA_RANGE_DEG
+            self.theta_input = gui.add_slider("θ [deg]", min=lo, max=hi, step=1, initial_value=0)
+            lo, hi = RHO_RANGE
+            self.rho_input = gui.add_slider("ρ", min=lo, max=hi, step=0.05, initial_value=1.0)
             self.plane_input = gui.add_checkbox("Stay on task plane", initial_value=False)
             self.gripper_input = gui.add_button_group("Gripper", ("Open", "Close"))
             self.reset_view_button = gui.add_button("Reset view")
@@ -91,6 +95,7 @@ class TabControls:
             )
         with gui.add_folder("Clean & replay"):
             self.clean_button = gui.add_button("Clean")
+            self.cancel_clean_button = gui.add_button("Cancel clean", disabled=True)
             self.clean_progress = gui.add_progress_bar(0.0, visible=False, animated=True)
             self.replay_input: viser.GuiDropdownHandle[str] = gui.add_dropdown(
                 "Replay",
@@ -157,6 +162,7 @@ class TabControls:
             (self.save_button, tab.stop_and_save),
             (self.discard_button, tab.discard),
             (self.clean_button, tab.clean),
+            (self.cancel_clean_button, tab.cancel_clean),
             (self.stop_replay_button, tab.stop_replay),
             (self.discard_take_button, tab.discard_take),
             (self.reset_view_button, tab.reset_view),
@@ -188,14 +194,16 @@ class TabControls:
         self.take_text.visible = bool(reasons)
         self.discard_take_button.visible = bool(reasons)
 
-    def show_clean_progress(self, progress: CleanProgress, *, this_task: bool) -> None:
-        """Show the server's clean job: its progress bar (when it cleans `this_task`), and the
-        Clean button disabled while any job runs."""
-        running = progress.state == "running" and this_task
+    def show_clean_progress(self, progress: CleanProgress | None) -> None:
+        """Show the clean job of this tab's task (None: none yet): its progress bar, Clean
+        disabled and Cancel clean enabled while it runs. Jobs of other tasks do not block."""
+        running = progress is not None and progress.state == "running"
         self.clean_progress.visible = running
-        if running:  # reading and Stage 1 come before the first epoch: never show an empty bar
+        if progress is not None and running:
+            # reading and Stage 1 come before the first epoch: never show an empty bar
             self.clean_progress.value = 5.0 + 90.0 * progress.fraction
-        self.clean_button.disabled = progress.state == "running"
+        self.clean_button.disabled = running
+        self.cancel_clean_button.disabled = not running
 
     def show_replay_keys(self, keys: list[str]) -> None:
         """Offer `keys` in the Replay picker, keeping the current choice if it is still there."""

@@ -59,6 +59,10 @@ def project_onto_plane(plane: TaskPlane, p_world: ArrayLike) -> FloatArray:
     return plane.to_world(plane.to_plane(p))
 
 
+MAX_TARGET_M = 10.0
+"""Largest |coordinate| of a target a client may send [m] (the workspace then clamps it)."""
+
+
 def validate_position(p_world: ArrayLike, what: str = "target position") -> FloatArray:
     """`p_world` as a finite float array of shape (3,) [m] (a copy).
 
@@ -71,6 +75,8 @@ def validate_position(p_world: ArrayLike, what: str = "target position") -> Floa
         raise ConfigError(f"{what} must be 3 numbers [m]; got {p_world!r}") from None
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise ConfigError(f"{what} must be 3 finite numbers [m]; got {p.tolist()}")
+    if not float(np.max(np.abs(p))) <= MAX_TARGET_M:
+        raise ConfigError(f"{what} must lie within {MAX_TARGET_M:g} m of the world origin")
     return p
 
 

@@ -72,7 +72,7 @@ def build_recording(
                 "states": rng.standard_normal((n_samples, 23)),
                 "created": f"2025-01-{k + 1:02d}T10:00:00+00:00",
                 "ep_meta": {"scene": "table", "seed": seed, "tags": ["circle", str(k)]},
-                "attrs": {"score": 0.5 + 0.1 * k, "flags": ["a", "b"], "n_laps": 1, "ok": True},
+                "attrs": {"score": 0.5 + 0.1 * k, "tags": ["a", "b"], "n_laps": 1, "ok": True},
             }
         demos[f"demo_{k}"] = DemoRecord(
             ee_pos=plane.to_world(uv),

@@ -99,7 +99,7 @@ def test_same_demo_names_in_several_files_are_renumbered(tmp_path) -> None:
     assert sources == {f"{path}:demo_0" for path in files}
 
 
-def test_a_demo_that_does_not_move_is_named_and_nothing_is_written(tmp_path) -> None:
+def test_a_demo_that_does_not_move_stops_a_strict_run_and_nothing_is_written(tmp_path) -> None:
     recording = make_d1("wiping", 0).recording
     record = recording.demos["demo_2"]
     still = np.repeat(record.ee_pos[:1], record.num_samples, axis=0)
@@ -108,8 +108,9 @@ def test_a_demo_that_does_not_move_is_named_and_nothing_is_written(tmp_path) -> 
     source = write_recording(
         tmp_path / "still.hdf5", Recording(recording.task, recording.plane, demos)
     )
+    strict = CleanOptions(**{**FAST.__dict__, "strict": True})
     with pytest.raises(DemoError, match="demo_2 does not move"):
-        clean_paths([source], tmp_path / "out", FAST)
+        clean_paths([source], tmp_path / "out", strict)
     assert not (tmp_path / "out").exists()
 
 

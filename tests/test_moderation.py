@@ -64,5 +64,7 @@ def test_demo_flags_parse_attr_and_legacy_incomplete() -> None:
     assert _demo().flags == ()
     assert _demo(attrs={"flags": "too_short, no_motion"}).flags == ("too_short", "no_motion")
     assert _demo(attrs={"flags": b"incomplete"}).flags == ("incomplete",)
+    assert _demo(attrs={"flags": ["too_short", "no_motion"]}).flags == ("too_short", "no_motion")
+    assert _demo(attrs={"flags": np.array([b"no_motion"])}).flags == ("no_motion",)
     assert _demo(ep_meta={"incomplete": True}).flags == ("closed_mid_take",)
     assert _demo(ep_meta={"incomplete": False}).flags == ()

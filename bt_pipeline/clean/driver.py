@@ -1,7 +1,11 @@
 """``bt clean`` over files: read recordings, clean every task, write HDF5 and Rerun outputs.
 
-Outputs are written only after every task has been cleaned, each atomically, so an error (or
-Ctrl-C) leaves no partial output file. Inputs are opened read-only and never modified.
+Skip, don't stop: an excluded file (moderation sidecar), a flagged demo (``DemoRecord.flags``)
+and, unless ``--strict``, an unreadable file or a demo the cleaner cannot use (no motion, not
+periodic, degenerate) are skipped with a one-line note naming them, and the task is cleaned
+without them. Outputs are written only after every task has been cleaned, into a staging folder
+published as one set (:class:`~bt_pipeline.data.output_set.OutputSet`), so an error, Ctrl-C or
+kill -9 leaves the outputs of one whole run. Inputs are opened read-only and never modified.
 """
 
 from __future__ import annotations
@@ -17,13 +21,16 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
+from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult
+from bt_pipeline.clean.skipping import clean_skipping
 from bt_pipeline.clean.stage2.config import EpochStats
 from bt_pipeline.data.carry import carried_masks, carried_obs
-from bt_pipeline.data.demo import Demo, demos_from_recording, group_by_task
-from bt_pipeline.data.paths import expand_paths
-from bt_pipeline.data.recording import read_recordings, write_recording
+from bt_pipeline.data.demo import Demo, group_by_task
+from bt_pipeline.data.limits import ReadLimits
+from bt_pipeline.data.output_set import OutputSet
+from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_actions
+from bt_pipeline.data.skipping import read_usable
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.execute import ExecutorConfig, run_jobs
@@ -158,8 +165,14 @@ def cleaned_recording(
     )
 
 
-def _clean_task(task_demos: tuple[int, list[Demo], CleanOptions]) -> TaskCleanResult:
-    """Clean one task with a progress bar (runs in a worker process when ``workers > 1``)."""
+def _clean_task(
+    task_demos: tuple[int, list[Demo], CleanOptions],
+) -> tuple[TaskCleanResult | None, list[str]]:
+    """Clean one task with a progress bar (runs in a worker process when ``workers > 1``).
+
+    Returns:
+        The result (None when no demo of the task is usable) and the notes of skipped demos.
+    """
     position, demos, options = task_demos
     settings = options.refine_config().resolve()
     with tqdm(
@@ -176,13 +189,14 @@ def _clean_task(task_demos: tuple[int, list[Demo], CleanOptions]) -> TaskCleanRe
             bar.update(1)
             bar.set_postfix(loss=f"{stats.loss:.3f}", beta=f"{float(np.mean(stats.betas)):.2f}")
 
-        return clean_demos(demos, options, on_epoch=on_epoch)
+        return clean_skipping(demos, options, on_epoch)
 
 
 def clean_paths(
     paths: Sequence[str | Path],
     out_dir: str | Path,
     options: CleanOptions | None = None,
+    limits: ReadLimits | None = None,
     executor: ExecutorConfig | None = None,
 ) -> list[TaskCleanSummary]:
     """Clean every task found under `paths` and write the outputs into `out_dir`.
@@ -190,26 +204,29 @@ def clean_paths(
     Tasks run as jobs of `executor` (default: ``options.workers`` local processes); outputs are
     written here, in this process, so every executor writes the same files for a seed.
 
+    Args:
+        paths: Recording files, directories or glob patterns.
+        out_dir: Output folder (created if missing).
+        options: Settings; defaults when None.
+        limits: Read-time bounds on magnitudes and sizes; defaults when None.
+        executor: Where the tasks run; ``options.workers`` local processes when None.
+
     Raises:
         RecordingError: No recordings found, or an unreadable file when strict.
-        DemoError: No demos, or a demo that cannot be cleaned (named).
+        DemoError: No usable demos, or a demo that cannot be cleaned when strict (named).
         ConfigError: An output would overwrite an input.
     """
     options = options or CleanOptions()
     out_dir = Path(out_dir)
     start = time.perf_counter()
-    files = expand_paths(paths)
-    recordings = read_recordings(files, strict=options.strict)
-    sources: dict[str, Recording] = {}
-    records: dict[tuple[str, str], DemoRecord] = {}
-    demos: list[Demo] = []
-    for recording in recordings:
-        label = str(recording.path) if recording.path else ""
-        sources[label] = recording
-        records.update({(label, name): record for name, record in recording.demos.items()})
-        demos.extend(demos_from_recording(recording, options.n_samples, file=label))
+    usable = read_usable(paths, options.n_samples, strict=options.strict, limits=limits)
+    files, demos, records = usable.files, list(usable.demos), usable.records()
+    sources = {str(r.path) if r.path else "": r for r in usable.recordings}
     if not demos:
-        raise DemoError(f"no demos found in {', '.join(str(p) for p in paths)}")
+        raise DemoError(
+            f"no usable demos found in {', '.join(str(p) for p in paths)}"
+            + (f" ({'; '.join(usable.notes)})" if usable.notes else "")
+        )
     groups = group_by_task(demos)
     read_seconds = time.perf_counter() - start
     inputs = {f.resolve() for f in files}
@@ -222,33 +239,52 @@ def clean_paths(
 
     jobs = [(k, group, options) for k, group in enumerate(groups.values())]
     executor = executor or ExecutorConfig("processes", options.workers)
-    results = run_jobs(_clean_task, jobs, executor, label=lambda job: str(job[1][0].task))
+    outcomes = run_jobs(_clean_task, jobs, executor, label=lambda job: str(job[1][0].task))
+    results = [result for result, _ in outcomes if result is not None]
+    if not results:
+        raise DemoError(
+            f"no task could be cleaned: {'; '.join(n for _, ns in outcomes for n in ns)}"
+        )
+    # Excluded files belong to no known task: their notes go with the first task cleaned.
+    task_notes = {
+        group[0].task: notes for (_, group, _), (_, notes) in zip(jobs, outcomes, strict=True)
+    }
+    for note in reversed(usable.notes):  # prepended: they keep their order, before the rest
+        tasks = [d.task for d, _ in usable.flagged if note.startswith(f"skipped {d.label}:")]
+        task = tasks[0] if tasks else results[0].task
+        task_notes[task] = [note, *task_notes.get(task, [])]
 
-    # Every task succeeded: only now write outputs, each atomically.
-    out_dir.mkdir(parents=True, exist_ok=True)
+    # Every task is cleaned: only now write the outputs, staged and published as one set.
+    with OutputSet(out_dir) as outputs:
+        for line in outputs.recovered:
+            log.info("%s", line)
+        write_seconds = {}
+        for result in results:
+            write_start = time.perf_counter()
+            write_recording(
+                outputs.path(f"{result.task}.cleaned.hdf5"),
+                cleaned_recording(result, records, sources, options),
+                overwrite=True,
+            )
+            if options.write_rrd:
+                from bt_pipeline.viz.rerun_clean import save_clean_rrd
+
+                # Rerun keeps one layout per app id: every file carries a tab for each task of
+                # the run, so opening several of them together shows all tasks.
+                save_clean_rrd(
+                    result,
+                    outputs.path(f"{result.task}.rrd"),
+                    blueprint_tasks=[r.task for r in results],
+                )
+            write_seconds[result.task] = time.perf_counter() - write_start
+        outputs.commit()
     summaries = []
     for result in results:
-        write_start = time.perf_counter()
-        output = write_recording(
-            out_dir / f"{result.task}.cleaned.hdf5",
-            cleaned_recording(result, records, sources, options),
-            overwrite=True,
-        )
-        rrd = None
-        if options.write_rrd:
-            from bt_pipeline.viz.rerun_clean import save_clean_rrd
-
-            # Rerun keeps one layout per app id: every file carries a tab for each task of
-            # the run, so opening several of them together shows all tasks.
-            rrd = save_clean_rrd(
-                result,
-                out_dir / f"{result.task}.rrd",
-                blueprint_tasks=[r.task for r in results],
-            )
-        write_seconds = time.perf_counter() - write_start
+        output = out_dir / f"{result.task}.cleaned.hdf5"
+        rrd = out_dir / f"{result.task}.rrd" if options.write_rrd else None
         best = result.demos[result.best_index]
         stage_seconds = {"read": read_seconds / len(results), **result.seconds}
-        stage_seconds["write"] = write_seconds
+        stage_seconds["write"] = write_seconds[result.task]
         summaries.append(
             TaskCleanSummary(
                 task=result.task,
@@ -274,7 +310,7 @@ def clean_paths(
                         zip(result.demos, output_names(result.demos), strict=True)
                     )
                 ),
-                notes=result.notes,
+                notes=(*task_notes.get(result.task, ()), *result.notes),
             )
         )
         for note in result.notes:

@@ -15,7 +15,6 @@ import dataclasses
 import json
 import logging
 import os
-import secrets
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,21 @@ from typing import Any
 import h5py
 import numpy as np
 
-from bt_pipeline.data.atomic import exists_message, fsync_path, publish_atomic
+from bt_pipeline.data.atomic import (
+    exists_message,
+    fsync_path,
+    publish_atomic,
+    remove_stale_temps,
+    temp_name,
+)
+from bt_pipeline.data.limits import (
+    DEFAULT_LIMITS,
+    ReadLimits,
+    check_demo_count,
+    check_demo_magnitudes,
+    check_plane_origin,
+    check_sample_count,
+)
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import DemoRecord, Recording
 from bt_pipeline.data.tasks import parse_task
@@ -57,12 +70,18 @@ DEFAULT_ENV_TYPE = 0
 class (robomimic's own are 1 robosuite, 2 gym, 3 iGibson); bt's scenes are its own."""
 
 
-def read_recording(path: str | Path) -> Recording:
+def read_recording(path: str | Path, limits: ReadLimits | None = None) -> Recording:
     """Read and check one format-v1 file; the file is opened read-only and never modified.
 
+    Args:
+        path: The file.
+        limits: Magnitude and size bounds (:class:`~bt_pipeline.data.limits.ReadLimits`);
+            the defaults when None.
+
     Raises:
-        RecordingError: The file is missing, not HDF5, truncated, or breaks format v1. The
-            message names the file, the demo and the dataset or attr at fault.
+        RecordingError: The file is missing, not HDF5, truncated, breaks format v1, or holds a
+            value beyond `limits`. The message names the file, the demo and the dataset or attr
+            at fault.
     """
     path = Path(path)
     where = str(path)
@@ -79,20 +98,28 @@ def read_recording(path: str | Path) -> Recording:
                 "signature); recordings are HDF5 files in format v1"
             )
         with h5py.File(path, "r") as file:
-            return _read_file(file, path)
+            return _read_file(file, path, limits or DEFAULT_LIMITS)
     except (OSError, RuntimeError, KeyError) as exc:
         raise RecordingError(
             f"{where}: cannot read the file; it is truncated or corrupt (h5py: {exc})"
         ) from exc
+    except (ValueError, TypeError, OverflowError) as exc:  # odd dtypes or shapes h5py accepts
+        raise RecordingError(
+            f"{where}: cannot read the file; it holds data of an unexpected kind "
+            f"({type(exc).__name__}: {str(exc)[:200]})"
+        ) from exc
 
 
-def read_recordings(paths: Sequence[Path], strict: bool = True) -> list[Recording]:
+def read_recordings(
+    paths: Sequence[Path], strict: bool = True, limits: ReadLimits | None = None
+) -> list[Recording]:
     """Read several files in order.
 
     Args:
         paths: Recording files, e.g. from :func:`expand_paths`.
         strict: Raise on the first bad file; otherwise log a warning on logger ``"bt"`` (stderr
             unless logging is configured otherwise) naming the file and the reason, and skip it.
+        limits: Magnitude and size bounds; the defaults when None.
 
     Raises:
         RecordingError: A file cannot be read (strict only).
@@ -100,7 +127,7 @@ def read_recordings(paths: Sequence[Path], strict: bool = True) -> list[Recordin
     recordings = []
     for path in paths:
         try:
-            recordings.append(read_recording(path))
+            recordings.append(read_recording(path, limits))
         except RecordingError as exc:
             if strict:
                 raise
@@ -136,7 +163,8 @@ def write_recording(path: str | Path, recording: Recording, *, overwrite: bool =
     if path.exists() and not overwrite:
         raise RecordingError(exists_message(path))
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
+    remove_stale_temps(path)
+    tmp = temp_name(path)
     try:
         with h5py.File(tmp, "x") as file:
             _write_file(file, recording)
@@ -151,7 +179,7 @@ def write_recording(path: str | Path, recording: Recording, *, overwrite: bool =
     return path
 
 
-def _read_file(file: h5py.File, path: Path) -> Recording:
+def _read_file(file: h5py.File, path: Path, limits: ReadLimits) -> Recording:
     where = str(path)
     label = f"{where}: /data"
     if "data" not in file or not isinstance(file["data"], h5py.Group):
@@ -178,11 +206,13 @@ def _read_file(file: h5py.File, path: Path) -> Recording:
     check_env_args(env_args, where)
     origin, axes = read_attr(attrs, "plane_origin", label), read_attr(attrs, "plane_axes", label)
     check_plane(origin, axes, where)
+    check_plane_origin(np.asarray(origin), where, limits)
+    check_demo_count(len(data), where, limits)
     names = sorted_demo_names(list(data.keys()), where)
     demos: dict[str, DemoRecord] = {}
     num_samples: dict[str, int] = {}
     for name in names:
-        demos[name], num_samples[name] = _read_demo(data, name, f"{where}: {name}")
+        demos[name], num_samples[name] = _read_demo(data, name, f"{where}: {name}", limits)
     recording = Recording(
         task=task,
         plane=TaskPlane(origin=np.asarray(origin), axes=np.asarray(axes)),
@@ -204,27 +234,45 @@ def _read_file(file: h5py.File, path: Path) -> Recording:
         raise RecordingError(
             f"{label}: attr total is {total} but the demos hold {recording.total} samples"
         )
+    for name, demo in demos.items():
+        check_demo_magnitudes(
+            np.asarray(demo.ee_pos),
+            np.asarray(demo.timestamps),
+            demo.theta_deg,
+            demo.rho,
+            np.asarray(origin),
+            f"{where}: {name}",
+            limits,
+        )
     return dataclasses.replace(
         recording, demos={name: _as_float64(demo) for name, demo in demos.items()}
     )
 
 
-def _read_demo(data: h5py.Group, name: str, label: str) -> tuple[DemoRecord, int]:
-    """The raw (unchecked) demo ``name`` and its ``num_samples`` attr."""
+def _read_demo(
+    data: h5py.Group, name: str, label: str, limits: ReadLimits
+) -> tuple[DemoRecord, int]:
+    """The raw (unchecked) demo ``name`` and its ``num_samples`` attr.
+
+    Sizes are checked before any dataset is loaded, so a huge demo costs no memory.
+    """
     group = data[name]
     if not isinstance(group, h5py.Group):
         raise RecordingError(f"{label} is a dataset; expected a group")
     attrs = group.attrs
+    num_samples = int_attr(attrs, "num_samples", label)
+    check_sample_count(num_samples, label, limits)
+    rows = limits.max_samples
     ep_meta = json_attr(attrs, "ep_meta", label) if "ep_meta" in attrs else {}
     optional = {
-        field: read_dataset(group, dataset, label)
+        field: read_dataset(group, dataset, label, rows)
         for dataset, field, _ in OPTIONAL_DATASETS
         if dataset in group
     }
     demo = DemoRecord(
-        ee_pos=read_dataset(group, "obs/ee_pos", label),
-        timestamps=read_dataset(group, "timestamps", label),
-        actions=read_dataset(group, "actions", label),
+        ee_pos=read_dataset(group, "obs/ee_pos", label, rows),
+        timestamps=read_dataset(group, "timestamps", label, rows),
+        actions=read_dataset(group, "actions", label, rows),
         demonstrator=str_attr(attrs, "demonstrator", label),
         theta_deg=float_attr(attrs, "theta_deg", label),
         rho=float_attr(attrs, "rho", label),
@@ -235,7 +283,7 @@ def _read_demo(data: h5py.Group, name: str, label: str) -> tuple[DemoRecord, int
         extra_obs=_read_extra_obs(group),
         **optional,
     )
-    return demo, int_attr(attrs, "num_samples", label)
+    return demo, num_samples
 
 
 def _read_extra_obs(group: h5py.Group) -> dict[str, np.ndarray]:

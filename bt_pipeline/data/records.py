@@ -89,9 +89,11 @@ class DemoRecord:
         cleaning skip it with a note naming it.
         """
         raw = self.attrs.get("flags", "")
-        if isinstance(raw, bytes):
-            raw = raw.decode("utf-8", "replace")
-        found = [f.strip() for f in str(raw).split(",") if f.strip()]
+        items = list(raw) if isinstance(raw, list | tuple | np.ndarray) else [raw]
+        found: list[str] = []
+        for item in items:  # a string "a,b", or a list of strings (h5py gives an array)
+            text = item.decode("utf-8", "replace") if isinstance(item, bytes) else str(item)
+            found += [f.strip() for f in text.split(",") if f.strip()]
         if self.ep_meta.get("incomplete") is True and "closed_mid_take" not in found:
             found.append("closed_mid_take")
         return tuple(found)

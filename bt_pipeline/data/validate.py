@@ -17,6 +17,7 @@ from typing import Any, get_args
 import h5py
 import numpy as np
 
+from bt_pipeline.data.limits import check_index_digits, check_text, decode_utf8
 from bt_pipeline.data.records import MIN_SAMPLES, DemoRecord, Recording, Source
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import RecordingError
@@ -56,7 +57,9 @@ _DEMO_NAME = re.compile(r"demo_(\d+)")
 def demo_index(name: str) -> int | None:
     """The integer k of a demo name ``demo_<k>``, or None when `name` is not of that form."""
     match = _DEMO_NAME.fullmatch(name)
-    return int(match.group(1)) if match else None
+    if match is None or len(match.group(1)) > 4000:  # int() refuses > 4300 digits
+        return None
+    return int(match.group(1))
 
 
 def sorted_demo_names(names: list[str], where: str) -> list[str]:
@@ -69,6 +72,9 @@ def sorted_demo_names(names: list[str], where: str) -> list[str]:
         raise RecordingError(f"{where}: no demos under /data; at least one demo_<k> is needed")
     by_index: dict[int, str] = {}
     for name in names:
+        match = _DEMO_NAME.fullmatch(name)
+        if match:
+            check_index_digits(match.group(1), name, where)
         k = demo_index(name)
         if k is None:
             raise RecordingError(
@@ -223,6 +229,8 @@ def check_attrs(attrs: dict[str, Any], reserved: frozenset[str], label: str) -> 
                 f"{label}: extra attr {key!r} clashes with a format v1 attr; reserved names are "
                 f"{', '.join(sorted(reserved))}"
             )
+        if isinstance(value, str):
+            check_text(value, f"attr {key!r}", label)
         if not attr_value_ok(value):
             raise RecordingError(
                 f"{label}: attr {key!r} has unsupported value of type {type(value).__name__}; "
@@ -249,13 +257,22 @@ def attr_value_ok(value: Any) -> bool:
 # Typed reads from an open file: the reader's first pass, before the checks above.
 
 
-def read_dataset(group: h5py.Group, key: str, label: str) -> Any:
-    """The raw contents of dataset `key` of `group`; an error when it is missing or a group."""
+def read_dataset(group: h5py.Group, key: str, label: str, max_rows: int | None = None) -> Any:
+    """The raw contents of dataset `key` of `group`; an error when it is missing or a group.
+
+    With `max_rows`, a dataset of more rows, or of more than ``64 * max_rows`` elements, is
+    refused before it is loaded.
+    """
     if key not in group:
         raise RecordingError(f"{label}: missing dataset {key}")
     item = group[key]
     if not isinstance(item, h5py.Dataset):
         raise RecordingError(f"{label}: {key} is a group; expected a dataset")
+    shape, size = item.shape or (), item.size or 0  # None for an empty (null) dataspace
+    if max_rows is not None and shape and (shape[0] > max_rows or size > 64 * max_rows):
+        raise RecordingError(
+            f"{label}: {key} has shape {item.shape}; at most {max_rows} rows are read"
+        )
     return item[()]
 
 
@@ -270,8 +287,8 @@ def str_attr(attrs: h5py.AttributeManager, key: str, label: str) -> str:
     """Attr `key` as a string (UTF-8 byte strings decoded)."""
     value = read_attr(attrs, key, label)
     if isinstance(value, bytes | str):
-        return decode(value)
-    raise RecordingError(f"{label}: attr {key!r} must be a string; got {value!r}")
+        return decode_utf8(value, f"attr {key!r}", label)
+    raise RecordingError(f"{label}: attr {key!r} must be a string; got {value!r:.200}")
 
 
 def int_attr(attrs: h5py.AttributeManager, key: str, label: str) -> int:
@@ -369,6 +386,7 @@ def _check_demo_attrs(demo: DemoRecord, label: str) -> None:
         raise RecordingError(
             f"{label}: attr demonstrator must be a string; got {type(demo.demonstrator).__name__}"
         )
+    check_text(demo.demonstrator, "attr demonstrator", label)
     for key in ("theta_deg", "rho"):
         value = getattr(demo, key)
         if not _is_real(value) or math.isinf(value):

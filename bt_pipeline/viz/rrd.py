@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import uuid
 from collections.abc import Callable
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from bt_pipeline.data.atomic import remove_stale_temps, temp_name
 from bt_pipeline.exceptions import ConfigError
 
 _TAB10 = "1f77b4 ff7f0e 2ca02c d62728 9467bd 8c564b e377c2 7f7f7f bcbd22 17becf"
@@ -37,7 +37,8 @@ def save_rrd(
         ConfigError: Rerun is disabled (RERUN=off); the message ends with `disabled_hint`.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    remove_stale_temps(path)
+    tmp = temp_name(path)
     rec = rr.RecordingStream(app_id, recording_id=recording_id, send_properties=False)
     if not rec.is_enabled():
         raise ConfigError(f"Rerun logging is disabled (RERUN=off); unset RERUN or {disabled_hint}")

@@ -13,7 +13,11 @@ from rich.table import Table
 
 if TYPE_CHECKING:
     from bt_pipeline.clean.driver import TaskCleanSummary
+    from bt_pipeline.data.demo import Demo
     from bt_pipeline.score.utility import TaskScores
+
+Flagged = Sequence[tuple["Demo", tuple[str, ...]]]
+"""Flagged demos and their flags (listed with ⚠, never ranked)."""
 
 
 def _console() -> Console:
@@ -33,9 +37,23 @@ def _fmt_pref(value: float | None, digits: int) -> str:
     return "?" if value is None or math.isnan(value) else f"{value:.{digits}f}"
 
 
-def score_json(results: Sequence[TaskScores]) -> dict[str, Any]:
-    """The ``bt score --json`` document."""
+def _flagged_json(flagged: Flagged, task: str) -> list[dict[str, Any]]:
+    return [
+        {"file": d.file, "demo": d.name, "demonstrator": d.demonstrator, "flags": list(flags)}
+        for d, flags in flagged
+        if d.task == task
+    ]
+
+
+def score_json(
+    results: Sequence[TaskScores], flagged: Flagged = (), notes: Sequence[str] = ()
+) -> dict[str, Any]:
+    """The ``bt score --json`` document (flagged demos per task, unranked; skip notes)."""
     tasks = []
+    scored = {result.task for result in results}
+    for task in dict.fromkeys(d.task for d, _ in flagged):
+        if task not in scored:
+            tasks.append({"task": task, "best": None, "demos": [], "flagged": []})
     for result in results:
         best = result.best.demo
         tasks.append(
@@ -60,11 +78,21 @@ def score_json(results: Sequence[TaskScores]) -> dict[str, Any]:
                 ],
             }
         )
-    return {"tasks": tasks}
+    for entry in tasks:
+        entry["flagged"] = _flagged_json(flagged, entry["task"])
+    return {"tasks": tasks, "notes": list(notes)}
 
 
-def print_score_tables(results: Sequence[TaskScores], console: Console | None = None) -> None:
-    """One table per task: demo, demonstrator, θ, ρ, MI, L1, L2, L3, Ũ, rank; best marked ★."""
+def print_score_tables(
+    results: Sequence[TaskScores],
+    flagged: Flagged = (),
+    notes: Sequence[str] = (),
+    console: Console | None = None,
+) -> None:
+    """One table per task: demo, demonstrator, θ, ρ, MI, L1, L2, L3, Ũ, rank; best marked ★.
+
+    Flagged demos follow their task's ranked rows, marked ⚠ with their flags and no rank.
+    """
     console = console or _console()
     for result in results:
         files = {s.demo.file for s in result.scores}
@@ -99,7 +127,29 @@ def print_score_tables(results: Sequence[TaskScores], console: Console | None = 
                 f"{s.utility:.3f}",
                 str(s.rank),
             )
+        for demo, flags in flagged:
+            if demo.task == result.task:
+                table.add_row(
+                    "⚠",
+                    label(demo.file, demo.name),
+                    demo.demonstrator,
+                    _fmt_pref(demo.theta_deg, 1),
+                    _fmt_pref(demo.rho, 2),
+                    escape(f"flagged: {', '.join(flags)}"),
+                    *[""] * 4,
+                    "–",
+                )
         console.print(table)
+    scored = {result.task for result in results}
+    for demo, flags in flagged:
+        if demo.task not in scored:
+            console.print(
+                f"⚠ {demo.task}: {_short(demo.file, demo.name)} flagged {', '.join(flags)}; "
+                "no unflagged demo to rank",
+                markup=False,
+            )
+    for note in notes:
+        console.print(f"note: {note}", markup=False)
 
 
 def clean_json(summaries: Sequence[TaskCleanSummary]) -> dict[str, Any]:

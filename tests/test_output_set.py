@@ -1,0 +1,124 @@
+"""Output sets (data/output_set.py) and stale temp files (data/atomic.py): all or nothing."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bt_pipeline.data.atomic import pid_alive, remove_stale_temps
+from bt_pipeline.data.output_set import (
+    JOURNAL,
+    MANIFEST,
+    STAGING_PREFIX,
+    OutputSet,
+    recover,
+    sha256_file,
+    verify,
+)
+
+
+@pytest.fixture(scope="module")
+def dead_pid() -> int:
+    """The id of a process that has exited."""
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    assert not pid_alive(child.pid)
+    return child.pid
+
+
+def _publish(out: Path, files: dict[str, bytes]) -> list[Path]:
+    with OutputSet(out) as outputs:
+        for name, body in files.items():
+            outputs.path(name).write_bytes(body)
+        return outputs.commit()
+
+
+def test_commit_publishes_every_file_and_a_manifest_of_their_hashes(tmp_path) -> None:
+    published = _publish(tmp_path, {"a.cleaned.hdf5": b"A1", "a.rrd": b"R1"})
+    assert sorted(p.name for p in published) == ["a.cleaned.hdf5", "a.rrd"]
+    manifest = json.loads((tmp_path / MANIFEST).read_text())["files"]
+    assert manifest["a.rrd"]["sha256"] == sha256_file(tmp_path / "a.rrd")
+    assert verify(tmp_path) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.cleaned.hdf5", "a.rrd", MANIFEST]
+    # A later run for another task keeps the first task's entries.
+    _publish(tmp_path, {"b.cleaned.hdf5": b"B1"})
+    assert set(json.loads((tmp_path / MANIFEST).read_text())["files"]) == {
+        "a.cleaned.hdf5",
+        "a.rrd",
+        "b.cleaned.hdf5",
+    }
+    (tmp_path / "a.rrd").write_bytes(b"changed by hand")
+    assert verify(tmp_path) == ["a.rrd"]
+
+
+def test_an_error_before_commit_leaves_the_folder_as_it_was(tmp_path) -> None:
+    _publish(tmp_path, {"a.cleaned.hdf5": b"old"})
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with pytest.raises(RuntimeError), OutputSet(tmp_path) as outputs:
+        outputs.path("a.cleaned.hdf5").write_bytes(b"new")
+        raise RuntimeError("stage 2 failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert (tmp_path / "a.cleaned.hdf5").read_bytes() == b"old"
+
+
+def test_a_run_killed_before_its_commit_point_is_rolled_back(tmp_path, dead_pid) -> None:
+    _publish(tmp_path, {"a.cleaned.hdf5": b"old", "a.rrd": b"old rrd"})
+    staging = tmp_path / f"{STAGING_PREFIX}{dead_pid}-abc123"
+    staging.mkdir()
+    (staging / "a.cleaned.hdf5").write_bytes(b"new")  # killed before a.rrd and the journal
+    lines = recover(tmp_path)
+    assert len(lines) == 1 and "removed the partial outputs" in lines[0]
+    assert not staging.exists()
+    assert (tmp_path / "a.cleaned.hdf5").read_bytes() == b"old" and verify(tmp_path) == []
+
+
+def test_a_run_killed_after_its_commit_point_is_rolled_forward(tmp_path, dead_pid) -> None:
+    _publish(tmp_path, {"a.cleaned.hdf5": b"old", "a.rrd": b"old rrd"})
+    staging = tmp_path / f"{STAGING_PREFIX}{dead_pid}-def456"
+    staging.mkdir()
+    new = {"a.cleaned.hdf5": b"new", "a.rrd": b"new rrd"}
+    manifest = {n: {"sha256": hashlib.sha256(b).hexdigest()} for n, b in new.items()}
+    (staging / MANIFEST).write_text(json.dumps({"files": manifest}))
+    (staging / "a.rrd").write_bytes(new["a.rrd"])
+    (staging / JOURNAL).write_text(json.dumps({"files": [*new, MANIFEST]}))
+    (tmp_path / "a.cleaned.hdf5").write_bytes(new["a.cleaned.hdf5"])  # the first rename was done
+    # Without recovery the folder mixes two runs; the manifest says so.
+    assert verify(tmp_path) == ["a.cleaned.hdf5"]
+    assert "completed the outputs" in recover(tmp_path)[0]
+    assert (tmp_path / "a.rrd").read_bytes() == b"new rrd"
+    assert verify(tmp_path) == [] and not staging.exists()
+
+
+def test_a_live_runs_staging_folder_is_left_alone(tmp_path) -> None:
+    with OutputSet(tmp_path) as outputs:
+        outputs.path("x.rrd").write_bytes(b"x")
+        assert recover(tmp_path) == []
+        assert outputs.staging.exists()
+        outputs.commit()
+    assert (tmp_path / "x.rrd").read_bytes() == b"x"
+
+
+def test_stale_temp_files_of_killed_writers_are_removed(tmp_path, dead_pid) -> None:
+    target = tmp_path / "s.hdf5"
+    stale = tmp_path / f".s.hdf5.tmp-{dead_pid}-0badcafe"
+    legacy = tmp_path / ".s.hdf5.0123456789ab.tmp"
+    live = tmp_path / f".s.hdf5.tmp-{os.getpid()}-feedbeef"
+    other = tmp_path / f".t.hdf5.tmp-{dead_pid}-0badcafe"
+    for path in (stale, legacy, live, other):
+        path.write_bytes(b"partial")
+    assert sorted(remove_stale_temps(target)) == sorted([stale, legacy])
+    assert live.exists() and other.exists()
+    assert any(str(other) in line for line in recover(tmp_path))
+    assert not other.exists() and live.exists()
+
+
+@pytest.mark.parametrize("name", ["", "../x", ".hidden", "a/b", MANIFEST])
+def test_output_names_must_be_plain(tmp_path, name) -> None:
+    with OutputSet(tmp_path) as outputs, pytest.raises(Exception, match="plain"):
+        outputs.path(name)

@@ -1,0 +1,168 @@
+"""bt teleop against hostile or careless clients: loopback-only sockets, refused sockets closed,
+values from a browser validated on the server, clean jobs time-limited, cancellable, per task."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+
+from bt_pipeline.clean.pipeline import CleanOptions
+from bt_pipeline.exceptions import ConfigError
+from bt_teleop import app as app_module
+from bt_teleop.app import AppOptions, is_loopback, start_app
+from bt_teleop.cleaning import CleanRunner
+from bt_teleop.recorder import DemoInfo
+from bt_teleop.script import run_script
+from bt_teleop.testing import FakeTab, wait_until
+from bt_teleop.ui import ClientUI
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _closed(tab: FakeTab) -> bool:
+    return not tab._thread.is_alive()  # its reader ends when the server closes the socket
+
+
+def test_refused_tabs_are_told_then_closed_and_never_pile_up(make_app, tabs) -> None:
+    app = make_app(max_sessions=1)
+    kept = tabs(app)
+    app.wait_for_sessions(1)
+    refused = [tabs(app) for _ in range(6)]
+    wait_until(lambda: all(_closed(tab) for tab in refused), 20.0, "refused sockets to close")
+    assert "server is full" in refused[0].text()
+    assert app.refused_open() == 0
+    assert not _closed(kept) and len(app.sessions()) == 1
+
+
+@pytest.mark.parametrize(
+    ("theta", "rho", "match"),
+    [
+        (0.0, 1e-300, "rho must lie in \\[0.5, 1.5\\]"),
+        (0.0, 1e308, "rho must lie in"),
+        (45.0, 1.0, "theta_deg must lie in \\[-30, 30\\]"),
+    ],
+)
+def test_preferences_outside_the_sliders_are_refused_on_the_server(theta, rho, match) -> None:
+    with pytest.raises(ConfigError, match=match):
+        DemoInfo("a", theta, rho, created=_now())
+    assert math.isnan(DemoInfo("a", math.nan, math.nan, created=_now()).rho)  # unknown is fine
+
+
+def test_a_browser_sending_rho_1e_300_cannot_record(make_app, tabs) -> None:
+    app = make_app()
+    tabs(app)
+    (ui,) = app.wait_for_sessions(1).values()
+    assert isinstance(ui, ClientUI)
+    ui.controls.rho_input.value = 1e-300  # what a websocket client can send
+    ui.controls.record_button.value = True
+    assert ui.wait_idle()
+    assert not ui.session.status().recording
+    assert any("rho must lie in" in body for _, body in ui.messages)
+
+
+def test_absurd_gizmo_targets_are_refused(make_app, tabs) -> None:
+    app = make_app()
+    tabs(app)
+    (ui,) = app.wait_for_sessions(1).values()
+    before = ui.session.status().command_pos.copy()
+    for target in ([1e30, 0.0, 0.0], [np.nan, 0.0, 0.0], [0.0, 0.0]):
+        with pytest.raises(ConfigError):
+            ui.session.set_target(target)
+    assert np.allclose(ui.session.status().command_pos, before, atol=0.05)
+
+
+@pytest.fixture
+def recordings(tmp_path: Path) -> Path:
+    root = tmp_path / "recordings"
+    times = np.linspace(0.0, 2.0, 21)
+    phase = np.pi * times
+    rows = np.stack([times, 0.08 * np.cos(phase), 0.04 * np.sin(phase)], axis=1).tolist()
+    for task in ("wiping", "weaving"):
+        script = {"task": task, "demonstrator": "ci", "theta_deg": 0, "rho": 1, "waypoints": rows}
+        run_script(script, root)
+    return root
+
+
+def test_a_clean_job_past_its_time_limit_is_stopped_and_blocks_no_other_task(recordings) -> None:
+    runner = CleanRunner(
+        recordings, CleanOptions(epochs=2, write_rrd=False), processes=True, timeout_s=0.3
+    )
+    stuck = runner.start("wiping")
+    other = runner.start("weaving")  # another task starts at once: nothing blocks it
+    with pytest.raises(ConfigError, match="wiping is running"):
+        runner.start("wiping")
+    progress = stuck.wait(60.0)
+    assert progress.state == "failed" and "time limit" in progress.message
+    other.wait(60.0)
+    runner.close()
+    assert not (recordings / ".cleaned" / "wiping.cleaned.hdf5").exists()
+    assert not any(p.name.startswith(".bt-staging") for p in (recordings / ".cleaned").glob("*"))
+
+
+def test_a_clean_job_can_be_cancelled_and_the_task_cleaned_again(recordings) -> None:
+    runner = CleanRunner(recordings, CleanOptions(epochs=2, write_rrd=False), processes=True)
+    job = runner.start("wiping")
+    assert runner.cancel("wiping")
+    assert job.wait(30.0).state == "cancelled"
+    assert not runner.cancel("wiping")  # nothing left to cancel
+    again = runner.start("wiping")
+    assert again is not job and runner.job_for("wiping") is again
+    runner.close()
+
+
+def test_a_non_loopback_host_prints_a_warning(monkeypatch, capsys) -> None:
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.5")
+    monkeypatch.setattr(app_module, "TeleopApp", lambda options: options)  # do not bind
+    start_app(AppOptions(host="0.0.0.0"))
+    assert "WARNING: --host 0.0.0.0 exposes the app" in capsys.readouterr().err
+    start_app(AppOptions(host="127.0.0.1"))
+    assert "WARNING" not in capsys.readouterr().err
+
+
+def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
+    """All listening sockets of `bt teleop` (defaults, Rerun serving) and its children."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    command = ["teleop", "--port", "0", "--recordings", str(tmp_path / "rec")]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "bt_pipeline", *command],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    try:
+        assert process.stdout is not None
+        lines = []
+        for line in process.stdout:
+            lines.append(line)
+            if "press Ctrl-C" in line:
+                break
+        assert any("open http://" in line for line in lines), "".join(lines)
+        time.sleep(1.0)  # let Rerun's servers come up
+        tree = [psutil.Process(process.pid), *psutil.Process(process.pid).children(True)]
+        listening = [
+            (p.pid, c.laddr)
+            for p in tree
+            for c in p.net_connections(kind="inet")
+            if c.status == psutil.CONN_LISTEN
+        ]
+        assert listening, "bt teleop listens on nothing"
+        exposed = [(pid, a) for pid, a in listening if not is_loopback(a.ip)]
+        assert not exposed, f"sockets on non-loopback interfaces: {exposed}"
+    finally:
+        process.terminate()
+        process.wait(30)
+
+
+def _now() -> datetime:
+    return datetime.now(UTC)
