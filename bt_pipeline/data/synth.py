@@ -190,7 +190,7 @@ def make_d2(task: Task | str, seed: int = 0) -> SynthSet:
     return make_demo_set(task, n_demos=20, seed=seed)
 
 
-def _draw_defects(rng: np.random.Generator) -> tuple[Defect, ...]:
+def draw_defects(rng: np.random.Generator) -> tuple[Defect, ...]:
     """HF noise (jitter, tremor or both) plus 1-3 others, at least one changing the shape."""
     noise = [("jitter",), ("tremor",), ("jitter", "tremor")][int(rng.choice(3, p=[0.4, 0.3, 0.3]))]
     n_other = int(rng.integers(1, 4))
@@ -229,7 +229,7 @@ def _phase(speed: FloatArray, s: FloatArray, fraction: float) -> FloatArray:
     return fraction * progress / progress[-1]
 
 
-def _lopsided(uv: FloatArray, task: Task, rng: np.random.Generator) -> tuple[FloatArray, dict]:
+def lopsided(uv: FloatArray, task: Task, rng: np.random.Generator) -> tuple[FloatArray, dict]:
     """Bulge one side (x > 0 or x < 0) of a canonical-frame shape outward and shift it in y."""
     half_w, half_h = (s / 2.0 for s in SHAPE_SIZE[task])
     side = float(rng.choice([-1.0, 1.0]))
@@ -254,7 +254,7 @@ def _tremor(t: FloatArray, amplitude: float, rng: np.random.Generator) -> FloatA
     return out
 
 
-def _add_noise_and_outliers(
+def add_noise_and_outliers(
     uv: FloatArray,
     t: FloatArray,
     defects: tuple[Defect, ...],
@@ -294,7 +294,7 @@ def _make_demo(
     duration_s = float(rng.uniform(5.0, 8.0))
     t = np.arange(round(duration_s * SAMPLE_RATE_HZ) + 1) / SAMPLE_RATE_HZ
     s = t / t[-1]
-    defects: tuple[Defect, ...] = () if is_expert else _draw_defects(rng)
+    defects: tuple[Defect, ...] = () if is_expert else draw_defects(rng)
     params: dict[str, Any] = {"duration_s": float(t[-1])}
 
     # Where along the loop the hand is at each sample, in the demonstrator's own frame.
@@ -305,10 +305,10 @@ def _make_demo(
     speed = _speed_profile(s, duration_s, defects, rng)
     uv = canonical_shape(task, start_phase + 2.0 * np.pi * _phase(speed, s, fraction))
     if "lopsided" in defects:
-        uv, extra = _lopsided(uv, task, rng)
+        uv, extra = lopsided(uv, task, rng)
         params.update(extra)
     uv = similarity_transform(uv, teacher.theta_deg, teacher.rho)
-    uv = _add_noise_and_outliers(uv, t, defects, rng, params)
+    uv = add_noise_and_outliers(uv, t, defects, rng, params)
 
     ee_pos = default_plane(task).to_world(uv)
     record = DemoRecord(
