@@ -16,7 +16,9 @@ only (docs/refinement.md, "Segmentation"). For one demo, with raw samples (T, 2)
    max(8 mm, 4 × the fit's residual, 6 % of the guide's size) of the guide. The kept span runs
    from the start of the first run of on-loop samples lasting ≥ 0.4 s to the end of the last
    such run; pauses inside it are kept (they are the demonstrator's timing).
-5. **Cycles.** The phase along the guide is tracked sample by sample
+5. **Travel.** The span is trimmed to where the phase along the guide starts advancing and
+   where it stops (1 % of a loop), which drops the slow end of an approach near the guide.
+6. **Cycles.** The phase along the guide is tracked sample by sample
    (:func:`track_phase`), and cycles = |phase travelled| / one loop.
 
 Incomplete single loops are handled (cycles < 1); a demo with no on-loop run keeps its moving
@@ -41,6 +43,7 @@ _SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
 _REST_M = 0.010  # A hand within this of its rest pose still rests [m].
 _MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
 _DRIFT_WINDOW_S = 2.0  # Running-median window of the drift estimate [s].
+_ADVANCE = 0.01  # Phase advance that marks the start (and end) of travel along the loop, in loops.
 _MAX_PHASE_STEP = 0.1  # Most phase change per tracked sample, in loops.
 
 
@@ -123,6 +126,16 @@ def segment_demo(
         a, b = 0, moving.shape[0] - 1
     span = moving[a : b + 1] - drift[a : b + 1]
     phase = track_phase(span, guide)
+    # The end of an approach lies near the guide but does not travel along it: trim the span
+    # to where the phase starts advancing (and, at the end, stops).
+    sign = 1.0 if phase[-1] >= phase[0] else -1.0
+    travelled = sign * (phase - phase[0])
+    step = _ADVANCE * guide.shape[0]
+    if travelled[-1] > 4 * step:
+        head = int(np.argmax(travelled > step))
+        tail = int(np.flatnonzero(travelled < travelled[-1] - step)[-1])
+        if tail > head:
+            phase, a, b = phase[head : tail + 1], a + head, a + tail
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     return Segment(
         start_s=float(clock[first + a]),
