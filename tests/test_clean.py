@@ -52,7 +52,11 @@ def test_output_is_format_v1_with_the_cleaner_attrs(tmp_path) -> None:
     for name, demo in cleaned.demos.items():
         assert set(demo.attrs) >= CLEANED_ATTRS
         assert demo.attrs["cleaned_from"] == f"{source}:{name}"
-        assert demo.num_samples == 300
+        # The raw demo's own sample times inside the kept span: never re-based to 0.
+        raw_t = read_recording(source).demos[name].timestamps
+        inside = raw_t[(raw_t >= demo.attrs["loop_start_s"]) & (raw_t <= demo.attrs["loop_end_s"])]
+        assert np.array_equal(demo.timestamps, inside)
+        assert demo.attrs["cycles"] > 0.5
         # Back in 3-D on the task plane of the input.
         assert np.allclose(cleaned.plane.to_world(cleaned.plane.to_plane(demo.ee_pos)), demo.ee_pos)
 
