@@ -33,7 +33,7 @@ from bt_pipeline.exceptions import ConfigError, DemoError
 
 _GUIDE_POINTS = 2048  # Dense guide for nearest-point pairing (< 0.2 mm spacing).
 _FIT_POINTS = 240  # Arc-length resampled demo points used by the fit.
-_COARSE_ITERATIONS = 6  # ICP steps from every start before the best are kept.
+_COARSE_ITERATIONS = 4  # ICP steps from every start before the best are kept.
 _SURVIVORS = 2  # Starts carried on to convergence.
 
 
@@ -103,6 +103,7 @@ def fit_guide(
     rho: float | None = None,
     trim: float = 0.6,
     max_iterations: int = 40,
+    initial: GuideFit | None = None,
 ) -> GuideFit:
     """Fit the task's guide to a demo by a trimmed similarity ICP (module doc).
 
@@ -115,6 +116,7 @@ def fit_guide(
         rho: Known ρ: held fixed.
         trim: Share of the points kept in each refit (the best-fitting ones).
         max_iterations: Most ICP iterations per start.
+        initial: Start from this fit only (a refit of a similar demo).
 
     Raises:
         DemoError: Non-finite positions or no motion.
@@ -138,9 +140,11 @@ def fit_guide(
         starts = [float(theta_deg)]
     else:
         span = allowed.theta_max_deg
-        starts = list(np.linspace(-span, span, max(3, int(2 * span // 15) + 1)))
+        starts = list(np.linspace(-span, span, max(3, int(2 * span // 22.5) + 1)))
     keep = max(3, int(trim * points.shape[0]))
     candidates = [(float(start), float(rho0), centre0.copy()) for start in starts]
+    if initial is not None:
+        candidates = [(initial.theta_deg, initial.rho, np.array(initial.translation))]
     best: GuideFit | None = None
     # Every start for a few iterations, then the two best to convergence (bounded).
     for budget, survivors in ((_COARSE_ITERATIONS, _SURVIVORS), (max_iterations, 1)):
@@ -183,7 +187,7 @@ def _icp(
         )
         moved = abs(th_new - th) / 90.0 + abs(r_new - r) + float(np.linalg.norm(t_new - t))
         th, r, t = th_new, r_new, t_new
-        if moved < 1e-6 or not math.isfinite(residual):
+        if moved < 1e-5 or not math.isfinite(residual):
             break
     return th, r, t, residual
 

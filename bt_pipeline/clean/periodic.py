@@ -35,7 +35,7 @@ UNCERTAIN = 0.5
 _PHASE_SMOOTH_S = 0.12  # Gaussian σ of the tracked phase [s]: removes jitter, keeps speed.
 _DRIFT_SMOOTH_S = 1.0  # Gaussian σ of the slow drift removed before the phase is read [s].
 _DRIFT_PASSES = 2  # Phase tracks; the drift is estimated between them.
-_RETIME_OVERSAMPLE = 8  # Points of the dense reference per reference sample.
+_RETIME_OVERSAMPLE = 4  # Points of the dense reference per reference sample.
 
 
 @dataclass(frozen=True)
@@ -165,26 +165,35 @@ def _read(closed: FloatArray, phase: FloatArray) -> FloatArray:
     return np.stack([np.interp(phase, index, closed[:, d]) for d in range(2)], axis=1)
 
 
-def phase_uniform(demo: Demo, segment: Segment) -> Demo:
-    """The demo re-sampled evenly in its phase along the fitted guide (pauses and speed gone).
+def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
+    """One loop of the demo averaged over all its cycles by phase: the DMP's training demo.
 
     The DMP fits one period in time; a demo whose loops differ in speed or hold pauses would
-    have misaligned cycles. Read evenly in phase, every cycle lines up, so the DMP averages
-    all of them (Stage 1 on the best demo).
+    have misaligned cycles. Each sample's phase along the fitted guide is tracked
+    (:func:`track_phase`), and the loop is the mean of the samples in each of N − 1 phase bins,
+    so every cycle counts. Bins no sample reached (an incomplete loop) take the fitted guide's
+    point at that phase. The loop starts at the demo's first phase and is closed (N samples).
+
+    Returns:
+        The loop as a demo of N samples, and whether any bin was filled from the guide.
     """
-    guide = segment.guide.guide(demo.task)
+    guide = segment.guide.guide(demo.task, 4 * demo.n_samples)
     x = demo.positions
+    n = x.shape[0]
     phase = track_phase(gaussian_filter1d(x, 1.0, axis=0, mode="nearest"), guide)
     sign = 1.0 if phase[-1] >= phase[0] else -1.0
-    monotone = np.maximum.accumulate(sign * phase)
-    steps = np.diff(monotone)
-    if monotone[-1] - monotone[0] <= 0:
-        return demo
-    # Drop repeated phases (pauses) so interpolation sees strictly increasing phase.
-    keep = np.concatenate([[True], steps > 1e-9])
-    grid = np.linspace(monotone[0], monotone[-1], x.shape[0])
-    even = np.stack([np.interp(grid, monotone[keep], x[keep, d]) for d in range(2)], axis=1)
-    return demo.with_positions(even)
+    loops = sign * (phase - phase[0]) / guide.shape[0]  # Loops travelled since the first sample.
+    bins = n - 1
+    index = np.floor(np.mod(loops, 1.0) * bins).astype(int) % bins
+    counts = np.bincount(index, minlength=bins)
+    sums = np.stack([np.bincount(index, weights=x[:, d], minlength=bins) for d in range(2)], 1)
+    # Guide points at each bin's phase, in the demo's direction of travel.
+    guide_index = (phase[0] + sign * (np.arange(bins) + 0.5) / bins * guide.shape[0]).astype(int)
+    loop = guide[guide_index % guide.shape[0]].copy()
+    filled = counts > 0
+    loop[filled] = sums[filled] / counts[filled, None]
+    closed = np.concatenate([loop, loop[:1]])
+    return demo.with_positions(closed), bool(not filled.all())
 
 
 def output_on_raw_times(demo: Demo, cleaned: FloatArray) -> tuple[FloatArray, FloatArray]:

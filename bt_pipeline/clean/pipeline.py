@@ -25,7 +25,7 @@ from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.periodic import (
     UNCERTAIN,
     PreferenceEstimate,
-    phase_uniform,
+    phase_loop,
     pool_preferences,
     retime_reference,
     segment_all,
@@ -256,11 +256,15 @@ def clean_demos(
     seconds["score"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    best_cycles = segments[scores.best_index].cycles
     best = scores.best_index
     stage1_demos = list(demos)
-    stage1_demos[best] = phase_uniform(demos[best], segments[best])
-    stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=best_cycles)
+    stage1_demos[best], guide_filled = phase_loop(demos[best], segments[best])
+    if guide_filled:
+        notes.append(
+            f"{demos[best].label} (the best demo) does not cover a whole loop: the missing "
+            "phases of the canonical motion come from the task's guide"
+        )
+    stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=1.0)
     aligned = np.stack(
         [
             retime_reference(stage1.global_shape, p.theta_deg, p.rho, stage1.centre, demo)

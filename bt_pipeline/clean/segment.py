@@ -18,7 +18,9 @@ only (docs/refinement.md, "Segmentation"). For one demo, with raw samples (T, 2)
    such run; pauses inside it are kept (they are the demonstrator's timing).
 5. **Travel.** The span is trimmed to where the phase along the guide starts advancing and
    where it stops (1 % of a loop), which drops the slow end of an approach near the guide.
-6. **Cycles.** The phase along the guide is tracked sample by sample
+6. **Preference.** The guide is fitted again to the kept span with its drift removed; that fit's
+   θ/ρ are the demo's estimate.
+7. **Cycles.** The phase along the guide is tracked sample by sample
    (:func:`track_phase`), and cycles = |phase travelled| / one loop.
 
 Incomplete single loops are handled (cycles < 1); a demo with no on-loop run keeps its moving
@@ -38,13 +40,14 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import DemoError
 
-_CLOCK_HZ = 100.0  # Analysis clock [Hz].
+_CLOCK_HZ = 50.0  # Analysis clock [Hz].
 _SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
 _REST_M = 0.010  # A hand within this of its rest pose still rests [m].
 _MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
 _DRIFT_WINDOW_S = 2.0  # Running-median window of the drift estimate [s].
+_TRACK_POINTS = 512  # Guide points for the distance and the phase track.
 _ADVANCE = 0.01  # Phase advance that marks the start (and end) of travel along the loop, in loops.
-_MAX_PHASE_STEP = 0.1  # Most phase change per tracked sample, in loops.
+_MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
 
 
 @dataclass(frozen=True)
@@ -111,7 +114,7 @@ def segment_demo(
         raise DemoError(f"{name} does not move more than {1e3 * _REST_M:.0f} mm from its rest pose")
     moving = smooth[first : last + 1]
     fit = fit_guide(moving, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
-    guide = fit.guide(task)
+    guide = fit.guide(task, _TRACK_POINTS)
 
     # Distance to the guide with a slow drift removed (a running median of the offsets).
     nearest = _nearest(guide, moving)
@@ -137,6 +140,11 @@ def segment_demo(
         if tail > head:
             phase, a, b = phase[head : tail + 1], a + head, a + tail
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
+    # θ/ρ from the kept span with its drift removed: approach, retreat and drift no longer bias
+    # them (the same bounded fit, started from the first one).
+    fit = fit_guide(
+        span, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
+    )
     return Segment(
         start_s=float(clock[first + a]),
         end_s=float(clock[first + b]),
