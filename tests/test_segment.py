@@ -8,7 +8,8 @@ import pytest
 from bt_pipeline.clean.guide_fit import PreferenceRange, fit_guide
 from bt_pipeline.clean.segment import segment_demo, track_phase
 from bt_pipeline.data.shapes import canonical_loop, similarity_transform
-from bt_pipeline.data.synth_human import make_human_set, truth_of
+from bt_pipeline.data.synth_human import make_human_set
+from bt_pipeline.data.synth_truth import truth_of
 from bt_pipeline.data.tasks import default_plane
 from bt_pipeline.exceptions import DemoError
 

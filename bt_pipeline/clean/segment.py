@@ -197,8 +197,8 @@ def _moving_part(smooth: FloatArray) -> tuple[int, int]:
     speed = np.linalg.norm(np.gradient(smooth, axis=0), axis=1) * _CLOCK_HZ
     moving = 0.1 * float(np.median(speed[first : last + 1]))
     # Walk back to where it set off: until the speed drops to 3x the rest's own (noise) speed.
-    lead = 3.0 * float(np.median(speed[: first + 1]))
-    tail = 3.0 * float(np.median(speed[last:]))
+    lead = _rest_speed(speed[: first + 1], moving)
+    tail = _rest_speed(speed[last:], moving)
     while first > 0 and speed[first - 1] > max(0.003, moving, lead):
         first -= 1
     while last < smooth.shape[0] - 1 and speed[last + 1] > max(0.003, moving, tail):
@@ -219,6 +219,12 @@ def _drift(offset: FloatArray, on: np.ndarray) -> FloatArray:
     smooth = median_filter(offset[near], size=(window, 1), mode="mirror")
     index = np.arange(offset.shape[0])
     return np.stack([np.interp(index, near, smooth[:, d]) for d in range(2)], axis=1)
+
+
+def _rest_speed(speed: FloatArray, moving: float) -> float:
+    """3x the median speed of a rest, or 0 when the hand never rested there (it set off at once)."""
+    rest = float(np.median(speed))
+    return 3.0 * rest if rest < 3.0 * moving else 0.0
 
 
 def _nearest(ring: FloatArray, points: FloatArray) -> np.ndarray:

@@ -26,7 +26,10 @@ hesitation      1-2 pauses of 0.4-1.0 s
 
 Each demo is one loop of 5-8 s sampled at 50 Hz from a random start phase, in the canonical
 direction, mapped to 3-D with the task's default plane. The ground truth of a demo is the
-canonical loop under its θ and ρ at the task centre, 600 points over one full period.
+canonical loop under its θ and ρ at the task centre, 600 points over one full period; the
+intended path at the demo's own timing (its phase progression without noise and defects) is
+stored in the demo's extra attrs as in the human style (``truth_uv``, ``truth_on_loop``, ...;
+see :mod:`bt_pipeline.data.synth_human`).
 """
 
 from __future__ import annotations
@@ -304,6 +307,7 @@ def _make_demo(
     start_phase = float(rng.uniform(0.0, 2.0 * np.pi))
     speed = _speed_profile(s, duration_s, defects, rng)
     uv = canonical_shape(task, start_phase + 2.0 * np.pi * _phase(speed, s, fraction))
+    intended = similarity_transform(uv, teacher.theta_deg, teacher.rho)
     if "lopsided" in defects:
         uv, extra = lopsided(uv, task, rng)
         params.update(extra)
@@ -320,6 +324,13 @@ def _make_demo(
         source="synthetic",
         actions=forward_difference_actions(ee_pos, t),
         created=(_CREATED_EPOCH + timedelta(hours=seed % 8760, minutes=k)).isoformat(),
+        attrs={  # Ground truth, as in the human style (bt_pipeline.data.synth_human).
+            "truth_uv": intended.astype(np.float32),
+            "truth_on_loop": np.ones(t.size, dtype=np.uint8),
+            "truth_theta_deg": teacher.theta_deg,
+            "truth_rho": teacher.rho,
+            "truth_cycles": fraction,
+        },
         ep_meta={
             "synthetic": {
                 "is_expert": is_expert,

@@ -342,12 +342,3 @@ def _make_demo(
         is_expert=is_expert,
         defects=defects,
     )
-
-
-def truth_of(record: DemoRecord) -> tuple[FloatArray, np.ndarray] | None:
-    """The stored ground truth of a human-style demo: (truth_uv (T, 2), on_loop (T,)), or None."""
-    if "truth_uv" not in record.attrs or "truth_on_loop" not in record.attrs:
-        return None
-    truth = np.asarray(record.attrs["truth_uv"], dtype=np.float64).reshape(-1, 2)
-    on_loop = np.asarray(record.attrs["truth_on_loop"]).reshape(-1).astype(bool)
-    return truth, on_loop
