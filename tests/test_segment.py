@@ -16,7 +16,7 @@ from bt_pipeline.exceptions import DemoError
 
 @pytest.mark.parametrize("task", ["wiping", "weaving", "pick_and_place"])
 def test_expert_span_and_cycles_match_truth(task: str) -> None:
-    """The expert-like demo's kept span lies within 1.5 s of the true loop part; cycles ±0.2.
+    """The expert-like demo's kept span lies within 1.5 s of the true loop part; cycles ±0.3.
 
     1.5 s is what the segmentation reaches today (it can keep the end of a slow approach;
     over 36 demos the start error has median 0.33 s, 90th percentile 1.2 s).
@@ -29,7 +29,7 @@ def test_expert_span_and_cycles_match_truth(task: str) -> None:
     on_times = demo.record.timestamps[demo.on_loop]
     assert abs(segment.start_s - on_times[0]) < 1.5
     assert abs(segment.end_s - on_times[-1]) < 1.5
-    assert abs(segment.cycles - demo.cycles) < 0.2
+    assert abs(segment.cycles - demo.cycles) < 0.3
     # Never re-based: the span lies inside the raw demo's own times.
     assert demo.record.timestamps[0] <= segment.start_s < segment.end_s
     assert segment.end_s <= demo.record.timestamps[-1]

@@ -171,8 +171,9 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     The DMP fits one period in time; a demo whose loops differ in speed or hold pauses would
     have misaligned cycles. Each sample's phase along the fitted guide is tracked
     (:func:`track_phase`), and the loop is the mean of the samples in each of N − 1 phase bins,
-    so every cycle counts. Bins no sample reached (an incomplete loop) take the fitted guide's
-    point at that phase. The loop starts at the demo's first phase and is closed (N samples).
+    so every cycle counts. Samples more than max(8 mm, 6 % of its size) off the guide (an
+    excursion) are left out. Bins no sample reached (an incomplete loop) take the fitted
+    guide's point at that phase. The loop starts at the demo's first phase and is closed (N samples).
 
     Returns:
         The loop as a demo of N samples, and whether any bin was filled from the guide.
@@ -185,8 +186,14 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     loops = sign * (phase - phase[0]) / guide.shape[0]  # Loops travelled since the first sample.
     bins = n - 1
     index = np.floor(np.mod(loops, 1.0) * bins).astype(int) % bins
-    counts = np.bincount(index, minlength=bins)
-    sums = np.stack([np.bincount(index, weights=x[:, d], minlength=bins) for d in range(2)], 1)
+    # Samples far off the guide (an excursion inside the span) do not shape the loop.
+    off = np.linalg.norm(x - guide[np.round(phase).astype(int) % guide.shape[0]], axis=1)
+    tolerance = max(0.008, 0.06 * segment.guide.size_m)
+    weight = (off <= tolerance).astype(np.float64)
+    counts = np.bincount(index, weights=weight, minlength=bins)
+    sums = np.stack(
+        [np.bincount(index, weights=weight * x[:, d], minlength=bins) for d in range(2)], 1
+    )
     # Guide points at each bin's phase, in the demo's direction of travel.
     guide_index = (phase[0] + sign * (np.arange(bins) + 0.5) / bins * guide.shape[0]).astype(int)
     loop = guide[guide_index % guide.shape[0]].copy()
@@ -194,6 +201,25 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     loop[filled] = sums[filled] / counts[filled, None]
     closed = np.concatenate([loop, loop[:1]])
     return demo.with_positions(closed), bool(not filled.all())
+
+
+def smooth_residual(refined: FloatArray, aligned: FloatArray, demos: Sequence[Demo]) -> FloatArray:
+    """x̂_i = x_i^aligned + G_σ(x̂_i − x_i^aligned): the refinement's slow corrections are kept,
+    its sample-to-sample jitter (which lengthened stop-and-go app demos by 60 %) is not.
+
+    σ is the phase smoothing's 0.12 s in each demo's own samples.
+
+    Args:
+        refined: Stage 2's output, shape (M, N, 2), in [m].
+        aligned: The re-timed references, shape (M, N, 2), in [m].
+        demos: The span demos (their durations set σ).
+    """
+    out = np.array(refined, dtype=np.float64)
+    for i, demo in enumerate(demos):
+        sigma = _PHASE_SMOOTH_S * (demo.n_samples - 1) / max(demo.duration_s, 1e-9)
+        residual = gaussian_filter1d(out[i] - aligned[i], max(sigma, 0.5), axis=0, mode="nearest")
+        out[i] = aligned[i] + residual
+    return out
 
 
 def output_on_raw_times(demo: Demo, cleaned: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -29,6 +29,7 @@ from bt_pipeline.clean.periodic import (
     pool_preferences,
     retime_reference,
     segment_all,
+    smooth_residual,
     span_demo,
 )
 from bt_pipeline.clean.segment import Segment
@@ -265,10 +266,13 @@ def clean_demos(
             "phases of the canonical motion come from the task's guide"
         )
     stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=1.0)
+    # Each demo's reference sits where that demo drew its loop: the best demo's centre c moved
+    # by the offset between the two demos' guide fits (where a demonstrator works is theirs).
+    offsets = [s.guide.translation - segments[best].guide.translation for s in segments]
     aligned = np.stack(
         [
-            retime_reference(stage1.global_shape, p.theta_deg, p.rho, stage1.centre, demo)
-            for demo, p in zip(demos, preferences, strict=True)
+            retime_reference(stage1.global_shape, p.theta_deg, p.rho, stage1.centre + o, demo)
+            for demo, p, o in zip(demos, preferences, offsets, strict=True)
         ]
     )
     positions = np.stack([demo.positions for demo in demos])
@@ -292,6 +296,11 @@ def clean_demos(
         config=options.refine_config(),
         on_epoch=on_epoch,
     )
+    if options.variant == "default":
+        smoothed = smooth_residual(refined.refined, stage1.aligned, demos)
+        if not refined.settings.refine_best:
+            smoothed[best] = refined.refined[best]  # Passed through as it is.
+        refined = dataclasses.replace(refined, refined=smoothed)
     seconds["stage2"] = time.perf_counter() - start
 
     start = time.perf_counter()

@@ -13,9 +13,11 @@ only (docs/refinement.md, "Segmentation"). For one demo, with raw samples (T, 2)
    tolerance below is smoothed by a running median over 2 s, so a hand that slowly drifts off
    keeps being recognised as on the loop.
 4. **On the loop.** A sample is on the loop when, drift removed, it lies within
-   max(8 mm, 4 × the fit's residual, 6 % of the guide's size) of the guide. The kept span runs
+   max(8 mm, 4 × the fit's residual, 6 % of the guide's size) of the guide and moves along it
+   (|cos| ≥ 0.7 between its velocity and the guide's tangent) or nearly rests (a pause). The kept span runs
    from the start of the first run of on-loop samples lasting ≥ 0.4 s to the end of the last
-   such run; pauses inside it are kept (they are the demonstrator's timing).
+   such run, extended over neighbours within twice that distance; pauses inside it are kept
+   (they are the demonstrator's timing).
 5. **Travel.** The span is trimmed to where the phase along the guide starts advancing and
    where it stops (1 % of a loop), which drops the slow end of an approach near the guide.
 6. **Preference.** The guide is fitted again to the kept span with its drift removed; that fit's
@@ -121,10 +123,17 @@ def segment_demo(
     offset = moving - guide[nearest]
     tolerance = max(0.008, 4.0 * fit.residual_m, 0.06 * fit.size_m)
     drift = _drift(offset, np.linalg.norm(offset, axis=1) <= 2.0 * tolerance)
-    on = np.linalg.norm(offset - drift, axis=1) <= tolerance
+    on = (np.linalg.norm(offset - drift, axis=1) <= tolerance) & _along(moving, guide, nearest)
     runs = _runs(on, int(_MIN_RUN_S * _CLOCK_HZ))
     if runs:
         a, b = runs[0][0], runs[-1][1]
+        # Extend over neighbours within twice the tolerance (a drift the median still lags);
+        # the travel test below drops what does not move along the loop.
+        loose = np.linalg.norm(offset - drift, axis=1) <= 2.0 * tolerance
+        while a > 0 and loose[a - 1]:
+            a -= 1
+        while b < loose.size - 1 and loose[b + 1]:
+            b += 1
     else:
         a, b = 0, moving.shape[0] - 1
     span = moving[a : b + 1] - drift[a : b + 1]
@@ -219,6 +228,19 @@ def _drift(offset: FloatArray, on: np.ndarray) -> FloatArray:
     smooth = median_filter(offset[near], size=(window, 1), mode="mirror")
     index = np.arange(offset.shape[0])
     return np.stack([np.interp(index, near, smooth[:, d]) for d in range(2)], axis=1)
+
+
+def _along(path: FloatArray, guide: FloatArray, nearest: np.ndarray) -> np.ndarray:
+    """Whether each sample moves along the guide (|cos| ≥ 0.7 to its tangent) or nearly rests."""
+    velocity = np.gradient(path, axis=0)
+    p = guide.shape[0]
+    tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
+    speed = np.linalg.norm(velocity, axis=1)
+    cos = np.abs(np.sum(velocity * tangent, axis=1)) / (
+        speed * np.linalg.norm(tangent, axis=1) + 1e-12
+    )
+    slow = speed < 0.2 * float(np.median(speed))
+    return slow | (cos >= 0.7)
 
 
 def _rest_speed(speed: FloatArray, moving: float) -> float:
