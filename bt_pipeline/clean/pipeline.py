@@ -50,6 +50,7 @@ from bt_pipeline.score.utility import (
     score_demos,
 )
 
+_STEADY_OFFSET = 0.03  # A demo's offset is its own when its drift stays within 3 % of its size.
 MIN_EXTENT_M = 1e-3
 """A demo whose bounding box is smaller than this in both directions does not move [m]."""
 
@@ -266,9 +267,15 @@ def clean_demos(
             "phases of the canonical motion come from the task's guide"
         )
     stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=1.0)
-    # Each demo's reference sits where that demo drew its loop: the best demo's centre c moved
-    # by the offset between the two demos' guide fits (where a demonstrator works is theirs).
-    offsets = [s.guide.translation - segments[best].guide.translation for s in segments]
+    # A demo drawn steadily off-centre keeps its place: its reference is the best demo's centre c
+    # moved by the offset between the two demos' guide fits. A drifting demo (its offset
+    # wanders over more than 3 % of the loop's size) is pulled to c, as in the paper.
+    offsets = [
+        s.guide.translation - segments[best].guide.translation
+        if s.drift_m <= _STEADY_OFFSET * s.guide.size_m
+        else np.zeros(2)
+        for s in segments
+    ]
     aligned = np.stack(
         [
             retime_reference(stage1.global_shape, p.theta_deg, p.rho, stage1.centre + o, demo)

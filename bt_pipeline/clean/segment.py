@@ -63,7 +63,10 @@ class Segment:
     cycles: float
     """Loops in the span (fractional: 2.8 is two loops and most of a third)."""
     guide: GuideFit
-    """The guide fitted to the moving part."""
+    """The guide fitted to the kept span with its drift removed."""
+    drift_m: float = 0.0
+    """How far the hand's offset from the guide wandered over the span (range of the drift
+    estimate) [m]: small for a demo drawn steadily off-centre, large for a drifting one."""
 
     @property
     def duration_s(self) -> float:
@@ -159,6 +162,7 @@ def segment_demo(
         end_s=float(clock[first + b]),
         cycles=round(cycles, 2),
         guide=fit,
+        drift_m=float(np.max(np.ptp(drift[a : b + 1], axis=0))),
     )
 
 
