@@ -57,9 +57,9 @@ class Segment:
     """The periodic part of one demo."""
 
     start_s: float
-    """First time of the kept span, on the raw demo's time base [s]."""
+    """First raw sample time of the kept span, on the raw demo's time base [s]."""
     end_s: float
-    """Last time of the kept span [s]."""
+    """Last raw sample time of the kept span [s]."""
     cycles: float
     """Loops in the span (fractional: 2.8 is two loops and most of a third)."""
     guide: GuideFit
@@ -157,9 +157,12 @@ def segment_demo(
     fit = fit_guide(
         span, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
     )
+    # Snap the span to raw sample times: the first and last raw sample inside it.
+    i0 = min(int(np.searchsorted(t, clock[first + a] - 1e-9)), t.size - 2)
+    i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
     return Segment(
-        start_s=float(clock[first + a]),
-        end_s=float(clock[first + b]),
+        start_s=float(t[i0]),
+        end_s=float(t[i1]),
         cycles=round(cycles, 2),
         guide=fit,
         drift_m=float(np.max(np.ptp(drift[a : b + 1], axis=0))),
