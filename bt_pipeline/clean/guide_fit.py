@@ -31,7 +31,7 @@ from bt_pipeline.data.shapes import canonical_loop
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
 
-_GUIDE_POINTS = 2048  # Dense guide for nearest-point pairing (< 0.2 mm spacing).
+_GUIDE_POINTS = 1024  # Dense guide for nearest-point pairing (< 0.4 mm spacing).
 _FIT_POINTS = 240  # Arc-length resampled demo points used by the fit.
 _COARSE_ITERATIONS = 4  # ICP steps from every start before the best are kept.
 _SURVIVORS = 2  # Starts carried on to convergence.
@@ -102,7 +102,7 @@ def fit_guide(
     theta_deg: float | None = None,
     rho: float | None = None,
     trim: float = 0.6,
-    max_iterations: int = 40,
+    max_iterations: int = 25,
     initial: GuideFit | None = None,
 ) -> GuideFit:
     """Fit the task's guide to a demo by a trimmed similarity ICP (module doc).
@@ -187,7 +187,7 @@ def _icp(
         )
         moved = abs(th_new - th) / 90.0 + abs(r_new - r) + float(np.linalg.norm(t_new - t))
         th, r, t = th_new, r_new, t_new
-        if moved < 1e-5 or not math.isfinite(residual):
+        if moved < 1e-4 or not math.isfinite(residual):
             break
     return th, r, t, residual
 
