@@ -10,13 +10,12 @@ import pytest
 
 from bt_pipeline.clean.driver import clean_paths
 from bt_pipeline.clean.periodic import output_on_raw_times
-from bt_pipeline.data.synth_truth import shape_distance, truth_of
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.records import Recording
 from bt_pipeline.data.synth import make_d1, make_demo_set
-from bt_pipeline.evaluate.distance import distance_to_truth
+from bt_pipeline.data.synth_truth import shape_distance, truth_of
 from bt_pipeline.exceptions import DemoError, RecordingError
 
 FAST = CleanOptions(epochs=2, progress=False, write_rrd=False)
@@ -72,7 +71,7 @@ def test_cleaning_moves_naive_demos_toward_their_true_shape() -> None:
         stored = truth_of(demo.record)
         assert stored is not None
         truth = stored[0]
-        raw, times = demos[i].raw_samples()
+        raw, _ = demos[i].raw_samples()
         _, cleaned = output_on_raw_times(result.demos[i], result.positions[i])
         before, after = shape_distance(raw, truth), shape_distance(cleaned, truth)
         if demo.is_expert:

@@ -51,9 +51,9 @@ def _check_not_worse(result: TaskCleanResult, raw_demos: list[Demo], i: int) -> 
     assert np.array_equal(out_times, times[inside])  # the raw time base, never re-based
     name = raw_demos[i].label
     assert _length(cleaned) <= 1.05 * _length(raw[inside]), name
-    assert _guide_distance(raw_demos[i], cleaned) <= _guide_distance(
-        raw_demos[i], raw[inside]
-    ) + 0.001, name
+    assert (
+        _guide_distance(raw_demos[i], cleaned) <= _guide_distance(raw_demos[i], raw[inside]) + 0.001
+    ), name
 
 
 def _careful_takes() -> list[Path]:
@@ -98,7 +98,7 @@ def test_scripted_operator_three_loops_from_home(tmp_path: Path) -> None:
     result = clean_demos(demos, CleanOptions(progress=False, epochs=10))
     i = next(k for k, d in enumerate(demos) if d.demonstrator == "scripted")
     segment = result.segments[i]
-    raw, times = demos[i].raw_samples()
+    _, times = demos[i].raw_samples()
     assert 2.7 <= segment.cycles <= 3.3
     assert segment.start_s >= times[0] + 0.5 * DRIVE_S  # the drive from home is trimmed
     _check_not_worse(result, demos, i)

@@ -73,4 +73,4 @@ def test_human_set_stores_its_truth_and_hides_preferences() -> None:
         assert truth.shape == (record.timestamps.size, 2) and on_loop.any() and not on_loop.all()
         steps = np.diff(record.timestamps)
         assert steps.min() > 0 and steps.max() / steps.min() > 1.5  # uneven sample times
-        assert 0.0 < record.timestamps[0]  # not based at 0
+        assert record.timestamps[0] > 0.0  # not based at 0

@@ -135,7 +135,11 @@ def fit_guide(
     guide_rms = float(np.sqrt(np.mean(np.sum(guide**2, axis=1))))
     centre0 = np.median(points, axis=0)
     spread = float(np.sqrt(np.mean(np.sum((points - centre0) ** 2, axis=1))))
-    rho0 = rho if rho is not None else float(np.clip(spread / guide_rms, allowed.rho_min, allowed.rho_max))
+    rho0 = (
+        rho
+        if rho is not None
+        else float(np.clip(spread / guide_rms, allowed.rho_min, allowed.rho_max))
+    )
     if theta_deg is not None:
         starts = [float(theta_deg)]
     else:
@@ -150,7 +154,9 @@ def fit_guide(
     for budget, survivors in ((_COARSE_ITERATIONS, _SURVIVORS), (max_iterations, 1)):
         fits = []
         for th, r, t in candidates:
-            th, r, t, residual = _icp(points, guide, tree, th, r, t, keep, budget, theta_deg, rho, allowed)
+            th, r, t, residual = _icp(
+                points, guide, tree, th, r, t, keep, budget, theta_deg, rho, allowed
+            )
             if not math.isfinite(residual):
                 raise DemoError(f"{name}: the guide fit diverged (non-finite residual)")
             fits.append((residual + 1e-9 * abs(th), th, r, t, residual))
@@ -206,7 +212,11 @@ def _solve(
     zq = q[:, 0] + 1j * q[:, 1]
     pc, qc = zp - zp.mean(), zq - zq.mean()
     denom = float(np.vdot(qc, qc).real)
-    a = complex(np.vdot(qc, pc) / denom) if denom > 0 else complex(rho * np.exp(1j * math.radians(theta)))
+    a = (
+        complex(np.vdot(qc, pc) / denom)
+        if denom > 0
+        else complex(rho * np.exp(1j * math.radians(theta)))
+    )
     th = theta_fixed if theta_fixed is not None else math.degrees(math.atan2(a.imag, a.real))
     th = float(np.clip(th, -allowed.theta_max_deg, allowed.theta_max_deg))
     if rho_fixed is not None:

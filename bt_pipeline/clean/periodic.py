@@ -143,9 +143,7 @@ def retime_reference(
     p = loop.shape[0]
     fine = np.arange(p * _RETIME_OVERSAMPLE) / _RETIME_OVERSAMPLE
     closed = np.concatenate([loop, loop[:1]])
-    dense = np.stack(
-        [np.interp(fine, np.arange(p + 1), closed[:, d]) for d in range(2)], axis=1
-    )
+    dense = np.stack([np.interp(fine, np.arange(p + 1), closed[:, d]) for d in range(2)], axis=1)
     x = demo.positions
     sigma = _PHASE_SMOOTH_S * (x.shape[0] - 1) / max(demo.duration_s, 1e-9)
     smooth_x = gaussian_filter1d(x, max(sigma / 2.0, 0.5), axis=0, mode="nearest")
@@ -173,7 +171,8 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     (:func:`track_phase`), and the loop is the mean of the samples in each of N − 1 phase bins,
     so every cycle counts. Samples more than max(8 mm, 6 % of its size) off the guide (an
     excursion) are left out. Bins no sample reached (an incomplete loop) take the fitted
-    guide's point at that phase. The loop starts at the demo's first phase and is closed (N samples).
+    guide's point at that phase. The loop starts at the demo's first phase and is closed
+    (N samples).
 
     Returns:
         The loop as a demo of N samples, and whether any bin was filled from the guide.

@@ -2,9 +2,10 @@
 
 People record a rhythmic skill with a rest at the start, an approach from a rest pose, one or
 more loops (often with pauses), a retreat and a rest at the end. The cleaner works on the loops
-only (docs/refinement.md, "Segmentation"). For one demo, with raw samples (T, 2) at raw times:
+only (docs/refinement.md, "Demos as people record them"). For one demo, with raw samples
+(T, 2) at raw times:
 
-1. **Motion.** The path is read on a uniform 100 Hz clock and smoothed (Gaussian, σ = 0.08 s).
+1. **Motion.** The path is read on a uniform 50 Hz clock and smoothed (Gaussian, σ = 0.08 s).
    The hand moves from the first sample that is more than 10 mm from where it rested until the
    last sample more than 10 mm from where it comes to rest (walked back to where it set off).
 2. **Guide.** The task's guide is fitted to the moving part (:func:`fit_guide`: a trimmed
@@ -14,10 +15,10 @@ only (docs/refinement.md, "Segmentation"). For one demo, with raw samples (T, 2)
    keeps being recognised as on the loop.
 4. **On the loop.** A sample is on the loop when, drift removed, it lies within
    max(8 mm, 4 × the fit's residual, 6 % of the guide's size) of the guide and moves along it
-   (|cos| ≥ 0.7 between its velocity and the guide's tangent) or nearly rests (a pause). The kept span runs
-   from the start of the first run of on-loop samples lasting ≥ 0.4 s to the end of the last
-   such run, extended over neighbours within twice that distance; pauses inside it are kept
-   (they are the demonstrator's timing).
+   (|cos| ≥ 0.7 between its velocity and the guide's tangent) or nearly rests (a pause). The
+   kept span runs from the start of the first run of on-loop samples lasting ≥ 0.4 s to the end
+   of the last such run, extended over neighbours within twice that distance; pauses inside it
+   are kept (they are the demonstrator's timing).
 5. **Travel.** The span is trimmed to where the phase along the guide starts advancing and
    where it stops (1 % of a loop), which drops the slow end of an approach near the guide.
 6. **Preference.** The guide is fitted again to the kept span with its drift removed; that fit's
@@ -154,9 +155,7 @@ def segment_demo(
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     # θ/ρ from the kept span with its drift removed: approach, retreat and drift no longer bias
     # them (the same bounded fit, started from the first one).
-    fit = fit_guide(
-        span, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
-    )
+    fit = fit_guide(span, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit)
     # Snap the span to raw sample times: the first and last raw sample inside it.
     i0 = min(int(np.searchsorted(t, clock[first + a] - 1e-9)), t.size - 2)
     i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
@@ -169,7 +168,9 @@ def segment_demo(
     )
 
 
-def track_phase(points: ArrayLike, loop: ArrayLike, max_step: float = _MAX_PHASE_STEP) -> FloatArray:
+def track_phase(
+    points: ArrayLike, loop: ArrayLike, max_step: float = _MAX_PHASE_STEP
+) -> FloatArray:
     """Continuous phase of each point along a closed loop, by nearest point near the last one.
 
     The first point takes its nearest loop point; each next point the nearest within
@@ -194,7 +195,7 @@ def track_phase(points: ArrayLike, loop: ArrayLike, max_step: float = _MAX_PHASE
     current = float(np.argmin(np.sum((ring - x[0]) ** 2, axis=1)))
     phase[0] = current
     for k in range(1, x.shape[0]):
-        candidates = int(round(current)) + offsets
+        candidates = round(current) + offsets
         d2 = np.sum((ring[candidates % p] - x[k]) ** 2, axis=1)
         current = float(candidates[int(np.argmin(d2))])
         phase[k] = current

@@ -17,7 +17,8 @@ The default style (:mod:`bt_pipeline.data.synth`) draws one loop per demo at 50 
 * the demonstrators' preferences are drawn per set: θ ∈ [−30°, 30°], ρ ∈ [0.75, 1.35].
 
 The naive demos get the same defects as the default style (jitter, tremor, drift, spikes,
-lopsided, speed, hesitation, incomplete: the last loop stops at 70-90 %; :func:`bt_pipeline.data.synth.draw_defects`); the
+lopsided, speed, hesitation, incomplete: the last loop stops at 70-90 %;
+:func:`bt_pipeline.data.synth.draw_defects`); the
 expert-like demo only 0.3 mm of noise.
 
 Ground truth per demo, stored in the demo's extra attrs of the format-v1 file (so any reader of
@@ -48,7 +49,7 @@ import numpy as np
 
 from bt_pipeline.data.recording import DEFAULT_ENV_TYPE
 from bt_pipeline.data.records import DemoRecord, FloatArray, Recording, forward_difference_actions
-from bt_pipeline.data.shapes import SHAPE_SIZE, canonical_shape, similarity_transform
+from bt_pipeline.data.shapes import canonical_shape, similarity_transform
 from bt_pipeline.data.synth import (
     ENV_NAME,
     Defect,
@@ -238,14 +239,18 @@ def _make_demo(
     if "speed" in defects:
         for _ in range(3):
             f = rng.uniform(0.5, 4.0)
-            speed += rng.uniform(0.1, 0.25) * np.sin(2 * np.pi * f * t_loop / loop_s + rng.uniform(0, 7))
+            speed += rng.uniform(0.1, 0.25) * np.sin(
+                2 * np.pi * f * t_loop / loop_s + rng.uniform(0, 7)
+            )
         speed = np.maximum(speed, 0.15)
     speed = speed * _pauses(t_loop, n_pauses, rng)
     progress = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]))])
     phase = float(rng.uniform(0, 2 * np.pi)) + 2 * np.pi * cycles * progress / progress[-1]
     if rng.random() < 0.15:
         phase = phase[0] - (phase - phase[0])  # Some demonstrators run the loop the other way.
-    intended_loop = similarity_transform(canonical_shape(task, phase), teacher.theta_deg, teacher.rho)
+    intended_loop = similarity_transform(
+        canonical_shape(task, phase), teacher.theta_deg, teacher.rho
+    )
     drawn_loop = canonical_shape(task, phase)
     if "lopsided" in defects:
         drawn_loop, extra = lopsided(drawn_loop, task, rng)
@@ -253,7 +258,7 @@ def _make_demo(
     drawn_loop = similarity_transform(drawn_loop, teacher.theta_deg, teacher.rho)
 
     # Rest, approach, loops, retreat, rest.
-    size = max(SHAPE_SIZE[task])
+
     def rest_pose(anchor: FloatArray) -> FloatArray:
         if rng.random() < 0.2:
             return anchor.copy()  # The app's home pose can sit on the loop itself.

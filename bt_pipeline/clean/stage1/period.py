@@ -47,7 +47,9 @@ def estimate_period(positions: ArrayLike, name: str = "demo") -> float:
     power = np.sum(np.abs(np.fft.rfft((x - x.mean(axis=0)) * window, n_fft, axis=0)) ** 2, axis=1)
     magnitude = np.sqrt(power)
     if not np.all(np.isfinite(magnitude)) or float(np.max(magnitude)) <= 0.0:
-        raise DemoError(f"{name}: its spectrum is flat or not finite (no motion, or values that overflow)")
+        raise DemoError(
+            f"{name}: its spectrum is flat or not finite (no motion, or values that overflow)"
+        )
     lowest = _PAD_FACTOR // 2  # Below half a cycle per window the window itself dominates.
     peak = lowest + int(np.argmax(magnitude[lowest:]))
     for divisor in (4, 3, 2):
