@@ -147,9 +147,13 @@ def segment_demo(
     sign = 1.0 if phase[-1] >= phase[0] else -1.0
     travelled = sign * (phase - phase[0])
     step = _ADVANCE * guide.shape[0]
-    if travelled[-1] > 4 * step:
-        head = int(np.argmax(travelled > step))
-        tail = int(np.flatnonzero(travelled < travelled[-1] - step)[-1])
+    peak = int(np.argmax(travelled))
+    low = int(np.argmin(travelled[: peak + 1]))
+    if travelled[peak] - travelled[low] > 4 * step:
+        # From where the phase leaves its lowest value to where it reaches its highest: a
+        # retreat or approach that slides the nearest guide point backwards is cut too.
+        head = low + int(np.argmax(travelled[low:] > travelled[low] + step))
+        tail = int(np.argmax(travelled >= travelled[peak] - step))
         if tail > head:
             phase, a, b = phase[head : tail + 1], a + head, a + tail
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
