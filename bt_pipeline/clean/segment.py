@@ -11,8 +11,9 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
 2. **Guide.** The task's guide is fitted to the moving part (:func:`fit_guide`: a trimmed
    similarity fit, so approach and retreat do not pull it).
 3. **Drift.** The offset from its nearest guide point of each sample within twice the
-   tolerance below is smoothed by a running median over 2 s, so a hand that slowly drifts off
-   keeps being recognised as on the loop.
+   tolerance below is smoothed by a running median over about one loop (2-10 s, from a first
+   phase track), so a hand that slowly drifts off keeps being recognised as on the loop while a
+   scale or shape error, which repeats every loop, is not taken for drift.
 4. **On the loop.** A sample is on the loop when, drift removed, it lies within
    max(8 mm, 4 × the fit's residual, 6 % of the guide's size) of the guide and moves along it
    (|cos| ≥ 0.7 between its velocity and the guide's tangent) or nearly rests (a pause). The
@@ -47,7 +48,7 @@ _CLOCK_HZ = 50.0  # Analysis clock [Hz].
 _SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
 _REST_M = 0.010  # A hand within this of its rest pose still rests [m].
 _MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
-_DRIFT_WINDOW_S = 2.0  # Running-median window of the drift estimate [s].
+_DRIFT_WINDOW_S = 2.0  # Shortest running-median window of the drift estimate [s].
 _TRACK_POINTS = 512  # Guide points for the distance and the phase track.
 _ADVANCE = 0.01  # Phase advance that marks the start (and end) of travel along the loop, in loops.
 _MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
@@ -126,7 +127,12 @@ def segment_demo(
     nearest = _nearest(guide, moving)
     offset = moving - guide[nearest]
     tolerance = max(0.008, 4.0 * fit.residual_m, 0.06 * fit.size_m)
-    drift = _drift(offset, np.linalg.norm(offset, axis=1) <= 2.0 * tolerance)
+    # The drift window spans about one loop, so a scale or shape error (periodic) is not
+    # mistaken for drift (slow): loops in the moving part from a first phase track.
+    loops = abs(float(np.ptp(track_phase(moving, guide)))) / guide.shape[0]
+    period_s = moving.shape[0] / _CLOCK_HZ / max(loops, 1.0)
+    window_s = float(np.clip(period_s, _DRIFT_WINDOW_S, 5.0 * _DRIFT_WINDOW_S))
+    drift = _drift(offset, np.linalg.norm(offset, axis=1) <= 2.0 * tolerance, window_s)
     on = (np.linalg.norm(offset - drift, axis=1) <= tolerance) & _along(moving, guide, nearest)
     runs = _runs(on, int(_MIN_RUN_S * _CLOCK_HZ))
     if runs:
@@ -227,7 +233,7 @@ def _moving_part(smooth: FloatArray) -> tuple[int, int]:
     return first, last
 
 
-def _drift(offset: FloatArray, on: np.ndarray) -> FloatArray:
+def _drift(offset: FloatArray, on: np.ndarray, window_s: float) -> FloatArray:
     """Slow drift: running median of the offsets of the on-loop samples, interpolated between.
 
     Samples off the loop (approach, retreat, excursions) take no part, so the estimate cannot
@@ -236,7 +242,7 @@ def _drift(offset: FloatArray, on: np.ndarray) -> FloatArray:
     near = np.flatnonzero(on)
     if near.size < 3:
         return np.zeros_like(offset)
-    window = max(3, int(_DRIFT_WINDOW_S * _CLOCK_HZ) | 1)
+    window = max(3, int(window_s * _CLOCK_HZ) | 1)
     smooth = median_filter(offset[near], size=(window, 1), mode="mirror")
     index = np.arange(offset.shape[0])
     return np.stack([np.interp(index, near, smooth[:, d]) for d in range(2)], axis=1)
