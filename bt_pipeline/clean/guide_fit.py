@@ -8,8 +8,10 @@ The fit is a trimmed iterative-closest-point similarity fit:
 2. From each of several starting rotations spread over the allowed θ range, and a scale and
    translation from the points' spread and median, it pairs every point with the nearest point
    of the (densely sampled) guide under the current fit, keeps the `trim` share of pairs that
-   fit best (approach, retreat and spikes fall out), and re-solves θ, ρ, t by least squares,
-   clipped to the allowed ranges (default θ ∈ [−45°, 45°], ρ ∈ [0.5, 2]).
+   fit best (approach, retreat and spikes fall out), and re-solves θ, ρ, t by least squares
+   along the guide's normals (point-to-tangent, so points slide along the loop and the fit
+   converges in a few steps), clipped to the allowed ranges (default θ ∈ [−45°, 45°],
+   ρ ∈ [0.5, 2]).
 3. The start with the smallest trimmed residual wins. Within the range the near-symmetric
    shapes' twins (wiping and weaving look the same turned by 180°) are outside the range, so
    the smallest rotation is the one kept.
@@ -34,7 +36,8 @@ from bt_pipeline.exceptions import ConfigError, DemoError
 _GUIDE_POINTS = 1024  # Dense guide for nearest-point pairing (< 0.4 mm spacing).
 _FIT_POINTS = 240  # Arc-length resampled demo points used by the fit.
 _COARSE_ITERATIONS = 4  # ICP steps from every start before the best are kept.
-_SURVIVORS = 2  # Starts carried on to convergence.
+_SURVIVORS = 1  # Starts carried on to convergence.
+_POINT_WEIGHT = 0.05  # Weight of the point-to-point term beside the point-to-tangent one.
 
 
 @dataclass(frozen=True)
@@ -188,12 +191,16 @@ def _icp(
         dist, index = tree.query(local)
         order = np.argpartition(dist, keep - 1)[:keep]
         residual = float(np.mean(dist[order]) * r)
+        g = index[order]
+        tangent = guide[(g + 1) % guide.shape[0]] - guide[(g - 1) % guide.shape[0]]
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-15
         th_new, r_new, t_new = _solve(
-            points[order], guide[index[order]], th, r, theta_fixed, rho_fixed, allowed
+            points[order], guide[g], normal, th, r, theta_fixed, rho_fixed, allowed
         )
         moved = abs(th_new - th) / 90.0 + abs(r_new - r) + float(np.linalg.norm(t_new - t))
         th, r, t = th_new, r_new, t_new
-        if moved < 1e-4 or not math.isfinite(residual):
+        if moved < 1e-6 or not math.isfinite(residual):
             break
     return th, r, t, residual
 
@@ -201,30 +208,53 @@ def _icp(
 def _solve(
     p: FloatArray,
     q: FloatArray,
+    normal: FloatArray,
     theta: float,
     rho: float,
     theta_fixed: float | None,
     rho_fixed: float | None,
     allowed: PreferenceRange,
 ) -> tuple[float, float, FloatArray]:
-    """Least-squares θ, ρ, t of p ≈ ρ R(θ) q + t, each clipped to its range or held fixed."""
-    zp = p[:, 0] + 1j * p[:, 1]
-    zq = q[:, 0] + 1j * q[:, 1]
-    pc, qc = zp - zp.mean(), zq - zq.mean()
-    denom = float(np.vdot(qc, qc).real)
-    a = (
-        complex(np.vdot(qc, pc) / denom)
-        if denom > 0
-        else complex(rho * np.exp(1j * math.radians(theta)))
-    )
-    th = theta_fixed if theta_fixed is not None else math.degrees(math.atan2(a.imag, a.real))
-    th = float(np.clip(th, -allowed.theta_max_deg, allowed.theta_max_deg))
-    if rho_fixed is not None:
-        r = float(rho_fixed)
+    """θ, ρ, t of p ≈ ρ R(θ) q + t, point-to-tangent least squares, clipped or held fixed.
+
+    Each pair's residual is measured along the guide's normal at q (mapped by the current θ), so
+    points may slide along the guide (fast convergence on smooth loops), plus a small
+    point-to-point term (weight 0.05) that keeps the problem well posed.
+    """
+    c, s = math.cos(math.radians(theta)), math.sin(math.radians(theta))
+    n = normal @ np.array([[c, s], [-s, c]])  # Normals in the demo's frame.
+    w = math.sqrt(_POINT_WEIGHT)
+    if theta_fixed is None or rho_fixed is None:
+        # Unknowns (a, b, tx, ty) with ρ R(θ) = [[a, −b], [b, a]].
+        rows = np.concatenate(
+            [
+                np.stack(
+                    [
+                        n[:, 0] * q[:, 0] + n[:, 1] * q[:, 1],
+                        n[:, 1] * q[:, 0] - n[:, 0] * q[:, 1],
+                        n[:, 0],
+                        n[:, 1],
+                    ],
+                    axis=1,
+                ),
+                w * np.stack([q[:, 0], -q[:, 1], np.ones(len(q)), np.zeros(len(q))], axis=1),
+                w * np.stack([q[:, 1], q[:, 0], np.zeros(len(q)), np.ones(len(q))], axis=1),
+            ]
+        )
+        rhs = np.concatenate([np.sum(n * p, axis=1), w * p[:, 0], w * p[:, 1]])
+        a, b, _, _ = np.linalg.lstsq(rows, rhs, rcond=None)[0]
+        th = theta_fixed if theta_fixed is not None else math.degrees(math.atan2(b, a))
+        th = float(np.clip(th, -allowed.theta_max_deg, allowed.theta_max_deg))
+        if rho_fixed is None:
+            r = float((complex(a, b) * np.exp(-1j * math.radians(th))).real)
+            r = float(np.clip(r, allowed.rho_min, allowed.rho_max))
+        else:
+            r = float(rho_fixed)
     else:
-        # Best scale for the clipped rotation: Re(conj(e^{iθ}) a).
-        r = float((a * np.exp(-1j * math.radians(th))).real)
-        r = float(np.clip(r, allowed.rho_min, allowed.rho_max))
-    w = r * np.exp(1j * math.radians(th))
-    t = zp.mean() - w * zq.mean()
-    return th, r, np.array([t.real, t.imag])
+        th, r = float(theta_fixed), float(rho_fixed)
+    # Translation for the (clipped) rotation and scale: the same weighted least squares in t.
+    mapped = transform(q, th, r, np.zeros(2))
+    d = p - mapped
+    nn = np.einsum("ki,kj->ij", n, n) + _POINT_WEIGHT * len(q) * np.eye(2)
+    rhs_t = np.einsum("ki,kj,kj->i", n, n, d) + _POINT_WEIGHT * d.sum(axis=0)
+    return th, r, np.linalg.solve(nn, rhs_t)

@@ -50,7 +50,8 @@ from bt_pipeline.score.utility import (
     score_demos,
 )
 
-_STEADY_OFFSET = 0.03  # A demo's offset is its own when its drift stays within 3 % of its size.
+_STEADY_OFFSET = 0.03  # A demo's offset is its own when its drift stays within 3 % of its size
+_STEADY_MISFIT = 0.03  # and 90 % of its samples within 3 % of its size of the fitted guide.
 MIN_EXTENT_M = 1e-3
 """A demo whose bounding box is smaller than this in both directions does not move [m]."""
 
@@ -268,11 +269,14 @@ def clean_demos(
         )
     stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=1.0)
     # A demo drawn steadily off-centre keeps its place: its reference is the best demo's centre c
-    # moved by the offset between the two demos' guide fits. A drifting demo (its offset
-    # wanders over more than 3 % of the loop's size) is pulled to c, as in the paper.
+    # moved by the offset between the two demos' guide fits. A drifting demo (its offset wanders
+    # over more than 3 % of the loop's size) or a misshapen one (a tenth of its samples more
+    # than 3 % of the size off the fitted guide: the fit's place is then unsure) is pulled to c,
+    # as in the paper.
     offsets = [
         s.guide.translation - segments[best].guide.translation
         if s.drift_m <= _STEADY_OFFSET * s.guide.size_m
+        and s.misfit_m <= _STEADY_MISFIT * s.guide.size_m
         else np.zeros(2)
         for s in segments
     ]

@@ -69,6 +69,10 @@ class Segment:
     drift_m: float = 0.0
     """How far the hand's offset from the guide wandered over the span (range of the drift
     estimate) [m]: small for a demo drawn steadily off-centre, large for a drifting one."""
+    misfit_m: float = 0.0
+    """90th percentile of the distances of the span's samples (drift removed) to the fitted
+    guide, every sample counted (the fit itself trims) [m]: small when the whole loop has the
+    guide's shape."""
 
     @property
     def duration_s(self) -> float:
@@ -175,6 +179,7 @@ def segment_demo(
         cycles=round(cycles, 2),
         guide=fit,
         drift_m=float(np.max(np.ptp(drift[a : b + 1], axis=0))),
+        misfit_m=float(np.percentile(_nearest_distance(fit.guide(task, _TRACK_POINTS), span), 90)),
     )
 
 
@@ -265,6 +270,12 @@ def _rest_speed(speed: FloatArray, moving: float) -> float:
     """3x the median speed of a rest, or 0 when the hand never rested there (it set off at once)."""
     rest = float(np.median(speed))
     return 3.0 * rest if rest < 3.0 * moving else 0.0
+
+
+def _nearest_distance(ring: FloatArray, points: FloatArray) -> FloatArray:
+    from scipy.spatial import cKDTree
+
+    return cKDTree(ring).query(points)[0]
 
 
 def _nearest(ring: FloatArray, points: FloatArray) -> np.ndarray:
