@@ -37,11 +37,10 @@ def measure(task: str, n: int, seed: int, style: str) -> dict[str, list[float]]:
     """Ratios and rates of one cleaned set."""
     if style == "human":
         synth = make_human_set(task, n, seed)
-        hidden, expert = synth.hidden, synth.expert_index
+        hidden, expert, recording = synth.hidden, synth.expert_index, synth.recording
     else:
         single = make_demo_set(task, n, seed)
-        hidden, expert = False, single.expert_index
-    recording = synth.recording if style == "human" else single.recording
+        hidden, expert, recording = False, single.expert_index, single.recording
     demos = demos_from_recording(recording)
     result = clean_demos(demos, CleanOptions(seed=seed, progress=False))
     out: dict[str, list[float]] = defaultdict(list)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from bt_pipeline.clean.periodic import output_on_raw_times
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
@@ -40,7 +40,7 @@ def _length(path: np.ndarray) -> float:
 def _guide_distance(demo: Demo, path: np.ndarray) -> float:
     assert demo.theta_deg is not None and demo.rho is not None
     guide = similarity_transform(canonical_loop("wiping", 4000), demo.theta_deg, demo.rho)
-    return float(np.mean(cKDTree(guide).query(path)[0]))
+    return float(np.mean(KDTree(guide).query(path)[0]))
 
 
 def _check_not_worse(result: TaskCleanResult, raw_demos: list[Demo], i: int) -> None:

@@ -10,12 +10,12 @@ from bt_pipeline.clean.segment import segment_demo, track_phase
 from bt_pipeline.data.shapes import canonical_loop, similarity_transform
 from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.data.synth_truth import truth_of
-from bt_pipeline.data.tasks import default_plane
+from bt_pipeline.data.tasks import Task, default_plane
 from bt_pipeline.exceptions import DemoError
 
 
 @pytest.mark.parametrize("task", ["wiping", "weaving", "pick_and_place"])
-def test_expert_span_and_cycles_match_truth(task: str) -> None:
+def test_expert_span_and_cycles_match_truth(task: Task) -> None:
     """The expert-like demo's kept span lies within 1.5 s of the true loop part; cycles ±0.3.
 
     1.5 s is what the segmentation reaches today (it can keep the end of a slow approach;

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.shapes import canonical_loop
@@ -134,7 +134,7 @@ def fit_guide(
     if float(np.max(np.ptp(points, axis=0))) < 1e-3:
         raise DemoError(f"{name} does not move (extent under 1 mm); nothing to fit")
     guide = canonical_loop(task, _GUIDE_POINTS)
-    tree = cKDTree(guide)
+    tree = KDTree(guide)
     guide_rms = float(np.sqrt(np.mean(np.sum(guide**2, axis=1))))
     centre0 = np.median(points, axis=0)
     spread = float(np.sqrt(np.mean(np.sum((points - centre0) ** 2, axis=1))))
@@ -174,7 +174,7 @@ def fit_guide(
 def _icp(
     points: FloatArray,
     guide: FloatArray,
-    tree: cKDTree,
+    tree: KDTree,
     th: float,
     r: float,
     t: FloatArray,
@@ -188,7 +188,8 @@ def _icp(
     residual = math.inf
     for _ in range(iterations):
         local = transform(points - t, -th, 1.0, np.zeros(2)) / r  # R(−θ)(p − t)/ρ
-        dist, index = tree.query(local)
+        dist, found = tree.query(local)
+        dist, index = np.asarray(dist, dtype=np.float64), np.asarray(found, dtype=np.intp)
         order = np.argpartition(dist, keep - 1)[:keep]
         residual = float(np.mean(dist[order]) * r)
         g = index[order]

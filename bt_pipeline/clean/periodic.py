@@ -149,6 +149,7 @@ def retime_reference(
     smooth_x = gaussian_filter1d(x, max(sigma / 2.0, 0.5), axis=0, mode="nearest")
     drift_sigma = _DRIFT_SMOOTH_S * (x.shape[0] - 1) / max(demo.duration_s, 1e-9)
     drift = np.zeros_like(x)
+    target = x
     for _ in range(_DRIFT_PASSES):  # Track, estimate the slow drift off the reference, re-track.
         phase = track_phase(smooth_x - drift, dense) / _RETIME_OVERSAMPLE  # Reference samples.
         phase = gaussian_filter1d(phase, max(sigma, 0.5), mode="nearest")

@@ -273,15 +273,15 @@ def _rest_speed(speed: FloatArray, moving: float) -> float:
 
 
 def _nearest_distance(ring: FloatArray, points: FloatArray) -> FloatArray:
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
-    return cKDTree(ring).query(points)[0]
+    return KDTree(ring).query(points)[0]
 
 
 def _nearest(ring: FloatArray, points: FloatArray) -> np.ndarray:
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
-    return cKDTree(ring).query(points)[1]
+    return np.asarray(KDTree(ring).query(points)[1], dtype=np.intp)
 
 
 def _runs(flags: np.ndarray, min_length: int) -> list[tuple[int, int]]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from bt_pipeline.clean.guide_fit import arc_length_resample
 from bt_pipeline.data.records import DemoRecord, FloatArray
@@ -41,7 +41,7 @@ def densify(path: ArrayLike) -> FloatArray:
 def shape_distance(path: ArrayLike, truth: ArrayLike) -> float:
     """Symmetric Chamfer distance of two paths, both densified first [m]."""
     a, b = densify(path), densify(truth)
-    return 0.5 * float(np.mean(cKDTree(b).query(a)[0]) + np.mean(cKDTree(a).query(b)[0]))
+    return 0.5 * float(np.mean(KDTree(b).query(a)[0]) + np.mean(KDTree(a).query(b)[0]))
 
 
 def timing_distance(path: ArrayLike, truth: ArrayLike) -> float:

@@ -209,6 +209,7 @@ def phase_align(
         coarse = np.union1d(np.arange(0, p, _COARSE_STRIDE), [by_squares])
         for start in coarse[np.argsort(cost(coarse, rev))[:_DESCENTS]]:
             s = int(start)
+            j, losses = _COARSE_STRIDE, np.full(2 * _COARSE_STRIDE + 1, math.inf)
             # Descend on the exact cost until s is the best of its neighbourhood. Each step
             # lowers the cost strictly, so at most P steps; NaN or flat costs stop at once.
             for _ in range(p + 1):
