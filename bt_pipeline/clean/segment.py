@@ -164,6 +164,10 @@ def segment_demo(
         # retreat or approach that slides the nearest guide point backwards is cut too.
         head = low + int(np.argmax(travelled[low:] > travelled[low] + step))
         tail = int(np.argmax(travelled >= travelled[peak] - step))
+        # Back to where the phase first moved at all (0.1 % of a loop) on each side.
+        fine = 0.1 * step
+        head = low + int(np.flatnonzero(travelled[low : head + 1] <= travelled[low] + fine)[-1])
+        tail = tail + int(np.argmax(travelled[tail:] >= travelled[peak] - fine))
         if tail > head:
             phase, a, b = phase[head : tail + 1], a + head, a + tail
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
