@@ -18,6 +18,7 @@ reported as uncertain.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -169,8 +170,8 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
 
     The DMP fits one period in time; a demo whose loops differ in speed or hold pauses would
     have misaligned cycles. Each sample's phase along the fitted guide is tracked
-    (:func:`track_phase`), and the loop is the mean of the samples in each of N − 1 phase bins,
-    so every cycle counts. Samples more than max(8 mm, 6 % of its size) off the guide (an
+    (:func:`track_phase`); every cycle is read (interpolated along the demo) at the same N − 1
+    phases and the cycles are averaged, so every cycle counts. Samples more than max(8 mm, 6 % of its size) off the guide (an
     excursion) are left out. Bins no sample reached (an incomplete loop) take the fitted
     guide's point at that phase. The loop starts at the demo's first phase and is closed
     (N samples).
@@ -185,15 +186,20 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     sign = 1.0 if phase[-1] >= phase[0] else -1.0
     loops = sign * (phase - phase[0]) / guide.shape[0]  # Loops travelled since the first sample.
     bins = n - 1
-    index = np.floor(np.mod(loops, 1.0) * bins).astype(int) % bins
     # Samples far off the guide (an excursion inside the span) do not shape the loop.
     off = np.linalg.norm(x - guide[np.round(phase).astype(int) % guide.shape[0]], axis=1)
     tolerance = max(0.008, 0.06 * segment.guide.size_m)
-    weight = (off <= tolerance).astype(np.float64)
-    counts = np.bincount(index, weights=weight, minlength=bins)
-    sums = np.stack(
-        [np.bincount(index, weights=weight * x[:, d], minlength=bins) for d in range(2)], 1
-    )
+    mono = np.maximum.accumulate(loops)
+    keep = (off <= tolerance) & np.concatenate([[True], np.diff(mono) > 1e-9])
+    if keep.sum() < 2:
+        keep[:] = np.concatenate([[True], np.diff(mono) > 1e-9])
+    # Each cycle read at the same N − 1 phases (interpolated along the demo), then averaged.
+    cycle = np.arange(math.floor(mono[0]), math.ceil(mono[-1]))[:, None]
+    grid = cycle + (np.arange(bins) + 0.5) / bins  # (cycles, bins), in loops
+    covered = (grid >= mono[keep][0]) & (grid <= mono[keep][-1])
+    values = np.stack([np.interp(grid, mono[keep], x[keep, d]) for d in range(2)], axis=-1)
+    counts = covered.sum(axis=0)
+    sums = np.einsum("cb,cbd->bd", covered.astype(np.float64), values)
     # Guide points at each bin's phase, in the demo's direction of travel.
     guide_index = (phase[0] + sign * (np.arange(bins) + 0.5) / bins * guide.shape[0]).astype(int)
     loop = guide[guide_index % guide.shape[0]].copy()
