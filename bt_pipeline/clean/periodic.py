@@ -171,10 +171,10 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     The DMP fits one period in time; a demo whose loops differ in speed or hold pauses would
     have misaligned cycles. Each sample's phase along the fitted guide is tracked
     (:func:`track_phase`); every cycle is read (interpolated along the demo) at the same N − 1
-    phases and the cycles are averaged, so every cycle counts. Samples more than max(8 mm, 6 % of its size) off the guide (an
-    excursion) are left out. Bins no sample reached (an incomplete loop) take the fitted
-    guide's point at that phase. The loop starts at the demo's first phase and is closed
-    (N samples).
+    phases and the cycles are averaged, so every cycle counts. Samples more than
+    max(8 mm, 6 % of its size) off the guide (an excursion) are left out. Phases no sample
+    reached (an incomplete loop) take the fitted guide's point at that phase. The loop starts
+    at the demo's first phase and is closed (N samples).
 
     Returns:
         The loop as a demo of N samples, and whether any bin was filled from the guide.
