@@ -240,7 +240,7 @@ def clean_demos(
     segments = segment_all(demos, options.preference_range)
     preferences = pool_preferences(demos, segments)
     demos = [
-        span_demo(demo, segment, options.n_samples, preference)
+        span_demo(demo, segment, demos[0].n_samples, preference)
         for demo, segment, preference in zip(demos, segments, preferences, strict=True)
     ]
     seconds["segment"] = time.perf_counter() - start
