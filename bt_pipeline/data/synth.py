@@ -158,11 +158,7 @@ def make_demo_set(task: Task | str, n_demos: int = 4, seed: int = 0) -> SynthSet
         ConfigError: `n_demos` < 1 or `seed` is not an integer >= 0.
     """
     task = parse_task(task)
-    if isinstance(n_demos, bool) or not isinstance(n_demos, int | np.integer) or n_demos < 1:
-        raise ConfigError(f"n_demos must be an integer >= 1; got {n_demos!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ConfigError(f"seed must be an integer >= 0; got {seed!r}")
-    n_demos, seed = int(n_demos), int(seed)
+    n_demos, seed = check_set_args(n_demos, seed)
     task_index = TASKS.index(task)
     expert_index = int(np.random.default_rng([seed, task_index]).integers(n_demos))
     demos = tuple(
@@ -181,6 +177,15 @@ def make_demo_set(task: Task | str, n_demos: int = 4, seed: int = 0) -> SynthSet
         },
     )
     return SynthSet(task=task, recording=recording, demos=demos, expert_index=expert_index)
+
+
+def check_set_args(n_demos: object, seed: object) -> tuple[int, int]:
+    """`n_demos` (an integer ≥ 1) and `seed` (an integer ≥ 0) as ints, or a ConfigError."""
+    if isinstance(n_demos, bool) or not isinstance(n_demos, int | np.integer) or n_demos < 1:
+        raise ConfigError(f"n_demos must be an integer >= 1; got {n_demos!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ConfigError(f"seed must be an integer >= 0; got {seed!r}")
+    return int(n_demos), int(seed)
 
 
 def make_d1(task: Task | str, seed: int = 0) -> SynthSet:

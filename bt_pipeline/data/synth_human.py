@@ -55,11 +55,11 @@ from bt_pipeline.data.synth import (
     Defect,
     Demonstrator,
     add_noise_and_outliers,
+    check_set_args,
     draw_defects,
     lopsided,
 )
 from bt_pipeline.data.tasks import TASKS, Task, default_plane, parse_task
-from bt_pipeline.exceptions import ConfigError
 
 TRUTH_ATTRS = ("truth_uv", "truth_on_loop", "truth_theta_deg", "truth_rho", "truth_cycles")
 """Extra demo attrs holding the ground truth of a human-style demo."""
@@ -122,10 +122,7 @@ def make_human_set(
         ConfigError: `n_demos` < 1 or a negative seed.
     """
     task = parse_task(task)
-    if isinstance(n_demos, bool) or not isinstance(n_demos, int | np.integer) or n_demos < 1:
-        raise ConfigError(f"n_demos must be an integer >= 1; got {n_demos!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ConfigError(f"seed must be an integer >= 0; got {seed!r}")
+    n_demos, seed = check_set_args(n_demos, seed)
     set_rng = np.random.default_rng([int(seed), TASKS.index(task), 7])
     if hidden is None:
         hidden = bool(set_rng.integers(2))
