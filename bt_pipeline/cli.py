@@ -80,11 +80,15 @@ def synth(
     demos: int = 4,
     seed: int = 0,
     overwrite: bool = False,
+    style: Literal["single", "human"] = "single",
 ) -> None:
     """Write a synthetic mixed-skill demo set (one expert-like demo, the rest naive) in format v1.
 
     Demonstrator k % 4 has the paper's rotation θ = (5, -5, 10, -10)° and scale ρ = (1, 1.1, 1.2,
-    1.3): 4 demos is the paper's D1, 20 its D2.
+    1.3): 4 demos is the paper's D1, 20 its D2. ``--style human`` draws demos as people record
+    them instead: rest, approach, 1-4 loops with pauses, retreat, uneven 30-60 Hz sample times,
+    out-of-plane wobble, preferences drawn per set and hidden (NaN) in half of the seeds.
+    Ground truth is stored in each demo's ``truth_*`` attrs.
 
     Args:
         out: Output file (.hdf5).
@@ -92,15 +96,22 @@ def synth(
         demos: Number of demos.
         seed: Random seed; the same seed gives the same file.
         overwrite: Replace `out` if it exists.
+        style: "single" (one loop per demo, 50 Hz, known θ/ρ) or "human".
     """
     from bt_pipeline.data.recording import write_recording
     from bt_pipeline.data.synth import make_demo_set
+    from bt_pipeline.data.synth_human import make_human_set
     from bt_pipeline.data.tasks import parse_task
 
-    synth_set = make_demo_set(parse_task(task), n_demos=demos, seed=seed)
-    path = write_recording(out, synth_set.recording, overwrite=overwrite)
+    if style == "human":
+        human = make_human_set(parse_task(task), n_demos=demos, seed=seed)
+        recording, expert = human.recording, human.demos[human.expert_index].name
+    else:
+        single = make_demo_set(parse_task(task), n_demos=demos, seed=seed)
+        recording, expert = single.recording, single.expert_name
+    path = write_recording(out, recording, overwrite=overwrite)
     print(path)
-    log.info("expert-like demo: %s", synth_set.expert_name)
+    log.info("expert-like demo: %s", expert)
 
 
 def clean(

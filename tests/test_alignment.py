@@ -135,3 +135,57 @@ def test_reference_must_be_closed_and_shapes_must_match() -> None:
         phase_align(open_reference, closed(0.0))
     with pytest.raises(ConfigError, match="shape"):
         shape_loss(closed(0.0, n=100), closed(0.0))
+
+
+def test_phase_align_stops_on_flat_costs() -> None:
+    """A reference shrunk to a point (ρ = 1e-300) gives equal costs: the descent must stop."""
+    from bt_pipeline.clean.stage1.alignment import apply_preference, phase_align
+
+    t = np.linspace(0.0, 2 * np.pi, 61)
+    loop = np.stack([np.cos(t), np.sin(t)], axis=1) * 0.1
+    flat = apply_preference(loop, 0.0, 1e-300, np.zeros(2))
+    result = phase_align(flat, loop)
+    assert np.isfinite(result.loss)
+
+
+def test_phase_align_names_the_demo_on_non_finite_costs() -> None:
+    """One sample at 1e30 overflows the squared costs: a DemoError naming the demo, no hang."""
+    import pytest
+
+    from bt_pipeline.clean.stage1.alignment import phase_align
+    from bt_pipeline.exceptions import DemoError
+
+    t = np.linspace(0.0, 2 * np.pi, 61)
+    loop = np.stack([np.cos(t), np.sin(t)], axis=1) * 0.1
+    demo = loop.copy()
+    demo[5] = np.nan
+    with pytest.raises(DemoError, match="demo_7"):
+        phase_align(loop, demo, name="demo_7")
+
+
+def test_phase_align_ends_with_one_sample_at_1e30() -> None:
+    """Costs dominated by one huge sample are flat over shifts: the bounded descent stops."""
+    from bt_pipeline.clean.stage1.alignment import phase_align
+
+    t = np.linspace(0.0, 2 * np.pi, 61)
+    loop = np.stack([np.cos(t), np.sin(t)], axis=1) * 0.1
+    demo = loop.copy()
+    demo[3] = 1e30
+    result = phase_align(loop, demo)
+    assert result.loss > 1e27
+
+
+def test_period_search_names_the_demo_on_non_finite_positions() -> None:
+    import pytest
+
+    from bt_pipeline.clean.stage1.period import estimate_period
+    from bt_pipeline.exceptions import DemoError
+
+    t = np.linspace(0.0, 4 * np.pi, 200)
+    x = np.stack([np.cos(t), np.sin(t)], axis=1)
+    x[10] = np.inf
+    with pytest.raises(DemoError, match="demo_4"):
+        estimate_period(x, name="demo_4")
+    x[10] = 1e300  # squares overflow: a clear error, not a hang
+    with pytest.raises(DemoError, match="demo_4"):
+        estimate_period(x, name="demo_4")

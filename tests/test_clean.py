@@ -9,12 +9,13 @@ import numpy as np
 import pytest
 
 from bt_pipeline.clean.driver import clean_paths
+from bt_pipeline.clean.periodic import output_on_raw_times
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.records import Recording
 from bt_pipeline.data.synth import make_d1, make_demo_set
-from bt_pipeline.evaluate.distance import distance_to_truth
+from bt_pipeline.data.synth_truth import shape_distance, truth_of
 from bt_pipeline.exceptions import DemoError, RecordingError
 
 FAST = CleanOptions(epochs=2, progress=False, write_rrd=False)
@@ -52,18 +53,27 @@ def test_output_is_format_v1_with_the_cleaner_attrs(tmp_path) -> None:
     for name, demo in cleaned.demos.items():
         assert set(demo.attrs) >= CLEANED_ATTRS
         assert demo.attrs["cleaned_from"] == f"{source}:{name}"
-        assert demo.num_samples == 300
+        # The raw demo's own sample times inside the kept span: never re-based to 0.
+        raw_t = read_recording(source).demos[name].timestamps
+        inside = raw_t[(raw_t >= demo.attrs["loop_start_s"]) & (raw_t <= demo.attrs["loop_end_s"])]
+        assert np.array_equal(demo.timestamps, inside)
+        assert demo.attrs["cycles"] > 0.5
         # Back in 3-D on the task plane of the input.
         assert np.allclose(cleaned.plane.to_world(cleaned.plane.to_plane(demo.ee_pos)), demo.ee_pos)
 
 
 def test_cleaning_moves_naive_demos_toward_their_true_shape() -> None:
+    """Shape: densified Chamfer of the kept span to the true path (its own, maybe partial loop)."""
     synth = make_d1("wiping", 3)
     demos = demos_from_recording(synth.recording)
     result = clean_demos(demos, CleanOptions(progress=False, seed=3))
     for i, demo in enumerate(synth.demos):
-        before = distance_to_truth(demos[i].positions, demo.truth)
-        after = distance_to_truth(result.positions[i], demo.truth)
+        stored = truth_of(demo.record)
+        assert stored is not None
+        truth = stored[0]
+        raw, _ = demos[i].raw_samples()
+        _, cleaned = output_on_raw_times(result.demos[i], result.positions[i])
+        before, after = shape_distance(raw, truth), shape_distance(cleaned, truth)
         if demo.is_expert:
             assert after <= 1.1 * before
         else:

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from bt_pipeline.clean.periodic import output_on_raw_times
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult
 from bt_pipeline.clean.skipping import clean_skipping
 from bt_pipeline.clean.stage2.config import EpochStats
@@ -118,8 +119,9 @@ def cleaned_recording(
     out: dict[str, DemoRecord] = {}
     for i, (demo, name) in enumerate(zip(result.demos, output_names(result.demos), strict=True)):
         record = records[(demo.file, demo.name)]
-        ee_pos = plane.to_world(result.positions[i])
-        timestamps = np.linspace(0.0, demo.duration_s, demo.n_samples)
+        # The cleaned span at the raw sample times inside it: the raw demo's own time base.
+        timestamps, uv = output_on_raw_times(demo, result.positions[i])
+        ee_pos = plane.to_world(uv)
         raw, cleaned = result.raw[i], result.cleaned[i]
         out[name] = DemoRecord(
             ee_pos=ee_pos,
@@ -145,6 +147,7 @@ def cleaned_recording(
                 "loss_shape": cleaned.shape,
                 "loss_shape_raw": raw.shape,
                 "beta_final": float(result.refine.betas[i]),
+                **_span_attrs(result, i),
             },
         )
     env_args = sources[best.file].env_args
@@ -163,6 +166,19 @@ def cleaned_recording(
             "cleaned_epochs": result.refine.epochs,
         },
     )
+
+
+def _span_attrs(result: TaskCleanResult, i: int) -> dict[str, Any]:
+    """The kept span, cycles and preference confidence of demo i (docs/refinement.md)."""
+    if not result.segments:
+        return {}
+    segment, preference = result.segments[i], result.preferences[i]
+    return {
+        "loop_start_s": segment.start_s,
+        "loop_end_s": segment.end_s,
+        "cycles": segment.cycles,
+        "preference_confidence": preference.confidence,
+    }
 
 
 def _clean_task(

@@ -14,13 +14,25 @@ every task has succeeded, so an error leaves no partial output.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from bt_pipeline.clean.stage1.alignment import shape_loss
+from bt_pipeline.clean.guide_fit import PreferenceRange
+from bt_pipeline.clean.periodic import (
+    UNCERTAIN,
+    PreferenceEstimate,
+    phase_loop,
+    pool_preferences,
+    retime_reference,
+    segment_all,
+    smooth_residual,
+    span_demo,
+)
+from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
 from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, Variant
 from bt_pipeline.clean.stage2.refiner import refine_demos, refine_normaliser
@@ -38,6 +50,9 @@ from bt_pipeline.score.utility import (
     score_demos,
 )
 
+_STEADY_CYCLES = 1.5  # Loops a demo needs before its own place can be told from drift,
+_STEADY_OFFSET = 0.03  # A demo's offset is its own when its drift stays within 3 % of its size
+_STEADY_MISFIT = 0.03  # and 90 % of its samples within 3 % of its size of the fitted guide.
 MIN_EXTENT_M = 1e-3
 """A demo whose bounding box is smaller than this in both directions does not move [m]."""
 
@@ -64,6 +79,8 @@ class CleanOptions:
     """Show progress bars on stderr."""
     score: ScoreConfig = field(default_factory=ScoreConfig)
     """Selection-stage scoring settings."""
+    preference_range: PreferenceRange = field(default_factory=PreferenceRange)
+    """Allowed θ/ρ when they are estimated (default θ within ±45°, ρ within 0.5-2)."""
 
     def __post_init__(self) -> None:
         if self.workers < 1:
@@ -111,7 +128,8 @@ class TaskCleanResult:
     task: Task
     """The task."""
     demos: tuple[Demo, ...]
-    """The raw demos, in input order."""
+    """The kept periodic span of each raw demo, N samples uniform in time, in input order
+    (``raw_samples()`` gives the raw samples and times inside the span)."""
     scores: TaskScores
     """Selection-stage scores of the raw demos."""
     stage1: Stage1Result
@@ -126,6 +144,10 @@ class TaskCleanResult:
     """Wall time per stage: ``score``, ``stage1``, ``stage2``, ``metrics`` [s]."""
     notes: tuple[str, ...] = ()
     """Things a user should know (estimated θ/ρ, a one-demo task, ...)."""
+    segments: tuple[Segment, ...] = ()
+    """The kept periodic span of each raw demo (``demos`` hold these spans)."""
+    preferences: tuple[PreferenceEstimate, ...] = ()
+    """θ/ρ used for each demo, with whether they were estimated and how confidently."""
 
     @property
     def positions(self) -> FloatArray:
@@ -165,7 +187,7 @@ def demo_metrics(
         symmetry_loss(positions, theta_deg),
         closure_loss(positions),
         smoothness_loss(positions, alphas),
-        shape_loss(positions, reference),
+        float(np.mean(np.linalg.norm(positions - reference, axis=1))),  # Eq. (9), aligned.
     )
 
 
@@ -215,20 +237,68 @@ def clean_demos(
 
     seconds: dict[str, float] = {}
     start = time.perf_counter()
+    segments = segment_all(demos, options.preference_range)
+    preferences = pool_preferences(demos, segments)
+    demos = [
+        span_demo(demo, segment, demos[0].n_samples, preference)
+        for demo, segment, preference in zip(demos, segments, preferences, strict=True)
+    ]
+    seconds["segment"] = time.perf_counter() - start
+    for demo, segment, preference in zip(demos, segments, preferences, strict=True):
+        if preference.estimated:
+            doubt = " (uncertain)" if preference.confidence < UNCERTAIN else ""
+            notes.append(
+                f"{demo.label}: θ/ρ missing, estimated{doubt} from the task's guide and pooled "
+                f"over {demo.demonstrator}'s demos as θ = {preference.theta_deg:.1f}°, "
+                f"ρ = {preference.rho:.3f} (confidence {preference.confidence:.2f})"
+            )
+        if segment.cycles < 0.5:
+            notes.append(f"{demo.label}: only {segment.cycles:.2f} of a loop was found")
+
+    start = time.perf_counter()
     scores = score_demos(demos, options.score)
     seconds["score"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    stage1 = run_stage1(demos, scores.best_index, seed=options.seed)
-    seconds["stage1"] = time.perf_counter() - start
-    for i in map(int, np.flatnonzero(stage1.estimated)):
+    best = scores.best_index
+    stage1_demos = list(demos)
+    stage1_demos[best], guide_filled = phase_loop(demos[best], segments[best])
+    if guide_filled:
         notes.append(
-            f"{demos[i].label}: θ/ρ missing, estimated by similarity alignment to the canonical "
-            f"shape as θ = {stage1.thetas[i]:.1f}°, ρ = {stage1.rhos[i]:.3f}"
+            f"{demos[best].label} (the best demo) does not cover a whole loop: the missing "
+            "phases of the canonical motion come from the task's guide"
         )
+    stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=1.0)
+    # A demo of at least 1.5 loops (fewer cannot tell an offset from a drift) drawn steadily
+    # off-centre keeps its place: its reference is the best demo's centre c
+    # moved by the offset between the two demos' guide fits. A drifting demo (its offset wanders
+    # over more than 3 % of the loop's size) or a misshapen one (a tenth of its samples more
+    # than 3 % of the size off the fitted guide: the fit's place is then unsure) is pulled to c,
+    # as in the paper.
+    offsets = [
+        s.guide.translation - segments[best].guide.translation
+        if s.cycles >= _STEADY_CYCLES
+        and s.drift_m <= _STEADY_OFFSET * s.guide.size_m
+        and s.misfit_m <= _STEADY_MISFIT * s.guide.size_m
+        else np.zeros(2)
+        for s in segments
+    ]
+    aligned = np.stack(
+        [
+            retime_reference(stage1.global_shape, p.theta_deg, p.rho, stage1.centre + o, demo)
+            for demo, p, o in zip(demos, preferences, offsets, strict=True)
+        ]
+    )
+    positions = np.stack([demo.positions for demo in demos])
+    stage1 = dataclasses.replace(
+        stage1,
+        aligned=aligned,
+        shape_losses=np.mean(np.linalg.norm(aligned - positions, axis=2), axis=1),
+        estimated=np.array([p.estimated for p in preferences]),
+    )
+    seconds["stage1"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    positions = np.stack([demo.positions for demo in demos])
     normaliser = refine_normaliser(scores.normaliser, stage1.shape_losses)
     refined = refine_demos(
         positions,
@@ -240,6 +310,11 @@ def clean_demos(
         config=options.refine_config(),
         on_epoch=on_epoch,
     )
+    if options.variant == "default":
+        smoothed = smooth_residual(refined.refined, stage1.aligned, demos)
+        if not refined.settings.refine_best:
+            smoothed[best] = refined.refined[best]  # Passed through as it is.
+        refined = dataclasses.replace(refined, refined=smoothed)
     seconds["stage2"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -270,4 +345,6 @@ def clean_demos(
         cleaned=cleaned,
         seconds=seconds,
         notes=tuple(notes),
+        segments=segments,
+        preferences=preferences,
     )

@@ -45,6 +45,11 @@ class Demo:
     """The task plane of the recording, for mapping back to 3-D."""
     duration_s: float = 1.0
     """Duration of the original recording [s]."""
+    raw_positions: FloatArray | None = None
+    """The recording's own task-plane samples before resampling, shape (T, 2), in [m]; None
+    when the demo was built in memory (then `positions` are the raw samples)."""
+    raw_times_s: FloatArray | None = None
+    """The recording's own sample times, shape (T,), in [s] on its time base (not re-based)."""
 
     def __post_init__(self) -> None:
         positions = np.asarray(self.positions, dtype=np.float64)
@@ -92,7 +97,15 @@ class Demo:
             rho=self.rho,
             plane=self.plane,
             duration_s=self.duration_s,
+            raw_positions=self.raw_positions,
+            raw_times_s=self.raw_times_s,
         )
+
+    def raw_samples(self) -> tuple[FloatArray, FloatArray]:
+        """The recording's own samples and times: (positions (T, 2) [m], times (T,) [s])."""
+        if self.raw_positions is not None and self.raw_times_s is not None:
+            return self.raw_positions, self.raw_times_s
+        return self.positions, np.linspace(0.0, self.duration_s, self.n_samples)
 
 
 def resample_uniform(values: FloatArray, timestamps: FloatArray, n_samples: int) -> FloatArray:
@@ -133,6 +146,8 @@ def demos_from_recording(
                 rho=rho,
                 plane=recording.plane,
                 duration_s=float(record.timestamps[-1] - record.timestamps[0]),
+                raw_positions=uv,
+                raw_times_s=np.asarray(record.timestamps, dtype=np.float64),
             )
         )
     return demos

@@ -26,7 +26,10 @@ hesitation      1-2 pauses of 0.4-1.0 s
 
 Each demo is one loop of 5-8 s sampled at 50 Hz from a random start phase, in the canonical
 direction, mapped to 3-D with the task's default plane. The ground truth of a demo is the
-canonical loop under its θ and ρ at the task centre, 600 points over one full period.
+canonical loop under its θ and ρ at the task centre, 600 points over one full period; the
+intended path at the demo's own timing (its phase progression without noise and defects) is
+stored in the demo's extra attrs as in the human style (``truth_uv``, ``truth_on_loop``, ...;
+see :mod:`bt_pipeline.data.synth_human`).
 """
 
 from __future__ import annotations
@@ -155,11 +158,7 @@ def make_demo_set(task: Task | str, n_demos: int = 4, seed: int = 0) -> SynthSet
         ConfigError: `n_demos` < 1 or `seed` is not an integer >= 0.
     """
     task = parse_task(task)
-    if isinstance(n_demos, bool) or not isinstance(n_demos, int | np.integer) or n_demos < 1:
-        raise ConfigError(f"n_demos must be an integer >= 1; got {n_demos!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ConfigError(f"seed must be an integer >= 0; got {seed!r}")
-    n_demos, seed = int(n_demos), int(seed)
+    n_demos, seed = check_set_args(n_demos, seed)
     task_index = TASKS.index(task)
     expert_index = int(np.random.default_rng([seed, task_index]).integers(n_demos))
     demos = tuple(
@@ -180,6 +179,15 @@ def make_demo_set(task: Task | str, n_demos: int = 4, seed: int = 0) -> SynthSet
     return SynthSet(task=task, recording=recording, demos=demos, expert_index=expert_index)
 
 
+def check_set_args(n_demos: object, seed: object) -> tuple[int, int]:
+    """`n_demos` (an integer ≥ 1) and `seed` (an integer ≥ 0) as ints, or a ConfigError."""
+    if isinstance(n_demos, bool) or not isinstance(n_demos, int | np.integer) or n_demos < 1:
+        raise ConfigError(f"n_demos must be an integer >= 1; got {n_demos!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ConfigError(f"seed must be an integer >= 0; got {seed!r}")
+    return int(n_demos), int(seed)
+
+
 def make_d1(task: Task | str, seed: int = 0) -> SynthSet:
     """The paper's D1: 4 demos, one per demonstrator (Sec. IV)."""
     return make_demo_set(task, n_demos=4, seed=seed)
@@ -190,7 +198,7 @@ def make_d2(task: Task | str, seed: int = 0) -> SynthSet:
     return make_demo_set(task, n_demos=20, seed=seed)
 
 
-def _draw_defects(rng: np.random.Generator) -> tuple[Defect, ...]:
+def draw_defects(rng: np.random.Generator) -> tuple[Defect, ...]:
     """HF noise (jitter, tremor or both) plus 1-3 others, at least one changing the shape."""
     noise = [("jitter",), ("tremor",), ("jitter", "tremor")][int(rng.choice(3, p=[0.4, 0.3, 0.3]))]
     n_other = int(rng.integers(1, 4))
@@ -229,7 +237,7 @@ def _phase(speed: FloatArray, s: FloatArray, fraction: float) -> FloatArray:
     return fraction * progress / progress[-1]
 
 
-def _lopsided(uv: FloatArray, task: Task, rng: np.random.Generator) -> tuple[FloatArray, dict]:
+def lopsided(uv: FloatArray, task: Task, rng: np.random.Generator) -> tuple[FloatArray, dict]:
     """Bulge one side (x > 0 or x < 0) of a canonical-frame shape outward and shift it in y."""
     half_w, half_h = (s / 2.0 for s in SHAPE_SIZE[task])
     side = float(rng.choice([-1.0, 1.0]))
@@ -254,7 +262,7 @@ def _tremor(t: FloatArray, amplitude: float, rng: np.random.Generator) -> FloatA
     return out
 
 
-def _add_noise_and_outliers(
+def add_noise_and_outliers(
     uv: FloatArray,
     t: FloatArray,
     defects: tuple[Defect, ...],
@@ -294,7 +302,7 @@ def _make_demo(
     duration_s = float(rng.uniform(5.0, 8.0))
     t = np.arange(round(duration_s * SAMPLE_RATE_HZ) + 1) / SAMPLE_RATE_HZ
     s = t / t[-1]
-    defects: tuple[Defect, ...] = () if is_expert else _draw_defects(rng)
+    defects: tuple[Defect, ...] = () if is_expert else draw_defects(rng)
     params: dict[str, Any] = {"duration_s": float(t[-1])}
 
     # Where along the loop the hand is at each sample, in the demonstrator's own frame.
@@ -304,11 +312,12 @@ def _make_demo(
     start_phase = float(rng.uniform(0.0, 2.0 * np.pi))
     speed = _speed_profile(s, duration_s, defects, rng)
     uv = canonical_shape(task, start_phase + 2.0 * np.pi * _phase(speed, s, fraction))
+    intended = similarity_transform(uv, teacher.theta_deg, teacher.rho)
     if "lopsided" in defects:
-        uv, extra = _lopsided(uv, task, rng)
+        uv, extra = lopsided(uv, task, rng)
         params.update(extra)
     uv = similarity_transform(uv, teacher.theta_deg, teacher.rho)
-    uv = _add_noise_and_outliers(uv, t, defects, rng, params)
+    uv = add_noise_and_outliers(uv, t, defects, rng, params)
 
     ee_pos = default_plane(task).to_world(uv)
     record = DemoRecord(
@@ -320,6 +329,13 @@ def _make_demo(
         source="synthetic",
         actions=forward_difference_actions(ee_pos, t),
         created=(_CREATED_EPOCH + timedelta(hours=seed % 8760, minutes=k)).isoformat(),
+        attrs={  # Ground truth, as in the human style (bt_pipeline.data.synth_human).
+            "truth_uv": intended.astype(np.float32),
+            "truth_on_loop": np.ones(t.size, dtype=np.uint8),
+            "truth_theta_deg": teacher.theta_deg,
+            "truth_rho": teacher.rho,
+            "truth_cycles": fraction,
+        },
         ep_meta={
             "synthetic": {
                 "is_expert": is_expert,

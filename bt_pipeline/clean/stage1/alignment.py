@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import KDTree
 
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.exceptions import ConfigError, DemoError
 
 ComplexArray = NDArray[np.complex128]
 _COARSE_STRIDE = 8  # Phase search: exact cost every 8th shift, then descent in windows of ±8.
@@ -170,7 +170,7 @@ def estimate_preference(
 
 
 def phase_align(
-    reference: ArrayLike, demo: ArrayLike, allow_reversal: bool = True
+    reference: ArrayLike, demo: ArrayLike, allow_reversal: bool = True, name: str = "demo"
 ) -> PhaseAlignment:
     """Match a closed reference to a demo over circular shift and direction (module doc).
 
@@ -178,9 +178,13 @@ def phase_align(
         reference: x_i^aligned, closed, shape (N, 2), in [m].
         demo: x_i, shape (N, 2), in [m].
         allow_reversal: Also try the reference run backwards.
+        name: The demo's label for error messages.
 
     Returns:
         s*, the direction, the reordered reference and L4 [m].
+
+    Raises:
+        DemoError: Non-finite costs (naming the demo); the descent is bounded by P steps.
     """
     x, ref = _check_pair(demo, reference)
     z = x[:, 0] + 1j * x[:, 1]
@@ -205,11 +209,20 @@ def phase_align(
         coarse = np.union1d(np.arange(0, p, _COARSE_STRIDE), [by_squares])
         for start in coarse[np.argsort(cost(coarse, rev))[:_DESCENTS]]:
             s = int(start)
-            while True:  # Descend on the exact cost until s is the best of its neighbourhood.
+            j, losses = _COARSE_STRIDE, np.full(2 * _COARSE_STRIDE + 1, math.inf)
+            # Descend on the exact cost until s is the best of its neighbourhood. Each step
+            # lowers the cost strictly, so at most P steps; NaN or flat costs stop at once.
+            for _ in range(p + 1):
                 window = (s + np.arange(-_COARSE_STRIDE, _COARSE_STRIDE + 1)) % p
                 losses = cost(window, rev)
+                if not np.all(np.isfinite(losses)):
+                    raise DemoError(
+                        f"{name}: the phase alignment's cost is not finite (NaN or infinite "
+                        "positions, or a degenerate reference)"
+                    )
                 j = int(np.argmin(losses))
-                if j == _COARSE_STRIDE:
+                if j == _COARSE_STRIDE or not losses[j] < losses[_COARSE_STRIDE]:
+                    j = _COARSE_STRIDE
                     break
                 s = int(window[j])
             if losses[j] < best[0]:

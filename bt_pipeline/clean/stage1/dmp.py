@@ -291,7 +291,7 @@ def fit_periodic_dmp(
         if gap <= config.one_loop_gap * size:
             period = 1.0
         else:
-            period = estimate_period(x)
+            period = estimate_period(x, name)
             if 1.0 / period < config.min_cycles:
                 if gap > config.max_open_gap * size:
                     raise DemoError(

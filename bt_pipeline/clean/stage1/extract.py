@@ -244,6 +244,7 @@ def run_stage1(
     best_index: int,
     config: Stage1Config | None = None,
     seed: int = 0,
+    best_cycles: float | None = None,
 ) -> Stage1Result:
     """Canonical motion extraction from the best demo (paper Sec. III-B steps 2-6).
 
@@ -252,6 +253,9 @@ def run_stage1(
         best_index: Index of x^best (the argmax of Ũ, Eq. 8).
         config: Stage 1 settings; defaults to Stage1Config().
         seed: Seed of the value map's rollout perturbations.
+        best_cycles: Loops in the best demo (from segmentation); the DMP is then fitted with
+            period T = 1 / cycles over every cycle. None (or under 1.5 loops) lets the DMP find
+            its period itself.
 
     Raises:
         ConfigError: No demos, or best_index out of range.
@@ -272,7 +276,8 @@ def run_stage1(
                 f"{demo.label} has {demo.n_samples} samples but the best demo {best.label} has "
                 f"{n}; resample every demo of a set to the same N"
             )
-    dmp = fit_periodic_dmp(best.positions, config=config.dmp, name=best.label)
+    period = 1.0 / best_cycles if best_cycles is not None and best_cycles >= 1.5 else None
+    dmp = fit_periodic_dmp(best.positions, period=period, config=config.dmp, name=best.label)
     x_d = canonical_reference(dmp, best.positions, n)
     if config.preferences == "given" and best.theta_deg is not None and best.rho is not None:
         theta_best, rho_best, best_known = best.theta_deg, best.rho, True

@@ -6,6 +6,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from bt_pipeline.data.records import FloatArray
+from bt_pipeline.exceptions import DemoError
 
 _PAD_FACTOR = 16  # Zero padding of the period estimate's FFT (docs/algorithms.md §2.4).
 
@@ -16,7 +17,7 @@ def loop_size(positions: FloatArray) -> float:
     return float(np.max(by_axis.max(axis=1) - by_axis.min(axis=1)))
 
 
-def estimate_period(positions: ArrayLike) -> float:
+def estimate_period(positions: ArrayLike, name: str = "demo") -> float:
     """Period of a repeating path from its spectrum (docs/algorithms.md §2.4).
 
     Zero-padded (×16) Hann-window rFFT of the mean-removed coordinates, power summed over the
@@ -28,17 +29,27 @@ def estimate_period(positions: ArrayLike) -> float:
 
     Args:
         positions: Samples uniform in normalised time t ∈ [0, 1], shape (N, 2), in [m].
+        name: The demo's label for error messages.
 
     Returns:
         Period T in normalised time (1 / T cycles in the demo). No spectral method resolves T
         better than about ±5% when the demo holds one cycle or less.
+
+    Raises:
+        DemoError: Non-finite positions or a spectrum without a finite peak (naming the demo).
     """
     x = np.asarray(positions, dtype=np.float64)
+    if not np.all(np.isfinite(x)):
+        raise DemoError(f"{name} has NaN or infinite positions; no period can be read")
     n = x.shape[0]
     window = np.hanning(n)[:, None]
     n_fft = _PAD_FACTOR * n
     power = np.sum(np.abs(np.fft.rfft((x - x.mean(axis=0)) * window, n_fft, axis=0)) ** 2, axis=1)
     magnitude = np.sqrt(power)
+    if not np.all(np.isfinite(magnitude)) or float(np.max(magnitude)) <= 0.0:
+        raise DemoError(
+            f"{name}: its spectrum is flat or not finite (no motion, or values that overflow)"
+        )
     lowest = _PAD_FACTOR // 2  # Below half a cycle per window the window itself dominates.
     peak = lowest + int(np.argmax(magnitude[lowest:]))
     for divisor in (4, 3, 2):
@@ -77,6 +88,8 @@ def _refine_period(x: FloatArray, period: float) -> float:
         inside = t + shift <= 1.0
         moved = np.stack([np.interp(t[inside] + shift, t, x[:, d]) for d in range(2)], axis=1)
         cost[j] = np.mean(np.sum((x[inside] - moved) ** 2, axis=1))
+    if not np.all(np.isfinite(cost)):
+        return period  # Overflowing costs: keep the spectral estimate.
     j = int(np.argmin(cost))
     if not 0 < j < candidates.size - 1:
         return period  # No interior minimum: keep the spectral estimate.

@@ -1,0 +1,108 @@
+"""Cleaning quality on demos shaped like people record them, against stored ground truth.
+
+For each task, seed, size (D1 = 4 demos, D2 = 20) and style (``human``: rest, approach, 1-4
+loops, pauses, uneven times, hidden θ/ρ in half the sets; ``single``: the default one-loop
+style) it cleans the set and reports, for naive demos, the after/before ratios of
+
+- **shape**: symmetric Chamfer distance to the true shape, both curves densified (1 mm spacing)
+  first; "before" is the raw demo on its true loop part, "after" the cleaned output (kept span);
+- **timing**: mean distance, at each output sample time, to the intended path at the demo's
+  own timing; "before" is the raw demo at the same times;
+
+plus the expert-like demo's ratios, the share of sets whose best demo is the expert, and the
+share of hidden-θ/ρ demos estimated within 5° and 0.05.
+
+Truth comes from the files' own attrs (bt_pipeline.data.synth_truth), not from the cleaner.
+
+    python benchmarks/bench_clean_human.py --seeds 2 --presets D1,D2 --styles human,single
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import defaultdict
+
+import numpy as np
+
+from bt_pipeline.clean.periodic import output_on_raw_times
+from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.synth import make_demo_set
+from bt_pipeline.data.synth_human import make_human_set
+from bt_pipeline.data.synth_truth import shape_distance, timing_distance, truth_of
+from bt_pipeline.data.tasks import TASKS
+
+
+def measure(task: str, n: int, seed: int, style: str) -> dict[str, list[float]]:
+    """Ratios and rates of one cleaned set."""
+    if style == "human":
+        synth = make_human_set(task, n, seed)
+        hidden, expert, recording = synth.hidden, synth.expert_index, synth.recording
+    else:
+        single = make_demo_set(task, n, seed)
+        hidden, expert, recording = False, single.expert_index, single.recording
+    demos = demos_from_recording(recording)
+    result = clean_demos(demos, CleanOptions(seed=seed, progress=False))
+    out: dict[str, list[float]] = defaultdict(list)
+    out["selected"].append(float(result.best_index == expert))
+    for i, record in enumerate(recording.demos.values()):
+        stored = truth_of(record)
+        assert stored is not None
+        truth, on_loop = stored
+        raw_uv, raw_t = demos[i].raw_samples()
+        t, cleaned = output_on_raw_times(result.demos[i], result.positions[i])
+        idx = np.searchsorted(raw_t, t)
+        shape = shape_distance(cleaned, truth[on_loop]) / shape_distance(
+            raw_uv[on_loop], truth[on_loop]
+        )
+        timing = timing_distance(cleaned, truth[idx]) / timing_distance(raw_uv[idx], truth[idx])
+        kind = "expert" if i == expert else "naive"
+        out[f"{kind}_shape"].append(shape)
+        out[f"{kind}_timing"].append(timing)
+        if hidden:
+            p = result.preferences[i]
+            theta, rho = record.attrs["truth_theta_deg"], record.attrs["truth_rho"]
+            out["hidden_ok"].append(float(abs(p.theta_deg - theta) < 5 and abs(p.rho - rho) < 0.05))
+            out["hidden_theta_ok"].append(float(abs(p.theta_deg - theta) < 5))
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=2)
+    parser.add_argument("--presets", default="D1,D2")
+    parser.add_argument("--styles", default="human,single")
+    parser.add_argument("--tasks", default=",".join(TASKS))
+    args = parser.parse_args()
+    sizes = {"D1": 4, "D2": 20}
+    print(
+        "| style | task | set | naive shape (mean / worst) | naive timing (mean / worst) | "
+        "expert shape (worst) | expert timing (worst) | best = expert | hidden θ within 5° | "
+        "hidden θ within 5° and ρ within 0.05 |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for style in args.styles.split(","):
+        for task in args.tasks.split(","):
+            for preset in args.presets.split(","):
+                runs: dict[str, list[float]] = defaultdict(list)
+                for seed in range(args.seeds):
+                    for key, values in measure(task, sizes[preset], seed, style).items():
+                        runs[key].extend(values)
+
+                def pair(key: str, runs: dict[str, list[float]] = runs) -> str:
+                    return f"{np.mean(runs[key]):.2f} / {np.max(runs[key]):.2f}"
+
+                def share(key: str, runs: dict[str, list[float]] = runs) -> str:
+                    return f"{100 * np.mean(runs[key]):.0f}%" if runs[key] else "—"
+
+                print(
+                    f"| {style} | {task} | {preset} | {pair('naive_shape')} | "
+                    f"{pair('naive_timing')} | {np.max(runs['expert_shape']):.2f} | "
+                    f"{np.max(runs['expert_timing']):.2f} | {share('selected')} | "
+                    f"{share('hidden_theta_ok')} | {share('hidden_ok')} |",
+                    flush=True,
+                )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,261 @@
+"""Fit the task's guide shape to a demo: a similarity x ≈ ρ R(θ) g(φ) + t, bounded and robust.
+
+The guide g is the task's canonical shape (:mod:`bt_pipeline.data.shapes`, the shape the app
+draws as the guide); θ and ρ are the demonstrator's preference (paper Sec. III-A) relative to it.
+The fit is a trimmed iterative-closest-point similarity fit:
+
+1. The demo is resampled by arc length (so pauses do not weigh more than motion).
+2. From each of several starting rotations spread over the allowed θ range, and a scale and
+   translation from the points' spread and median, it pairs every point with the nearest point
+   of the (densely sampled) guide under the current fit, keeps the `trim` share of pairs that
+   fit best (approach, retreat and spikes fall out), and re-solves θ, ρ, t by least squares
+   along the guide's normals (point-to-tangent, so points slide along the loop and the fit
+   converges in a few steps), clipped to the allowed ranges (default θ ∈ [−45°, 45°],
+   ρ ∈ [0.5, 2]).
+3. The start with the smallest trimmed residual wins. Within the range the near-symmetric
+   shapes' twins (wiping and weaving look the same turned by 180°) are outside the range, so
+   the smallest rotation is the one kept.
+
+Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.spatial import KDTree
+
+from bt_pipeline.data.records import FloatArray
+from bt_pipeline.data.shapes import canonical_loop
+from bt_pipeline.data.tasks import Task
+from bt_pipeline.exceptions import ConfigError, DemoError
+
+_GUIDE_POINTS = 1024  # Dense guide for nearest-point pairing (< 0.4 mm spacing).
+_FIT_POINTS = 240  # Arc-length resampled demo points used by the fit.
+_COARSE_ITERATIONS = 4  # ICP steps from every start before the best are kept.
+_SURVIVORS = 1  # Starts carried on to convergence.
+_POINT_WEIGHT = 0.05  # Weight of the point-to-point term beside the point-to-tangent one.
+
+
+@dataclass(frozen=True)
+class PreferenceRange:
+    """Allowed demonstrator preferences for estimation (``bt clean`` flags)."""
+
+    theta_max_deg: float = 45.0
+    """|θ| ≤ this [deg]."""
+    rho_min: float = 0.5
+    """Smallest ρ."""
+    rho_max: float = 2.0
+    """Largest ρ."""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.theta_max_deg) and 0.0 <= self.theta_max_deg <= 180.0):
+            raise ConfigError(f"theta range must be in [0, 180] deg; got {self.theta_max_deg}")
+        if not (0.0 < self.rho_min <= self.rho_max < math.inf):
+            raise ConfigError(
+                f"rho range must satisfy 0 < min <= max; got {self.rho_min}..{self.rho_max}"
+            )
+
+
+@dataclass(frozen=True)
+class GuideFit:
+    """A similarity fit of the guide to a demo."""
+
+    theta_deg: float
+    """θ [deg], counter-clockwise, within the allowed range."""
+    rho: float
+    """ρ, within the allowed range."""
+    translation: FloatArray
+    """t, shape (2,), in [m]: where the guide's centre sits."""
+    residual_m: float
+    """Mean distance of the kept (trimmed) points to the fitted guide [m]."""
+    size_m: float
+    """The fitted guide's size, the larger side of its bounding box [m]."""
+
+    def guide(self, task: Task, n: int = _GUIDE_POINTS) -> FloatArray:
+        """The fitted guide, `n` points of one loop, shape (n, 2), in [m]."""
+        return transform(canonical_loop(task, n), self.theta_deg, self.rho, self.translation)
+
+
+def transform(points: FloatArray, theta_deg: float, rho: float, t: FloatArray) -> FloatArray:
+    """ρ R(θ) p + t for points, shape (n, 2)."""
+    c, s = math.cos(math.radians(theta_deg)), math.sin(math.radians(theta_deg))
+    return rho * points @ np.array([[c, s], [-s, c]]) + t
+
+
+def arc_length_resample(points: FloatArray, n: int) -> FloatArray:
+    """`n` points evenly spaced by arc length along a polyline, shape (n, 2)."""
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    if s[-1] <= 0:
+        return np.repeat(points[:1], n, axis=0)
+    grid = np.linspace(0.0, s[-1], n)
+    return np.stack([np.interp(grid, s, points[:, d]) for d in range(2)], axis=1)
+
+
+def fit_guide(
+    positions: ArrayLike,
+    task: Task,
+    name: str = "demo",
+    *,
+    allowed: PreferenceRange | None = None,
+    theta_deg: float | None = None,
+    rho: float | None = None,
+    trim: float = 0.6,
+    max_iterations: int = 25,
+    initial: GuideFit | None = None,
+) -> GuideFit:
+    """Fit the task's guide to a demo by a trimmed similarity ICP (module doc).
+
+    Args:
+        positions: The demo (or its loop part), shape (T, 2), in task coordinates [m].
+        task: The task whose guide is fitted.
+        name: The demo's label for error messages.
+        allowed: Allowed θ/ρ; defaults to PreferenceRange().
+        theta_deg: Known θ [deg]: held fixed.
+        rho: Known ρ: held fixed.
+        trim: Share of the points kept in each refit (the best-fitting ones).
+        max_iterations: Most ICP iterations per start.
+        initial: Start from this fit only (a refit of a similar demo).
+
+    Raises:
+        DemoError: Non-finite positions or no motion.
+    """
+    allowed = allowed or PreferenceRange()
+    x = np.asarray(positions, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 2 or x.shape[0] < 3:
+        raise DemoError(f"{name}: positions must have shape (T >= 3, 2); got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise DemoError(f"{name} has NaN or infinite positions")
+    points = arc_length_resample(x, _FIT_POINTS)
+    if float(np.max(np.ptp(points, axis=0))) < 1e-3:
+        raise DemoError(f"{name} does not move (extent under 1 mm); nothing to fit")
+    guide = canonical_loop(task, _GUIDE_POINTS)
+    tree = KDTree(guide)
+    guide_rms = float(np.sqrt(np.mean(np.sum(guide**2, axis=1))))
+    centre0 = np.median(points, axis=0)
+    spread = float(np.sqrt(np.mean(np.sum((points - centre0) ** 2, axis=1))))
+    rho0 = (
+        rho
+        if rho is not None
+        else float(np.clip(spread / guide_rms, allowed.rho_min, allowed.rho_max))
+    )
+    if theta_deg is not None:
+        starts = [float(theta_deg)]
+    else:
+        span = allowed.theta_max_deg
+        starts = list(np.linspace(-span, span, max(3, int(2 * span // 22.5) + 1)))
+    keep = max(3, int(trim * points.shape[0]))
+    candidates = [(float(start), float(rho0), centre0.copy()) for start in starts]
+    if initial is not None:
+        candidates = [(initial.theta_deg, initial.rho, np.array(initial.translation))]
+    best: GuideFit | None = None
+    # Every start for a few iterations, then the two best to convergence (bounded).
+    for budget, survivors in ((_COARSE_ITERATIONS, _SURVIVORS), (max_iterations, 1)):
+        fits = []
+        for th, r, t in candidates:
+            th, r, t, residual = _icp(
+                points, guide, tree, th, r, t, keep, budget, theta_deg, rho, allowed
+            )
+            if not math.isfinite(residual):
+                raise DemoError(f"{name}: the guide fit diverged (non-finite residual)")
+            fits.append((residual + 1e-9 * abs(th), th, r, t, residual))
+        fits.sort(key=lambda f: f[0])
+        candidates = [(th, r, t) for _, th, r, t, _ in fits[:survivors]]
+        _, th, r, t, residual = fits[0]
+        best = GuideFit(th, r, t, residual, r * float(np.max(np.ptp(guide, axis=0))))
+    assert best is not None  # starts is never empty
+    return best
+
+
+def _icp(
+    points: FloatArray,
+    guide: FloatArray,
+    tree: KDTree,
+    th: float,
+    r: float,
+    t: FloatArray,
+    keep: int,
+    iterations: int,
+    theta_fixed: float | None,
+    rho_fixed: float | None,
+    allowed: PreferenceRange,
+) -> tuple[float, float, FloatArray, float]:
+    """At most `iterations` trimmed ICP steps from (θ, ρ, t); returns the fit and its residual."""
+    residual = math.inf
+    for _ in range(iterations):
+        local = transform(points - t, -th, 1.0, np.zeros(2)) / r  # R(−θ)(p − t)/ρ
+        dist, found = tree.query(local)
+        dist, index = np.asarray(dist, dtype=np.float64), np.asarray(found, dtype=np.intp)
+        order = np.argpartition(dist, keep - 1)[:keep]
+        residual = float(np.mean(dist[order]) * r)
+        g = index[order]
+        tangent = guide[(g + 1) % guide.shape[0]] - guide[(g - 1) % guide.shape[0]]
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-15
+        th_new, r_new, t_new = _solve(
+            points[order], guide[g], normal, th, r, theta_fixed, rho_fixed, allowed
+        )
+        moved = abs(th_new - th) / 90.0 + abs(r_new - r) + float(np.linalg.norm(t_new - t))
+        th, r, t = th_new, r_new, t_new
+        if moved < 1e-6 or not math.isfinite(residual):
+            break
+    return th, r, t, residual
+
+
+def _solve(
+    p: FloatArray,
+    q: FloatArray,
+    normal: FloatArray,
+    theta: float,
+    rho: float,
+    theta_fixed: float | None,
+    rho_fixed: float | None,
+    allowed: PreferenceRange,
+) -> tuple[float, float, FloatArray]:
+    """θ, ρ, t of p ≈ ρ R(θ) q + t, point-to-tangent least squares, clipped or held fixed.
+
+    Each pair's residual is measured along the guide's normal at q (mapped by the current θ), so
+    points may slide along the guide (fast convergence on smooth loops), plus a small
+    point-to-point term (weight 0.05) that keeps the problem well posed.
+    """
+    c, s = math.cos(math.radians(theta)), math.sin(math.radians(theta))
+    n = normal @ np.array([[c, s], [-s, c]])  # Normals in the demo's frame.
+    w = math.sqrt(_POINT_WEIGHT)
+    if theta_fixed is None or rho_fixed is None:
+        # Unknowns (a, b, tx, ty) with ρ R(θ) = [[a, −b], [b, a]].
+        rows = np.concatenate(
+            [
+                np.stack(
+                    [
+                        n[:, 0] * q[:, 0] + n[:, 1] * q[:, 1],
+                        n[:, 1] * q[:, 0] - n[:, 0] * q[:, 1],
+                        n[:, 0],
+                        n[:, 1],
+                    ],
+                    axis=1,
+                ),
+                w * np.stack([q[:, 0], -q[:, 1], np.ones(len(q)), np.zeros(len(q))], axis=1),
+                w * np.stack([q[:, 1], q[:, 0], np.zeros(len(q)), np.ones(len(q))], axis=1),
+            ]
+        )
+        rhs = np.concatenate([np.sum(n * p, axis=1), w * p[:, 0], w * p[:, 1]])
+        a, b, _, _ = np.linalg.lstsq(rows, rhs, rcond=None)[0]
+        th = theta_fixed if theta_fixed is not None else math.degrees(math.atan2(b, a))
+        th = float(np.clip(th, -allowed.theta_max_deg, allowed.theta_max_deg))
+        if rho_fixed is None:
+            r = float((complex(a, b) * np.exp(-1j * math.radians(th))).real)
+            r = float(np.clip(r, allowed.rho_min, allowed.rho_max))
+        else:
+            r = float(rho_fixed)
+    else:
+        th, r = float(theta_fixed), float(rho_fixed)
+    # Translation for the (clipped) rotation and scale: the same weighted least squares in t.
+    mapped = transform(q, th, r, np.zeros(2))
+    d = p - mapped
+    nn = np.einsum("ki,kj->ij", n, n) + _POINT_WEIGHT * len(q) * np.eye(2)
+    rhs_t = np.einsum("ki,kj,kj->i", n, n, d) + _POINT_WEIGHT * d.sum(axis=0)
+    return th, r, np.linalg.solve(nn, rhs_t)

@@ -1,0 +1,241 @@
+"""The cleaner's view of demos as people record them: the periodic part, pooled θ/ρ, own timing.
+
+Data flow (used by :func:`bt_pipeline.clean.pipeline.clean_demos`)::
+
+    raw demo (T samples, own times) ──segment_demo──▶ Segment (span, cycles, guide fit)
+        ├─ span resampled to N samples uniform in time ──▶ span demo (scored, Stage 1, Stage 2)
+        └─ guide fit θ/ρ ──pool per demonstrator──▶ PreferenceEstimate (θ, ρ, confidence)
+    Stage 1's x^g under (θ_i, ρ_i) at c ──retime (track_phase on the span demo)──▶ x_i^aligned
+        at the demo's own phase: its loops, pauses and speed changes kept
+    cleaned span (N samples) ──interpolated at the raw sample times inside the span──▶ output
+
+Pooling (docs/refinement.md): a demonstrator's θ and ρ are the medians of the guide fits of
+their demos, each fit weighted by its quality q = 1 / (1 + (residual / 2 % of size)²). The
+confidence is q̄ / (1 + (spread_θ / 5°)² + (spread_ρ / 0.05)²), with the spreads the median
+absolute deviations of the demonstrator's estimates (0 for one demo); below 0.5 an estimate is
+reported as uncertain.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from bt_pipeline.clean.guide_fit import PreferenceRange
+from bt_pipeline.clean.segment import Segment, segment_demo, span_times, track_phase
+from bt_pipeline.clean.stage1.alignment import apply_preference
+from bt_pipeline.data.demo import Demo, resample_uniform
+from bt_pipeline.data.records import FloatArray
+
+UNCERTAIN = 0.5
+"""Confidence below which an estimated θ/ρ is reported as uncertain."""
+_PHASE_SMOOTH_S = 0.12  # Gaussian σ of the tracked phase [s]: removes jitter, keeps speed.
+_DRIFT_SMOOTH_S = 1.0  # Gaussian σ of the slow drift removed before the phase is read [s].
+_DRIFT_PASSES = 2  # Phase tracks; the drift is estimated between them.
+_RETIME_OVERSAMPLE = 4  # Points of the dense reference per reference sample.
+
+
+@dataclass(frozen=True)
+class PreferenceEstimate:
+    """A demo's θ/ρ as the cleaner uses it."""
+
+    theta_deg: float
+    rho: float
+    estimated: bool
+    """True when not taken from the demo's metadata."""
+    confidence: float
+    """In [0, 1]; 1 for given values."""
+
+
+def segment_all(
+    demos: Sequence[Demo], allowed: PreferenceRange | None = None
+) -> tuple[Segment, ...]:
+    """The periodic part of every demo (θ/ρ fixed where the demo states them)."""
+    segments = []
+    for demo in demos:
+        positions, times = demo.raw_samples()
+        segments.append(
+            segment_demo(
+                positions,
+                times,
+                demo.task,
+                demo.label,
+                theta_deg=demo.theta_deg if demo.rho is not None else None,
+                rho=demo.rho if demo.theta_deg is not None else None,
+                allowed=allowed,
+            )
+        )
+    return tuple(segments)
+
+
+def pool_preferences(
+    demos: Sequence[Demo], segments: Sequence[Segment]
+) -> tuple[PreferenceEstimate, ...]:
+    """θ/ρ of every demo: given ones kept, missing ones pooled per demonstrator (module doc)."""
+    quality = np.array(
+        [1.0 / (1.0 + (s.guide.residual_m / (0.02 * s.guide.size_m)) ** 2) for s in segments]
+    )
+    pooled: dict[str, PreferenceEstimate] = {}
+    for who in {d.demonstrator for d in demos}:
+        idx = [i for i, d in enumerate(demos) if d.demonstrator == who]
+        thetas = np.array([segments[i].guide.theta_deg for i in idx])
+        rhos = np.array([segments[i].guide.rho for i in idx])
+        weights = quality[idx]
+        theta = _weighted_median(thetas, weights)
+        rho = _weighted_median(rhos, weights)
+        spread_t = float(np.median(np.abs(thetas - theta))) if len(idx) > 1 else 0.0
+        spread_r = float(np.median(np.abs(rhos - rho))) if len(idx) > 1 else 0.0
+        confidence = float(weights.mean()) / (1.0 + (spread_t / 5.0) ** 2 + (spread_r / 0.05) ** 2)
+        pooled[who] = PreferenceEstimate(theta, rho, True, confidence)
+    out = []
+    for demo in demos:
+        if demo.theta_deg is not None and demo.rho is not None:
+            out.append(PreferenceEstimate(demo.theta_deg, demo.rho, False, 1.0))
+        else:
+            out.append(pooled[demo.demonstrator])
+    return tuple(out)
+
+
+def span_demo(demo: Demo, segment: Segment, n_samples: int, preference: PreferenceEstimate) -> Demo:
+    """The kept span of a demo, N samples uniform in time, with the θ/ρ the cleaner uses."""
+    positions, times = demo.raw_samples()
+    inside = span_times(times, segment)
+    t, x = times[inside], positions[inside]
+    if t.size < 2:
+        t, x = times, positions
+    return Demo(
+        positions=resample_uniform(x, t, n_samples),
+        task=demo.task,
+        file=demo.file,
+        name=demo.name,
+        demonstrator=demo.demonstrator,
+        theta_deg=preference.theta_deg,
+        rho=preference.rho,
+        plane=demo.plane,
+        duration_s=float(t[-1] - t[0]),
+        raw_positions=x,
+        raw_times_s=t,
+    )
+
+
+def retime_reference(
+    global_shape: FloatArray,
+    theta_deg: float,
+    rho: float,
+    centre: FloatArray,
+    demo: Demo,
+) -> FloatArray:
+    """x_i^aligned at the demo's own phase: the reference point the demo means at each sample.
+
+    The closed reference ρ R(θ) x^g + c is tracked along the (span) demo sample by sample
+    (:func:`track_phase`); the phase is smoothed (σ = 0.12 s) and the reference read there, so
+    the result has the demo's loops, pauses and speed changes but not its noise. A slow drift of
+    the hand off the reference (its offset smoothed over σ = 1 s) is removed and the phase read
+    again, so drift does not shift the phase.
+
+    Returns:
+        Shape (N, 2), in [m].
+    """
+    loop = apply_preference(global_shape, theta_deg, rho, centre)[:-1]
+    p = loop.shape[0]
+    fine = np.arange(p * _RETIME_OVERSAMPLE) / _RETIME_OVERSAMPLE
+    closed = np.concatenate([loop, loop[:1]])
+    dense = np.stack([np.interp(fine, np.arange(p + 1), closed[:, d]) for d in range(2)], axis=1)
+    x = demo.positions
+    sigma = _PHASE_SMOOTH_S * (x.shape[0] - 1) / max(demo.duration_s, 1e-9)
+    smooth_x = gaussian_filter1d(x, max(sigma / 2.0, 0.5), axis=0, mode="nearest")
+    drift_sigma = _DRIFT_SMOOTH_S * (x.shape[0] - 1) / max(demo.duration_s, 1e-9)
+    drift = np.zeros_like(x)
+    target = x
+    for _ in range(_DRIFT_PASSES):  # Track, estimate the slow drift off the reference, re-track.
+        phase = track_phase(smooth_x - drift, dense) / _RETIME_OVERSAMPLE  # Reference samples.
+        phase = gaussian_filter1d(phase, max(sigma, 0.5), mode="nearest")
+        target = _read(closed, np.mod(phase, p))
+        drift = gaussian_filter1d(x - target, drift_sigma, axis=0, mode="nearest")
+    return target
+
+
+def _read(closed: FloatArray, phase: FloatArray) -> FloatArray:
+    """The closed polyline (P + 1, 2) read at fractional sample positions in [0, P)."""
+    index = np.arange(closed.shape[0])
+    return np.stack([np.interp(phase, index, closed[:, d]) for d in range(2)], axis=1)
+
+
+def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
+    """One loop of the demo averaged over all its cycles by phase: the DMP's training demo.
+
+    The DMP fits one period in time; a demo whose loops differ in speed or hold pauses would
+    have misaligned cycles. Each sample's phase along the fitted guide is tracked
+    (:func:`track_phase`); every cycle is read (interpolated along the demo) at the same N − 1
+    phases and the cycles are averaged, so every cycle counts. Samples more than
+    max(8 mm, 6 % of its size) off the guide (an excursion) are left out. Phases no sample
+    reached (an incomplete loop) take the fitted guide's point at that phase. The loop starts
+    at the demo's first phase and is closed (N samples).
+
+    Returns:
+        The loop as a demo of N samples, and whether any bin was filled from the guide.
+    """
+    guide = segment.guide.guide(demo.task, 4 * demo.n_samples)
+    x = demo.positions
+    n = x.shape[0]
+    phase = track_phase(gaussian_filter1d(x, 1.0, axis=0, mode="nearest"), guide)
+    sign = 1.0 if phase[-1] >= phase[0] else -1.0
+    loops = sign * (phase - phase[0]) / guide.shape[0]  # Loops travelled since the first sample.
+    bins = n - 1
+    # Samples far off the guide (an excursion inside the span) do not shape the loop.
+    off = np.linalg.norm(x - guide[np.round(phase).astype(int) % guide.shape[0]], axis=1)
+    tolerance = max(0.008, 0.06 * segment.guide.size_m)
+    mono = np.maximum.accumulate(loops)
+    keep = (off <= tolerance) & np.concatenate([[True], np.diff(mono) > 1e-9])
+    if keep.sum() < 2:
+        keep[:] = np.concatenate([[True], np.diff(mono) > 1e-9])
+    # Each cycle read at the same N − 1 phases (interpolated along the demo), then averaged.
+    cycle = np.arange(math.floor(mono[0]), math.ceil(mono[-1]))[:, None]
+    grid = cycle + (np.arange(bins) + 0.5) / bins  # (cycles, bins), in loops
+    covered = (grid >= mono[keep][0]) & (grid <= mono[keep][-1])
+    values = np.stack([np.interp(grid, mono[keep], x[keep, d]) for d in range(2)], axis=-1)
+    counts = covered.sum(axis=0)
+    sums = np.einsum("cb,cbd->bd", covered.astype(np.float64), values)
+    # Guide points at each bin's phase, in the demo's direction of travel.
+    guide_index = (phase[0] + sign * (np.arange(bins) + 0.5) / bins * guide.shape[0]).astype(int)
+    loop = guide[guide_index % guide.shape[0]].copy()
+    filled = counts > 0
+    loop[filled] = sums[filled] / counts[filled, None]
+    closed = np.concatenate([loop, loop[:1]])
+    return demo.with_positions(closed), bool(not filled.all())
+
+
+def smooth_residual(refined: FloatArray, aligned: FloatArray, demos: Sequence[Demo]) -> FloatArray:
+    """x̂_i = x_i^aligned + G_σ(x̂_i − x_i^aligned): the refinement's slow corrections are kept,
+    its sample-to-sample jitter (which lengthened stop-and-go app demos by 60 %) is not.
+
+    σ is the phase smoothing's 0.12 s in each demo's own samples.
+
+    Args:
+        refined: Stage 2's output, shape (M, N, 2), in [m].
+        aligned: The re-timed references, shape (M, N, 2), in [m].
+        demos: The span demos (their durations set σ).
+    """
+    out = np.array(refined, dtype=np.float64)
+    for i, demo in enumerate(demos):
+        sigma = _PHASE_SMOOTH_S * (demo.n_samples - 1) / max(demo.duration_s, 1e-9)
+        residual = gaussian_filter1d(out[i] - aligned[i], max(sigma, 0.5), axis=0, mode="nearest")
+        out[i] = aligned[i] + residual
+    return out
+
+
+def output_on_raw_times(demo: Demo, cleaned: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The cleaned span at the raw sample times inside it: (times (K,) [s], positions (K, 2))."""
+    _, times = demo.raw_samples()
+    grid = np.linspace(times[0], times[-1], cleaned.shape[0])
+    return times, np.stack([np.interp(times, grid, cleaned[:, d]) for d in range(2)], axis=1)
+
+
+def _weighted_median(values: FloatArray, weights: FloatArray) -> float:
+    order = np.argsort(values)
+    cumulative = np.cumsum(weights[order])
+    return float(values[order][int(np.searchsorted(cumulative, 0.5 * cumulative[-1]))])

@@ -1,0 +1,305 @@
+"""Find the periodic part of a demo: trim rests, approach and retreat; count the cycles.
+
+People record a rhythmic skill with a rest at the start, an approach from a rest pose, one or
+more loops (often with pauses), a retreat and a rest at the end. The cleaner works on the loops
+only (docs/refinement.md, "Demos as people record them"). For one demo, with raw samples
+(T, 2) at raw times:
+
+1. **Motion.** The path is read on a uniform 50 Hz clock and smoothed (Gaussian, σ = 0.08 s).
+   The hand moves from the first sample that is more than 10 mm from where it rested until the
+   last sample more than 10 mm from where it comes to rest (walked back to where it set off).
+2. **Guide.** The task's guide is fitted to the moving part (:func:`fit_guide`: a trimmed
+   similarity fit, so approach and retreat do not pull it).
+3. **Drift.** The offset from its nearest guide point of each sample within twice the
+   tolerance below is smoothed by a running median over about one loop (2-10 s, from a first
+   phase track), so a hand that slowly drifts off keeps being recognised as on the loop while a
+   scale or shape error, which repeats every loop, is not taken for drift.
+4. **On the loop.** A sample is on the loop when, drift removed, it lies within
+   max(8 mm, 4 × the fit's residual, 6 % of the guide's size) of the guide and moves along it
+   (|cos| ≥ 0.7 between its velocity and the guide's tangent) or nearly rests (a pause). The
+   kept span runs from the start of the first run of on-loop samples lasting ≥ 0.4 s to the end
+   of the last such run, extended over neighbours within twice that distance; pauses inside it
+   are kept (they are the demonstrator's timing).
+5. **Travel.** The span is trimmed to where the phase along the guide starts advancing and
+   where it stops (1 % of a loop), which drops the slow end of an approach near the guide.
+6. **Preference.** The guide is fitted again to the kept span with its drift removed; that fit's
+   θ/ρ are the demo's estimate.
+7. **Cycles.** The phase along the guide is tracked sample by sample
+   (:func:`track_phase`), and cycles = |phase travelled| / one loop.
+
+Incomplete single loops are handled (cycles < 1); a demo with no on-loop run keeps its moving
+part and is reported with cycles from the same phase track.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.ndimage import gaussian_filter1d, median_filter
+
+from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, fit_guide
+from bt_pipeline.data.records import FloatArray
+from bt_pipeline.data.tasks import Task
+from bt_pipeline.exceptions import DemoError
+
+_CLOCK_HZ = 50.0  # Analysis clock [Hz].
+_SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
+_REST_M = 0.010  # A hand within this of its rest pose still rests [m].
+_MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
+_DRIFT_WINDOW_S = 2.0  # Shortest running-median window of the drift estimate [s].
+_TRACK_POINTS = 512  # Guide points for the distance and the phase track.
+_ADVANCE = 0.01  # Phase advance that marks the start (and end) of travel along the loop, in loops.
+_MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
+
+
+@dataclass(frozen=True)
+class Segment:
+    """The periodic part of one demo."""
+
+    start_s: float
+    """First raw sample time of the kept span, on the raw demo's time base [s]."""
+    end_s: float
+    """Last raw sample time of the kept span [s]."""
+    cycles: float
+    """Loops in the span (fractional: 2.8 is two loops and most of a third)."""
+    guide: GuideFit
+    """The guide fitted to the kept span with its drift removed."""
+    drift_m: float = 0.0
+    """How far the hand's offset from the guide wandered over the span (range of the drift
+    estimate) [m]: small for a demo drawn steadily off-centre, large for a drifting one."""
+    misfit_m: float = 0.0
+    """90th percentile of the distances of the span's samples (drift removed) to the fitted
+    guide, every sample counted (the fit itself trims) [m]: small when the whole loop has the
+    guide's shape."""
+
+    @property
+    def duration_s(self) -> float:
+        """Length of the kept span [s]."""
+        return self.end_s - self.start_s
+
+
+def segment_demo(
+    positions: ArrayLike,
+    times_s: ArrayLike,
+    task: Task,
+    name: str = "demo",
+    *,
+    theta_deg: float | None = None,
+    rho: float | None = None,
+    allowed: PreferenceRange | None = None,
+) -> Segment:
+    """The kept span and cycle count of one demo (module doc).
+
+    Args:
+        positions: Raw task-plane positions, shape (T, 2), in [m].
+        times_s: Their strictly increasing times, shape (T,), in [s] (any origin).
+        task: The task (its guide shape is the template).
+        name: Label for messages.
+        theta_deg: Known θ [deg] of the demo, or None.
+        rho: Known ρ, or None.
+        allowed: Allowed θ/ρ when estimated.
+
+    Raises:
+        DemoError: Mismatched or non-finite input, times not increasing, or no motion.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    t = np.asarray(times_s, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 2 or t.shape != (x.shape[0],) or x.shape[0] < 4:
+        raise DemoError(
+            f"{name}: need positions (T >= 4, 2) and times (T,); got {x.shape} and {t.shape}"
+        )
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(t))):
+        raise DemoError(f"{name} has NaN or infinite positions or times")
+    if np.any(np.diff(t) <= 0):
+        raise DemoError(f"{name}: timestamps must increase strictly")
+    clock = np.arange(t[0], t[-1], 1.0 / _CLOCK_HZ)
+    if clock.size < 8:
+        raise DemoError(f"{name} lasts {t[-1] - t[0]:.3f} s; at least 0.08 s is needed")
+    path = np.stack([np.interp(clock, t, x[:, d]) for d in range(2)], axis=1)
+    smooth = gaussian_filter1d(path, _SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
+
+    first, last = _moving_part(smooth)
+    if last - first < 8:
+        raise DemoError(f"{name} does not move more than {1e3 * _REST_M:.0f} mm from its rest pose")
+    moving = smooth[first : last + 1]
+    fit = fit_guide(moving, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
+    guide = fit.guide(task, _TRACK_POINTS)
+
+    # Distance to the guide with a slow drift removed (a running median of the offsets).
+    nearest = _nearest(guide, moving)
+    offset = moving - guide[nearest]
+    tolerance = max(0.008, 4.0 * fit.residual_m, 0.06 * fit.size_m)
+    # The drift window spans about one loop, so a scale or shape error (periodic) is not
+    # mistaken for drift (slow): loops in the moving part from a first phase track.
+    loops = abs(float(np.ptp(track_phase(moving, guide)))) / guide.shape[0]
+    period_s = moving.shape[0] / _CLOCK_HZ / max(loops, 1.0)
+    window_s = float(np.clip(period_s, _DRIFT_WINDOW_S, 5.0 * _DRIFT_WINDOW_S))
+    drift = _drift(offset, np.linalg.norm(offset, axis=1) <= 2.0 * tolerance, window_s)
+    on = (np.linalg.norm(offset - drift, axis=1) <= tolerance) & _along(moving, guide, nearest)
+    runs = _runs(on, int(_MIN_RUN_S * _CLOCK_HZ))
+    if runs:
+        a, b = runs[0][0], runs[-1][1]
+        # Extend over neighbours within twice the tolerance (a drift the median still lags);
+        # the travel test below drops what does not move along the loop.
+        loose = np.linalg.norm(offset - drift, axis=1) <= 2.0 * tolerance
+        while a > 0 and loose[a - 1]:
+            a -= 1
+        while b < loose.size - 1 and loose[b + 1]:
+            b += 1
+    else:
+        a, b = 0, moving.shape[0] - 1
+    span = moving[a : b + 1] - drift[a : b + 1]
+    phase = track_phase(span, guide)
+    # The end of an approach lies near the guide but does not travel along it: trim the span
+    # to where the phase starts advancing (and, at the end, stops).
+    sign = 1.0 if phase[-1] >= phase[0] else -1.0
+    travelled = sign * (phase - phase[0])
+    step = _ADVANCE * guide.shape[0]
+    peak = int(np.argmax(travelled))
+    low = int(np.argmin(travelled[: peak + 1]))
+    if travelled[peak] - travelled[low] > 4 * step:
+        # From where the phase leaves its lowest value to where it reaches its highest: a
+        # retreat or approach that slides the nearest guide point backwards is cut too.
+        head = low + int(np.argmax(travelled[low:] > travelled[low] + step))
+        tail = int(np.argmax(travelled >= travelled[peak] - step))
+        # Back to where the phase first moved at all (0.1 % of a loop) on each side.
+        fine = 0.1 * step
+        head = low + int(np.flatnonzero(travelled[low : head + 1] <= travelled[low] + fine)[-1])
+        tail = tail + int(np.argmax(travelled[tail:] >= travelled[peak] - fine))
+        if tail > head:
+            phase, a, b = phase[head : tail + 1], a + head, a + tail
+    cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
+    # θ/ρ from the kept span with its drift removed: approach, retreat and drift no longer bias
+    # them (the same bounded fit, started from the first one).
+    fit = fit_guide(span, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit)
+    # Snap the span to raw sample times: the first and last raw sample inside it.
+    i0 = min(int(np.searchsorted(t, clock[first + a] - 1e-9)), t.size - 2)
+    i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
+    return Segment(
+        start_s=float(t[i0]),
+        end_s=float(t[i1]),
+        cycles=round(cycles, 2),
+        guide=fit,
+        drift_m=float(np.max(np.ptp(drift[a : b + 1], axis=0))),
+        misfit_m=float(np.percentile(_nearest_distance(fit.guide(task, _TRACK_POINTS), span), 90)),
+    )
+
+
+def track_phase(
+    points: ArrayLike, loop: ArrayLike, max_step: float = _MAX_PHASE_STEP
+) -> FloatArray:
+    """Continuous phase of each point along a closed loop, by nearest point near the last one.
+
+    The first point takes its nearest loop point; each next point the nearest within
+    ±`max_step` loops of the previous phase, so where a loop crosses itself (a figure-eight)
+    the track stays on its branch. One pass, bounded by the number of points.
+
+    Args:
+        points: Path, shape (T, 2), in [m].
+        loop: Closed loop sampled once round (endpoint excluded), shape (P, 2), in [m].
+        max_step: Most phase change between consecutive points, in loops.
+
+    Returns:
+        Unwrapped phase, shape (T,), in loop samples (P per loop; the sign follows the
+        direction of travel).
+    """
+    x = np.asarray(points, dtype=np.float64)
+    ring = np.asarray(loop, dtype=np.float64)
+    p = ring.shape[0]
+    reach = max(1, int(max_step * p))
+    offsets = np.arange(-reach, reach + 1)
+    phase = np.empty(x.shape[0])
+    current = float(np.argmin(np.sum((ring - x[0]) ** 2, axis=1)))
+    phase[0] = current
+    for k in range(1, x.shape[0]):
+        candidates = round(current) + offsets
+        d2 = np.sum((ring[candidates % p] - x[k]) ** 2, axis=1)
+        current = float(candidates[int(np.argmin(d2))])
+        phase[k] = current
+    return phase
+
+
+def _moving_part(smooth: FloatArray) -> tuple[int, int]:
+    """First and last index of the motion between the rests (step 1 of the module doc)."""
+    from_start = np.linalg.norm(smooth - smooth[0], axis=1)
+    from_end = np.linalg.norm(smooth - smooth[-1], axis=1)
+    away = np.flatnonzero(from_start > _REST_M)
+    back = np.flatnonzero(from_end > _REST_M)
+    if away.size == 0 or back.size == 0:
+        return 0, 0
+    first, last = int(away[0]), int(back[-1])
+    speed = np.linalg.norm(np.gradient(smooth, axis=0), axis=1) * _CLOCK_HZ
+    moving = 0.1 * float(np.median(speed[first : last + 1]))
+    # Walk back to where it set off: until the speed drops to 3x the rest's own (noise) speed.
+    lead = _rest_speed(speed[: first + 1], moving)
+    tail = _rest_speed(speed[last:], moving)
+    while first > 0 and speed[first - 1] > max(0.003, moving, lead):
+        first -= 1
+    while last < smooth.shape[0] - 1 and speed[last + 1] > max(0.003, moving, tail):
+        last += 1
+    return first, last
+
+
+def _drift(offset: FloatArray, on: np.ndarray, window_s: float) -> FloatArray:
+    """Slow drift: running median of the offsets of the on-loop samples, interpolated between.
+
+    Samples off the loop (approach, retreat, excursions) take no part, so the estimate cannot
+    follow an approach onto the guide.
+    """
+    near = np.flatnonzero(on)
+    if near.size < 3:
+        return np.zeros_like(offset)
+    window = max(3, int(window_s * _CLOCK_HZ) | 1)
+    smooth = median_filter(offset[near], size=(window, 1), mode="mirror")
+    index = np.arange(offset.shape[0])
+    return np.stack([np.interp(index, near, smooth[:, d]) for d in range(2)], axis=1)
+
+
+def _along(path: FloatArray, guide: FloatArray, nearest: np.ndarray) -> np.ndarray:
+    """Whether each sample moves along the guide (|cos| ≥ 0.7 to its tangent) or nearly rests."""
+    velocity = np.gradient(path, axis=0)
+    p = guide.shape[0]
+    tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
+    speed = np.linalg.norm(velocity, axis=1)
+    cos = np.abs(np.sum(velocity * tangent, axis=1)) / (
+        speed * np.linalg.norm(tangent, axis=1) + 1e-12
+    )
+    slow = speed < 0.2 * float(np.median(speed))
+    return slow | (cos >= 0.7)
+
+
+def _rest_speed(speed: FloatArray, moving: float) -> float:
+    """3x the median speed of a rest, or 0 when the hand never rested there (it set off at once)."""
+    rest = float(np.median(speed))
+    return 3.0 * rest if rest < 3.0 * moving else 0.0
+
+
+def _nearest_distance(ring: FloatArray, points: FloatArray) -> FloatArray:
+    from scipy.spatial import KDTree
+
+    return KDTree(ring).query(points)[0]
+
+
+def _nearest(ring: FloatArray, points: FloatArray) -> np.ndarray:
+    from scipy.spatial import KDTree
+
+    return np.asarray(KDTree(ring).query(points)[1], dtype=np.intp)
+
+
+def _runs(flags: np.ndarray, min_length: int) -> list[tuple[int, int]]:
+    """(first, last) index of each run of True at least `min_length` long."""
+    padded = np.concatenate([[False], flags, [False]]).astype(np.int8)
+    edges = np.diff(padded)
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return [(int(s), int(e)) for s, e in zip(starts, ends, strict=True) if e - s + 1 >= min_length]
+
+
+def span_times(times_s: ArrayLike, segment: Segment) -> np.ndarray:
+    """Mask of the raw samples inside the kept span, shape (T,) (bool)."""
+    t = np.asarray(times_s, dtype=np.float64)
+    return (t >= segment.start_s - 1e-9) & (t <= segment.end_s + 1e-9)
+
+
+__all__ = ["Segment", "segment_demo", "span_times", "track_phase"]

@@ -1,0 +1,49 @@
+"""Reading and scoring against the ground truth stored with synthetic demos (both styles).
+
+Both generators store, per demo, the intended path at the demo's own timing (``truth_uv``) and
+which samples are on the loops (``truth_on_loop``) as extra demo attrs. Two distances measure a
+cleaned demo against them (issue 9, the README's "Cleaning quality"):
+
+* :func:`shape_distance`: symmetric Chamfer distance between two paths, both densified to
+  1 mm spacing by arc length first, so sample density (pauses, uneven rates) does not bias it;
+* :func:`timing_distance`: the mean distance, sample by sample at the same times, to the
+  intended path at the demo's own timing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.spatial import KDTree
+
+from bt_pipeline.clean.guide_fit import arc_length_resample
+from bt_pipeline.data.records import DemoRecord, FloatArray
+
+_SPACING_M = 0.001  # Densified paths: one point per mm of arc length.
+
+
+def truth_of(record: DemoRecord) -> tuple[FloatArray, np.ndarray] | None:
+    """The stored truth of a synthetic demo: (truth_uv (T, 2) [m], on_loop (T,) bool), or None."""
+    if "truth_uv" not in record.attrs or "truth_on_loop" not in record.attrs:
+        return None
+    truth = np.asarray(record.attrs["truth_uv"], dtype=np.float64).reshape(-1, 2)
+    on_loop = np.asarray(record.attrs["truth_on_loop"]).reshape(-1).astype(bool)
+    return truth, on_loop
+
+
+def densify(path: ArrayLike) -> FloatArray:
+    """The polyline resampled by arc length at 1 mm spacing, shape (K, 2)."""
+    x = np.asarray(path, dtype=np.float64)
+    length = float(np.sum(np.linalg.norm(np.diff(x, axis=0), axis=1)))
+    return arc_length_resample(x, max(16, int(length / _SPACING_M)))
+
+
+def shape_distance(path: ArrayLike, truth: ArrayLike) -> float:
+    """Symmetric Chamfer distance of two paths, both densified first [m]."""
+    a, b = densify(path), densify(truth)
+    return 0.5 * float(np.mean(KDTree(b).query(a)[0]) + np.mean(KDTree(a).query(b)[0]))
+
+
+def timing_distance(path: ArrayLike, truth: ArrayLike) -> float:
+    """Mean distance between two paths sampled at the same times, shape (T, 2) each [m]."""
+    return float(np.mean(np.linalg.norm(np.asarray(path) - np.asarray(truth), axis=1)))

@@ -1,0 +1,76 @@
+"""Segmentation of the periodic part and the guide fit, against the human-style ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bt_pipeline.clean.guide_fit import PreferenceRange, fit_guide
+from bt_pipeline.clean.segment import segment_demo, track_phase
+from bt_pipeline.data.shapes import canonical_loop, similarity_transform
+from bt_pipeline.data.synth_human import make_human_set
+from bt_pipeline.data.synth_truth import truth_of
+from bt_pipeline.data.tasks import Task, default_plane
+from bt_pipeline.exceptions import DemoError
+
+
+@pytest.mark.parametrize("task", ["wiping", "weaving", "pick_and_place"])
+def test_expert_span_and_cycles_match_truth(task: Task) -> None:
+    """The expert-like demo's kept span lies within 1.5 s of the true loop part; cycles ±0.3.
+
+    1.5 s is what the segmentation reaches today (it can keep the end of a slow approach;
+    over 36 demos the start error has median 0.33 s, 90th percentile 1.2 s).
+    """
+    synth = make_human_set(task, 4, seed=3)
+    demo = synth.demos[synth.expert_index]
+    plane = default_plane(task)
+    uv = plane.to_plane(demo.record.ee_pos)
+    segment = segment_demo(uv, demo.record.timestamps, task, demo.name)
+    on_times = demo.record.timestamps[demo.on_loop]
+    assert abs(segment.start_s - on_times[0]) < 1.5
+    assert abs(segment.end_s - on_times[-1]) < 1.5
+    assert abs(segment.cycles - demo.cycles) < 0.3
+    # Never re-based: the span lies inside the raw demo's own times.
+    assert demo.record.timestamps[0] <= segment.start_s < segment.end_s
+    assert segment.end_s <= demo.record.timestamps[-1]
+
+
+def test_guide_fit_recovers_theta_rho_and_stays_in_range() -> None:
+    loop = similarity_transform(canonical_loop("wiping", 300), 20.0, 1.3, (0.01, -0.02))
+    fit = fit_guide(loop, "wiping")
+    assert abs(fit.theta_deg - 20.0) < 0.5 and abs(fit.rho - 1.3) < 0.01
+    # A wiping loop turned by 200° looks like one turned by 20°: the smallest rotation is kept.
+    turned = similarity_transform(canonical_loop("wiping", 300), 200.0, 1.3)
+    assert abs(fit_guide(turned, "wiping").theta_deg - 20.0) < 0.5
+    narrow = fit_guide(loop, "wiping", allowed=PreferenceRange(10.0, 0.5, 1.2))
+    assert narrow.theta_deg <= 10.0 + 1e-9 and narrow.rho <= 1.2 + 1e-9
+
+
+def test_track_phase_counts_loops_both_ways() -> None:
+    ring = canonical_loop("weaving", 400)
+    phases = np.linspace(0, 2 * np.pi * 2.5, 500)
+    from bt_pipeline.data.shapes import canonical_shape
+
+    path = canonical_shape("weaving", phases)
+    assert abs(abs(np.ptp(track_phase(path, ring))) / 400 - 2.5) < 0.02
+    assert abs(abs(np.ptp(track_phase(path[::-1], ring))) / 400 - 2.5) < 0.02
+
+
+def test_still_demo_is_a_clear_error() -> None:
+    t = np.linspace(0.0, 3.0, 150)
+    with pytest.raises(DemoError, match="demo_9"):
+        segment_demo(np.zeros((150, 2)), t, "wiping", "demo_9")
+
+
+def test_human_set_stores_its_truth_and_hides_preferences() -> None:
+    synth = make_human_set("wiping", 4, seed=1, hidden=True)
+    for demo in synth.demos:
+        record = demo.record
+        assert np.isnan(record.theta_deg) and np.isnan(record.rho)
+        stored = truth_of(record)
+        assert stored is not None
+        truth, on_loop = stored
+        assert truth.shape == (record.timestamps.size, 2) and on_loop.any() and not on_loop.all()
+        steps = np.diff(record.timestamps)
+        assert steps.min() > 0 and steps.max() / steps.min() > 1.5  # uneven sample times
+        assert record.timestamps[0] > 0.0  # not based at 0
