@@ -40,14 +40,14 @@ from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.cleaning import CleanJob
 from bt_teleop.escape import breakable, display_text
-from bt_teleop.library import TaskLibrary, library_markdown, load_library
+from bt_teleop.library import TaskLibrary, load_library
 from bt_teleop.replay import ReplayPlayer
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
 from bt_teleop.session import Session
 from bt_teleop.tab_scene import Frame, TabScene
 from bt_teleop.ui_context import TaskVersions, UiContext
-from bt_teleop.ui_panels import TabControls, status_markdown
+from bt_teleop.ui_panels import TabControls, clean_done_text, status_markdown
 from bt_teleop.ui_takes import TakeDesk
 
 __all__ = ["ClientUI", "Frame", "TaskVersions", "UiContext", "status_markdown"]
@@ -80,7 +80,6 @@ class ClientUI:
         self._library_future: concurrent.futures.Future[TaskLibrary] | None = None
         self._library_version = -1
         self._seen_jobs: weakref.WeakSet[CleanJob] = weakref.WeakSet()
-        self._status_text = ""
         self.controls = TabControls(client.gui, ctx, session_id)
         """The tab's GUI handles."""
         self.takes = TakeDesk(ctx, session_id, self.controls, self.logger, self._notify)
@@ -248,13 +247,7 @@ class ClientUI:
         with self.client.atomic():
             trail = self.session.trail() if status.recording else None
             self.tab_scene.show(status, trail, follow=self.replay is not None)
-            text = status_markdown(status, self.replay)
-            if text != self._status_text:
-                self._status_text = text
-                c.status_text.content = text
-            c.record_button.disabled = status.recording or self.replay is not None
-            c.save_button.disabled = not status.recording
-            c.discard_button.disabled = not status.recording
+            c.show_status(status, self.replay)
         self._frames += 1
         self.last_frame = Frame(
             self._frames, time.perf_counter(), status.sim_time_s, status.ee_pos.copy()
@@ -326,10 +319,7 @@ class ClientUI:
 
     def _show_library(self, library: TaskLibrary) -> None:
         self.library = library
-        self.controls.library_text.content = library_markdown(library)
-        self.controls.show_replay_keys([track.key for track in library.tracks])
-        excluded = {t.key for t in library.raw if t.excluded}
-        self.controls.show_moderation_keys([t.key for t in library.raw], excluded)
+        self.controls.show_library(library)
 
     def _poll_clean(self) -> None:
         cleaner = self.ctx.cleaner
@@ -341,9 +331,7 @@ class ClientUI:
             self._seen_jobs.add(job)
             progress = job.progress()
             if progress.state == "done":
-                name = "" if progress.output is None else progress.output.name
-                skipped = f"; {len(progress.notes)} skipped" if progress.notes else ""
-                self._notify("Clean done", f"{job.task}: cleaned demos in .cleaned/{name}{skipped}")
+                self._notify("Clean done", clean_done_text(job.task, progress))
                 if job.result is not None:
                     self.logger.log_clean_result(job.result, self.ctx.cleaner.options.seed)
             else:

@@ -26,6 +26,7 @@ import viser
 from bt_pipeline.data.tasks import TASKS, Task
 from bt_teleop.cleaning import CleanProgress
 from bt_teleop.escape import html_text, markdown_text
+from bt_teleop.library import TaskLibrary, library_markdown
 from bt_teleop.recorder import RHO_RANGE, THETA_RANGE_DEG
 from bt_teleop.replay import ReplayPlayer
 from bt_teleop.session_config import SessionStatus
@@ -105,6 +106,7 @@ class TabControls:
             self.stop_replay_button = gui.add_button("Stop replay", disabled=True)
         self._theta = 0.0
         self._rho = 1.0
+        self._status_shown = ""
         self._moderation: tuple[list[str], set[str]] = ([], set())
         link = ctx.rerun.session_url(session_id)
         if link is not None:
@@ -183,6 +185,23 @@ class TabControls:
         """ρ: the slider's value, or the last valid one when the box holds no number."""
         return _finite_or(self.rho_input, self._rho, restore=False)
 
+    def show_status(self, status: SessionStatus, replay: ReplayPlayer | None) -> None:
+        """The status line (rewritten only when it changes) and the record buttons' states."""
+        text = status_markdown(status, replay)
+        if text != self._status_shown:
+            self._status_shown = text
+            self.status_text.content = text
+        self.record_button.disabled = status.recording or replay is not None
+        self.save_button.disabled = not status.recording
+        self.discard_button.disabled = not status.recording
+
+    def show_library(self, library: TaskLibrary) -> None:
+        """The recordings table, the replay picker and the moderation picker of a task."""
+        self.library_text.content = library_markdown(library)
+        self.show_replay_keys([track.key for track in library.tracks])
+        excluded = {t.key for t in library.raw if t.excluded}
+        self.show_moderation_keys([t.key for t in library.raw], excluded)
+
     def show_take_check(self, reasons: list[str] | None) -> None:
         """Say why the last take was flagged and offer to discard it (None: hide both)."""
         if reasons:
@@ -255,6 +274,13 @@ def _async_action(action: Callable[[], None]) -> Callable[[viser.GuiEvent], Any]
         action()
 
     return callback
+
+
+def clean_done_text(task: str, progress: CleanProgress) -> str:
+    """The notice of a finished clean: the output's file name (never a server path), skips."""
+    name = "" if progress.output is None else progress.output.name
+    skipped = f"; {len(progress.notes)} skipped" if progress.notes else ""
+    return f"{task}: cleaned demos in .cleaned/{name}{skipped}"
 
 
 def status_markdown(status: SessionStatus, replay: ReplayPlayer | None) -> str:

@@ -82,7 +82,7 @@ def test_pipeline_never_imports_the_simulator_or_the_ui() -> None:
     for module, path in _modules("bt_pipeline").items():
         # The CLI dispatches ``bt teleop`` to the app, imported only when that command runs.
         forbidden = ("viser", "mujoco", "mink") + (
-            () if module == "bt_pipeline.cli" else ("bt_teleop",)
+            () if module.startswith("bt_pipeline.cli") else ("bt_teleop",)
         )
         tree = ast.parse(path.read_text())
         for node in ast.walk(tree):

@@ -29,6 +29,16 @@ from bt_pipeline.data.atomic import (
     remove_stale_temps,
     temp_name,
 )
+from bt_pipeline.data.h5_read import (
+    decode,
+    float_attr,
+    int_attr,
+    json_attr,
+    read_attr,
+    read_dataset,
+    read_extra_attrs,
+    str_attr,
+)
 from bt_pipeline.data.limits import (
     DEFAULT_LIMITS,
     ReadLimits,
@@ -51,16 +61,8 @@ from bt_pipeline.data.validate import (
     check_env_args,
     check_plane,
     check_recording,
-    decode,
-    float_attr,
-    int_attr,
-    json_attr,
     parse_source,
-    read_attr,
-    read_dataset,
-    read_extra_attrs,
     sorted_demo_names,
-    str_attr,
 )
 from bt_pipeline.exceptions import RecordingError, UnknownTaskError
 

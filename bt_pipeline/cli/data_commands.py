@@ -1,0 +1,155 @@
+"""``bt score``, ``bt synth`` and ``bt clean``: parse, then dispatch to the library."""
+
+from __future__ import annotations
+
+import json as jsonlib
+from pathlib import Path
+from typing import Literal
+
+import tyro
+
+from bt_pipeline.cli.args import Paths, log, require_paths
+from bt_pipeline.execute import ExecutorConfig, ExecutorName
+
+
+def score(
+    paths: tyro.conf.Positional[Paths],
+    json: bool = False,
+    samples: int = 300,
+    strict: bool = False,
+    max_distance: float = 10.0,
+) -> None:
+    """Score every demo (demo utility score, paper Eq. 8) and mark the best one per task.
+
+    Excluded files are skipped and flagged demos listed with ⚠ but not ranked; unless --strict,
+    unreadable files and demos that cannot be scored are skipped too, each with a note.
+
+    Args:
+        paths: Format-v1 recordings: files, directories or glob patterns.
+        json: Print one JSON object on stdout instead of tables.
+        samples: N, samples per demo after resampling uniformly in time.
+        strict: Stop at the first unreadable file or unscorable demo instead of skipping it.
+        max_distance: Largest distance [m] of a sample from its task plane's origin; farther is
+            an error naming the demo.
+    """
+    from bt_pipeline.data.demo import group_by_task
+    from bt_pipeline.data.limits import ReadLimits
+    from bt_pipeline.data.skipping import read_usable, skip_failing
+    from bt_pipeline.exceptions import DemoError
+    from bt_pipeline.score.utility import score_demos
+    from bt_pipeline.viz.tables import print_score_tables, score_json
+
+    require_paths(paths)
+    limits = ReadLimits(max_distance_m=max_distance)
+    usable = read_usable(paths, samples, strict=strict, limits=limits)
+    results, notes = [], list(usable.notes)
+    for group in group_by_task(usable.demos).values():
+        result, skipped = skip_failing(
+            score_demos, group, lambda d: score_demos([d]), strict=strict
+        )
+        notes += skipped
+        if result is not None:
+            results.append(result)
+    if not results and not usable.flagged:
+        raise DemoError(f"no demo could be scored: {'; '.join(notes)}")
+    if json:
+        print(jsonlib.dumps(score_json(results, usable.flagged, notes), indent=2))
+    else:
+        print_score_tables(results, usable.flagged, notes)
+
+
+def synth(
+    out: Path,
+    task: str = "wiping",
+    demos: int = 4,
+    seed: int = 0,
+    overwrite: bool = False,
+    style: Literal["single", "human"] = "single",
+) -> None:
+    """Write a synthetic mixed-skill demo set (one expert-like demo, the rest naive) in format v1.
+
+    Demonstrator k % 4 has the paper's rotation θ = (5, -5, 10, -10)° and scale ρ = (1, 1.1, 1.2,
+    1.3): 4 demos is the paper's D1, 20 its D2. ``--style human`` draws demos as people record
+    them instead: rest, approach, 1-4 loops with pauses, retreat, uneven 30-60 Hz sample times,
+    out-of-plane wobble, preferences drawn per set and hidden (NaN) in half of the seeds.
+    Ground truth is stored in each demo's ``truth_*`` attrs.
+
+    Args:
+        out: Output file (.hdf5).
+        task: wiping, weaving or pick_and_place.
+        demos: Number of demos.
+        seed: Random seed; the same seed gives the same file.
+        overwrite: Replace `out` if it exists.
+        style: "single" (one loop per demo, 50 Hz, known θ/ρ) or "human".
+    """
+    from bt_pipeline.data.recording import write_recording
+    from bt_pipeline.data.synth import make_demo_set
+    from bt_pipeline.data.synth_human import make_human_set
+    from bt_pipeline.data.tasks import parse_task
+
+    if style == "human":
+        human = make_human_set(parse_task(task), n_demos=demos, seed=seed)
+        recording, expert = human.recording, human.demos[human.expert_index].name
+    else:
+        single = make_demo_set(parse_task(task), n_demos=demos, seed=seed)
+        recording, expert = single.recording, single.expert_name
+    path = write_recording(out, recording, overwrite=overwrite)
+    print(path)
+    log.info("expert-like demo: %s", expert)
+
+
+def clean(
+    paths: tyro.conf.Positional[Paths],
+    out: Path,
+    rrd: bool = True,
+    seed: int = 0,
+    epochs: int | None = None,
+    workers: int = 1,
+    executor: ExecutorName = "processes",
+    ray_address: str | None = None,
+    variant: Literal["default", "paper"] = "default",
+    strict: bool = False,
+    json: bool = False,
+    max_distance: float = 10.0,
+) -> None:
+    """Clean every task's demos (paper Algorithm 1) and write DIR/<task>.cleaned.hdf5.
+
+    Excluded files and flagged demos are skipped; unless --strict, so are unreadable files and
+    demos that cannot be cleaned (no motion, not periodic), each with a note naming it. The
+    outputs of a run appear together (staged, then published; DIR/bt-outputs.json lists them).
+
+    Args:
+        paths: Format-v1 recordings: files, directories or glob patterns.
+        out: Output directory (created if missing). Inputs are never modified.
+        rrd: Also write DIR/<task>.rrd for the Rerun viewer.
+        seed: Random seed (the result is deterministic for a seed).
+        epochs: Refinement epochs (default: the variant's own).
+        workers: Tasks cleaned in parallel (processes; with ray, the most in flight, 0: no limit).
+        executor: Where tasks run: "local" (this process), "processes" or "ray" (docs/scale.md).
+        ray_address: Ray cluster address (with --executor ray); unset starts a local Ray.
+        variant: "default" (bt's design) or "paper" (the paper's configuration, for comparison).
+        strict: Stop at the first unreadable file or unusable demo instead of skipping it.
+        json: Print one JSON summary on stdout instead of tables.
+        max_distance: Largest distance [m] of a sample from its task plane's origin; farther is
+            an error naming the demo.
+    """
+    from bt_pipeline.clean.driver import clean_paths
+    from bt_pipeline.clean.pipeline import CleanOptions
+    from bt_pipeline.data.limits import ReadLimits
+    from bt_pipeline.viz.tables import clean_json, print_clean_summary
+
+    require_paths(paths)
+    options = CleanOptions(
+        seed=seed, epochs=epochs, variant=variant, write_rrd=rrd, workers=workers, strict=strict
+    )
+    summaries = clean_paths(
+        paths,
+        out,
+        options,
+        ReadLimits(max_distance_m=max_distance),
+        ExecutorConfig(executor, workers, ray_address),
+    )
+    if json:
+        print(jsonlib.dumps(clean_json(summaries), indent=2))
+    else:
+        print_clean_summary(summaries)

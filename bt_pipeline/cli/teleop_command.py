@@ -1,0 +1,54 @@
+"""``bt teleop``: parse, then start the web app (bt_teleop, imported only here)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Literal
+
+
+def teleop(
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    robot: Literal["light", "menagerie"] = "light",
+    recordings: Path = Path("recordings"),
+    rerun: Literal["serve", "save", "off"] = "serve",
+    max_sessions: int = 8,
+    operator_token: str | None = None,
+    script: Path | None = None,
+) -> None:
+    """Open the teleoperation web app: drag a target, a simulated FR3 follows; record demos.
+
+    Args:
+        host: Interface to bind. 127.0.0.1 (this machine only) unless you mean to expose it,
+            e.g. 0.0.0.0 for every interface.
+        port: Port of the web app (the next free one if busy; the real URL is printed).
+        robot: "light" (bundled FR3 model, no download) or "menagerie" (MuJoCo Menagerie's FR3
+            with meshes; downloaded once, or read from $MENAGERIE_ROOT).
+        recordings: Root folder of recordings; demos go to <recordings>/<task>/.
+        rerun: "serve" streams to Rerun's web viewer on localhost, "save" writes .rrd files next
+            to the recordings, "off" disables Rerun.
+        max_sessions: Most browser tabs at once; more get a "full, try later" message.
+        operator_token: A secret (at least 8 characters); a tab that types it in the Recordings
+            panel may exclude or restore anyone's demo. Without it, a tab moderates only its own
+            demos. $BT_OPERATOR_TOKEN is used when the flag is not given.
+        script: Run a scripted operator (JSON) without a browser: record, save, print the path.
+    """
+    if script is not None:
+        from bt_teleop.script import run_script
+
+        print(run_script(script, recordings))
+        return
+    from bt_teleop.app import AppOptions, serve
+
+    serve(
+        AppOptions(
+            host=host,
+            port=port,
+            robot=robot,
+            recordings=recordings,
+            rerun=rerun,
+            max_sessions=max_sessions,
+            operator_token=operator_token or os.environ.get("BT_OPERATOR_TOKEN") or None,
+        )
+    )
