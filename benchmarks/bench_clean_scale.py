@@ -112,7 +112,7 @@ def main() -> None:
             config = ExecutorConfig(kind, args.workers)  # type: ignore[arg-type]
             # Warm-up (imports; Ray's start-up) on the smallest set, not measured.
             clean_paths(
-                inputs[sizes[0]], root / f"warm_{kind}", CleanOptions(progress=False), config
+                inputs[sizes[0]], root / f"warm_{kind}", CleanOptions(progress=False), executor=config
             )
             for m in sizes:
                 before = _rusage_cpu()
@@ -122,7 +122,7 @@ def main() -> None:
                         inputs[m],
                         root / f"out_{kind}_{m}",
                         CleanOptions(progress=False, write_rrd=False),
-                        config,
+                        executor=config,
                     )
                     wall = time.perf_counter() - start
                 # Reaped pool workers are counted by getrusage; live trees (Ray) by the sampler.

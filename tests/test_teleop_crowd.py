@@ -211,9 +211,9 @@ def test_small_things_of_the_page(make_app, tabs, tmp_path) -> None:
     assert not c.play_button.disabled
     from bt_teleop.cleaning import CleanProgress
 
-    c.show_clean_progress(CleanProgress("wiping", "running", 0, 10, "reading"), this_task=True)
+    c.show_clean_progress(CleanProgress("wiping", "running", 0, 10, "reading"))
     assert c.clean_progress.visible and c.clean_progress.value > 0.0  # never an empty bar
-    c.show_clean_progress(CleanProgress("wiping", "running", 5, 10, "epoch 5"), this_task=True)
+    c.show_clean_progress(CleanProgress("wiping", "running", 5, 10, "epoch 5"))
     assert c.clean_progress.value == pytest.approx(50.0)
 
 
