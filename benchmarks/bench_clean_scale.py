@@ -112,7 +112,10 @@ def main() -> None:
             config = ExecutorConfig(kind, args.workers)  # type: ignore[arg-type]
             # Warm-up (imports; Ray's start-up) on the smallest set, not measured.
             clean_paths(
-                inputs[sizes[0]], root / f"warm_{kind}", CleanOptions(progress=False), executor=config
+                inputs[sizes[0]],
+                root / f"warm_{kind}",
+                CleanOptions(progress=False),
+                executor=config,
             )
             for m in sizes:
                 before = _rusage_cpu()
