@@ -202,12 +202,13 @@ def test_clean_button_then_replay_a_cleaned_demo(three_recordings, make_app, tab
     ui.controls.replay_input.value = key
     ui.controls.play_button.value = True
     assert ui.wait_idle()
-    assert ui.client.scene.get_handle_by_name("/replay/cleaned") is not None
-    assert ui.client.scene.get_handle_by_name("/replay/raw") is not None  # its source, to compare
+    scene = ui.client.scene
+    wait_until(lambda: scene.get_handle_by_name("/replay/cleaned") is not None, what="cleaned path")
+    assert scene.get_handle_by_name("/replay/raw") is not None  # its source, to compare
     wait_until(lambda: ui.last_replay is not None, 30.0, "the replay to end")
     result = ui.last_replay.result  # type: ignore[union-attr]
     assert result is not None and result.rms_error_m < 0.01
-    assert any(title == "Replay done" for title, _ in ui.messages)
+    wait_until(lambda: any(t == "Replay done" for t, _ in ui.messages), what="the notice")
 
 
 def test_replay_tracks_a_raw_demo(three_recordings) -> None:

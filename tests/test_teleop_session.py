@@ -160,7 +160,9 @@ def test_far_target_is_clamped_and_the_loop_keeps_running(
 ) -> None:
     scene = scenes["pick_and_place"]
     session = Session(scene, tmp_path)
-    session.set_target([10.0, -10.0, 50.0], [0.3, 0.1, 0.9, 0.2])
+    with pytest.raises(ConfigError, match="within 10 m"):  # a browser's absurd pose is refused
+        session.set_target([10.0, -10.0, 50.0])
+    session.set_target([3.0, -3.0, 5.0], [0.3, 0.1, 0.9, 0.2])  # far, but a pose: clamped
     session.step_for(1.0)
     status = session.status()
     assert status.target_clamped
