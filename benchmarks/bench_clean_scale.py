@@ -132,7 +132,7 @@ def main() -> None:
                 cpu = max(sampler.cpu_s - sampler.cpu_at_start, _rusage_cpu() - before)
                 rows.append((kind, m, wall, cpu, sampler.peak / 2**30))
                 print(
-                    f"{kind} M={m}: {wall:.1f} s wall, {sampler.cpu_s:.1f} s CPU, "
+                    f"{kind} M={m}: {wall:.1f} s wall, {cpu:.1f} s CPU, "
                     f"{sampler.peak / 2**30:.2f} GiB peak",
                     flush=True,
                 )
