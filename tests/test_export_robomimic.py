@@ -126,3 +126,20 @@ def test_one_task_per_file_and_no_overwrite(tmp_path) -> None:
     export_robomimic([a], tmp_path / "out.hdf5")
     with pytest.raises(ConfigError, match="exists"):
         export_robomimic([a], tmp_path / "out.hdf5")
+
+
+def test_excluded_files_and_flagged_takes_are_not_exported(tmp_path) -> None:
+    from dataclasses import replace
+
+    from bt_pipeline.data.moderation import exclude
+
+    synth = make_demo_set("wiping", n_demos=4, seed=2).recording
+    names = list(synth.demos)
+    flagged = replace(synth.demos[names[1]], attrs={"flags": "too_short"})
+    keep = replace(synth, demos={names[0]: synth.demos[names[0]], names[1]: flagged})
+    gone = replace(synth, demos={n: synth.demos[n] for n in names[2:]})
+    write_recording(tmp_path / "in" / "keep.hdf5", keep)
+    exclude(write_recording(tmp_path / "in" / "gone.hdf5", gone), reason="junk")
+    out = export_robomimic([tmp_path / "in"], tmp_path / "wiping.robomimic.hdf5")
+    with h5py.File(out[0].path) as file:
+        assert len(_demo_names(file)) == 1  # only the unflagged demo of the kept file

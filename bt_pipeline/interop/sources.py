@@ -16,11 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo, demos_from_recording
-from bt_pipeline.data.paths import expand_paths
+from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo
 from bt_pipeline.data.plane import TaskPlane
-from bt_pipeline.data.recording import read_recordings
 from bt_pipeline.data.records import DemoRecord, Recording
+from bt_pipeline.data.skipping import read_usable
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import DemoError
 from bt_pipeline.score.utility import score_demos
@@ -65,29 +64,29 @@ def load_export_tasks(
 ) -> list[ExportTask]:
     """Read, group and score the recordings under `paths` (files, directories or globs).
 
-    Demos with take-check flags (``DemoRecord.flags``) are left out with a note on logger
-    ``"bt"``: they are never training data. Scores are Ũ over each task's exported demos.
+    Excluded files and demos with take-check flags (``DemoRecord.flags``) are left out with a
+    note on logger ``"bt"`` (the rules of :func:`bt_pipeline.data.skipping.read_usable`): they
+    are never training data. Scores are Ũ over each task's exported demos.
 
     Raises:
         RecordingError: A path matches nothing, or a file breaks format v1 (named).
         DemoError: No demo is left to export.
     """
-    recordings = read_recordings(expand_paths(paths), strict=True)
+    # The same skip rules as bt score / bt clean: excluded files and flagged takes are left out.
+    usable = read_usable(paths, n_samples, strict=True)
+    for note in usable.notes:
+        log.info("%s", note)
+    by_label = {str(r.path) if r.path else "": r for r in usable.recordings}
+    records = usable.records()
     grouped: dict[Task, list[tuple[Recording, str, DemoRecord, Demo]]] = {}
-    flagged = 0
-    for recording in recordings:
-        label = str(recording.path) if recording.path else ""
-        views = demos_from_recording(recording, n_samples, file=label)
-        for (name, record), view in zip(recording.demos.items(), views, strict=True):
-            if record.flags:
-                log.info("skipping %s:%s (flags: %s)", label, name, ", ".join(record.flags))
-                flagged += 1
-                continue
-            grouped.setdefault(recording.task, []).append((recording, name, record, view))
+    for view in usable.demos:
+        recording = by_label[view.file]
+        record = records[(view.file, view.name)]
+        grouped.setdefault(recording.task, []).append((recording, view.name, record, view))
     if not grouped:
         raise DemoError(
-            f"no demos to export in {', '.join(str(p) for p in paths)} ({flagged} flagged "
-            "takes skipped)"
+            f"no demos to export in {', '.join(str(p) for p in paths)} "
+            f"({len(usable.notes)} skipped: excluded or flagged)"
         )
     tasks = []
     for task, items in grouped.items():
