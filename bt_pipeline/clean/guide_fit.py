@@ -38,6 +38,9 @@ _FIT_POINTS = 240  # Arc-length resampled demo points used by the fit.
 _COARSE_ITERATIONS = 4  # ICP steps from every start before the best are kept.
 _SURVIVORS = 1  # Starts carried on to convergence.
 _POINT_WEIGHT = 0.05  # Weight of the point-to-point term beside the point-to-tangent one.
+_CONSENSUS_KEEP = 0.4  # Fits are compared by the mean of their 40 % smallest distances.
+_HALF_TRIM = 0.9  # Share of a half's points kept by its refit.
+_CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (smaller ρ wins).
 
 
 @dataclass(frozen=True)
@@ -168,7 +171,74 @@ def fit_guide(
         _, th, r, t, residual = fits[0]
         best = GuideFit(th, r, t, residual, r * float(np.max(np.ptp(guide, axis=0))))
     assert best is not None  # starts is never empty
+    if rho is None or theta_deg is None:
+        best = _consensus(points, guide, tree, best, theta_deg, rho, allowed, max_iterations)
     return best
+
+
+def _trimmed_cost(points: FloatArray, tree: KDTree, fit: GuideFit, keep: int) -> float:
+    """Mean of the `keep` smallest distances of the points to the fitted guide [m]."""
+    local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2)) / fit.rho
+    dist = np.asarray(tree.query(local)[0]) * fit.rho
+    return float(np.mean(np.partition(dist, keep - 1)[:keep]))
+
+
+def _consensus(
+    points: FloatArray,
+    guide: FloatArray,
+    tree: KDTree,
+    fit: GuideFit,
+    theta_fixed: float | None,
+    rho_fixed: float | None,
+    allowed: PreferenceRange,
+    max_iterations: int,
+) -> GuideFit:
+    """The fit that one half of the loop follows closely, when the other half is misshapen.
+
+    A loop drawn bigger on one side (lopsided) pulls a least-squares fit (even a trimmed one)
+    to a compromise that fits neither side. The guide is fitted again to each half of the
+    points (left, right, upper, lower in the compromise's frame, 90 % trim), and every fit is
+    judged on all points by a capped distance: the mean of min(d, max(3 mm, 2 % of the loop's
+    size)). A half's fit replaces the compromise only when its cost is below 80 % of the
+    compromise's; among half fits within 10 % of the lowest cost the smaller ρ wins (a
+    misshapen side is taken to bulge out, not to be pinched in).
+    """
+    size = float(np.max(np.ptp(guide, axis=0)))
+    keep = max(3, int(_CONSENSUS_KEEP * points.shape[0]))
+    base = _trimmed_cost(points, tree, fit, keep)
+    local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
+    found: list[tuple[float, GuideFit]] = []
+    for axis in range(2):
+        for side in (-1.0, 1.0):
+            half = points[side * local[:, axis] > 0.0]
+            if half.shape[0] < 12:
+                continue
+            th, r, t, residual = _icp(
+                half,
+                guide,
+                tree,
+                fit.theta_deg,
+                fit.rho,
+                np.array(fit.translation),
+                max(3, int(_HALF_TRIM * half.shape[0])),
+                max_iterations,
+                theta_fixed,
+                rho_fixed,
+                allowed,
+            )
+            if not math.isfinite(residual):
+                continue
+            # From the half's fit, the least-trimmed fit to all points (40 %): it settles on
+            # whichever part of the loop follows the guide closely.
+            th, r, t, residual = _icp(
+                points, guide, tree, th, r, t, keep, max_iterations, theta_fixed, rho_fixed, allowed
+            )
+            if math.isfinite(residual):
+                candidate = GuideFit(th, r, t, residual, r * size)
+                found.append((_trimmed_cost(points, tree, candidate, keep), candidate))
+    found.append((base, fit))
+    low = min(c for c, _ in found)
+    return min((f for c, f in found if c <= _CONSENSUS_TIE * low), key=lambda f: f.rho)
 
 
 def _icp(

@@ -10,18 +10,20 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    last sample more than 10 mm from where it comes to rest (walked back to where it set off).
 2. **Guide.** The task's guide is fitted to the moving part (:func:`fit_guide`: a trimmed
    similarity fit, so approach and retreat do not pull it).
-3. **Drift.** The offset from its nearest guide point of each sample within twice the
-   tolerance below is smoothed by a running median over about one loop (2-10 s, from a first
-   phase track), so a hand that slowly drifts off keeps being recognised as on the loop while a
-   scale or shape error, which repeats every loop, is not taken for drift.
+3. **Drift.** The guide's translation is fitted again over a sliding window of about one loop
+   (2-10 s, from a first phase track), from the samples within twice the tolerance below, so a
+   hand that slowly drifts off keeps being recognised as on the loop while a scale or shape
+   error, which repeats every loop, is not taken for drift.
 4. **On the loop.** A sample is on the loop when, drift removed, it lies within
    max(8 mm, 4 × the fit's residual, 6 % of the guide's size) of the guide and moves along it
    (|cos| ≥ 0.7 between its velocity and the guide's tangent) or nearly rests (a pause). The
    kept span runs from the start of the first run of on-loop samples lasting ≥ 0.4 s to the end
    of the last such run, extended over neighbours within twice that distance; pauses inside it
    are kept (they are the demonstrator's timing).
-5. **Travel.** The span is trimmed to where the phase along the guide starts advancing and
-   where it stops (1 % of a loop), which drops the slow end of an approach near the guide.
+5. **Travel.** The span is trimmed to where the hand travels along the guide: from the first
+   to the last sample whose phase speed exceeds a quarter of the span's typical (75th
+   percentile) phase speed. The slow end of an approach near the guide, a rest on the loop and
+   the slow start of a retreat fall out; pauses between loops stay.
 6. **Preference.** The guide is fitted again to the kept span with its drift removed; that fit's
    θ/ρ are the demo's estimate.
 7. **Cycles.** The phase along the guide is tracked sample by sample
@@ -37,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.ndimage import gaussian_filter1d, median_filter
+from scipy.ndimage import gaussian_filter1d
 
 from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, fit_guide
 from bt_pipeline.data.records import FloatArray
@@ -48,9 +50,13 @@ _CLOCK_HZ = 50.0  # Analysis clock [Hz].
 _SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
 _REST_M = 0.010  # A hand within this of its rest pose still rests [m].
 _MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
-_DRIFT_WINDOW_S = 2.0  # Shortest running-median window of the drift estimate [s].
+_DRIFT_MAX_DEGREE = 4  # Highest degree of the drift polynomial (one per loop beyond the first).
+_DRIFT_SCALE_M = 0.003  # Cauchy scale of the drift fit's reweighting [m].
 _TRACK_POINTS = 512  # Guide points for the distance and the phase track.
-_ADVANCE = 0.01  # Phase advance that marks the start (and end) of travel along the loop, in loops.
+_TIGHT = 3.0  # On-loop tolerance: this many times the 75th percentile of the on-loop distances,
+_TIGHT_MIN_M = 0.003  # but at least this [m] (and at most the loose tolerance).
+_SPEED_SMOOTH_S = 0.05  # Gaussian σ of the phase before its speed is read [s].
+_TRAVEL_SHARE = 0.45  # The span travels faster than this share of its typical phase speed.
 _MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
 
 
@@ -131,19 +137,28 @@ def segment_demo(
     nearest = _nearest(guide, moving)
     offset = moving - guide[nearest]
     tolerance = max(0.008, 4.0 * fit.residual_m, 0.06 * fit.size_m)
-    # The drift window spans about one loop, so a scale or shape error (periodic) is not
+    # The drift may change by one degree per loop, so a scale or shape error (periodic) is not
     # mistaken for drift (slow): loops in the moving part from a first phase track.
     loops = abs(float(np.ptp(track_phase(moving, guide)))) / guide.shape[0]
-    period_s = moving.shape[0] / _CLOCK_HZ / max(loops, 1.0)
-    window_s = float(np.clip(period_s, _DRIFT_WINDOW_S, 5.0 * _DRIFT_WINDOW_S))
-    drift = _drift(offset, np.linalg.norm(offset, axis=1) <= 2.0 * tolerance, window_s)
-    on = (np.linalg.norm(offset - drift, axis=1) <= tolerance) & _along(moving, guide, nearest)
+    near = np.linalg.norm(offset, axis=1) <= 2.0 * tolerance
+    drift = _drift(moving, guide, near, min(_DRIFT_MAX_DEGREE, int(loops + 0.5) - 1))
+    nearest = _nearest(guide, moving - drift)
+    distance = np.linalg.norm(moving - drift - guide[nearest], axis=1)
+    along = _along(moving, guide, nearest)
+    on = (distance <= tolerance) & along
+    # Tighten the tolerance to how closely this hand follows the guide on its loops: a steady
+    # hand's approach that runs beside the loop is then not taken for it.
+    if on.any():
+        tolerance = float(
+            np.clip(_TIGHT * np.percentile(distance[on], 75), _TIGHT_MIN_M, tolerance)
+        )
+        on = (distance <= tolerance) & along
     runs = _runs(on, int(_MIN_RUN_S * _CLOCK_HZ))
     if runs:
         a, b = runs[0][0], runs[-1][1]
         # Extend over neighbours within twice the tolerance (a drift the median still lags);
         # the travel test below drops what does not move along the loop.
-        loose = np.linalg.norm(offset - drift, axis=1) <= 2.0 * tolerance
+        loose = distance <= 2.0 * tolerance
         while a > 0 and loose[a - 1]:
             a -= 1
         while b < loose.size - 1 and loose[b + 1]:
@@ -152,24 +167,9 @@ def segment_demo(
         a, b = 0, moving.shape[0] - 1
     span = moving[a : b + 1] - drift[a : b + 1]
     phase = track_phase(span, guide)
-    # The end of an approach lies near the guide but does not travel along it: trim the span
-    # to where the phase starts advancing (and, at the end, stops).
-    sign = 1.0 if phase[-1] >= phase[0] else -1.0
-    travelled = sign * (phase - phase[0])
-    step = _ADVANCE * guide.shape[0]
-    peak = int(np.argmax(travelled))
-    low = int(np.argmin(travelled[: peak + 1]))
-    if travelled[peak] - travelled[low] > 4 * step:
-        # From where the phase leaves its lowest value to where it reaches its highest: a
-        # retreat or approach that slides the nearest guide point backwards is cut too.
-        head = low + int(np.argmax(travelled[low:] > travelled[low] + step))
-        tail = int(np.argmax(travelled >= travelled[peak] - step))
-        # Back to where the phase first moved at all (0.1 % of a loop) on each side.
-        fine = 0.1 * step
-        head = low + int(np.flatnonzero(travelled[low : head + 1] <= travelled[low] + fine)[-1])
-        tail = tail + int(np.argmax(travelled[tail:] >= travelled[peak] - fine))
-        if tail > head:
-            phase, a, b = phase[head : tail + 1], a + head, a + tail
+    head, tail = _travel(phase, guide.shape[0])
+    if tail > head:
+        phase, span, a, b = phase[head : tail + 1], span[head : tail + 1], a + head, a + tail
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     # θ/ρ from the kept span with its drift removed: approach, retreat and drift no longer bias
     # them (the same bounded fit, started from the first one).
@@ -221,6 +221,24 @@ def track_phase(
     return phase
 
 
+def _travel(phase: FloatArray, p: int) -> tuple[int, int]:
+    """First and last index of the span's travel along the loop (step 5 of the module doc).
+
+    The phase speed (loops/s, σ = 0.05 s, in the direction of travel) is compared with the
+    span's typical speed (its 75th percentile, so pauses do not lower it): the span starts at
+    the first sample faster than a quarter of that and ends at the last one. The slow end of an
+    approach that creeps onto the guide, a rest on the loop and the slow start of a retreat fall
+    out; pauses between the two are kept.
+    """
+    sign = 1.0 if phase[-1] >= phase[0] else -1.0
+    speed = sign * np.gradient(gaussian_filter1d(phase, _SPEED_SMOOTH_S * _CLOCK_HZ)) / p
+    typical = float(np.percentile(speed, 75))
+    fast = np.flatnonzero(speed > _TRAVEL_SHARE * typical)
+    if typical <= 0.0 or fast.size < 2:
+        return 0, phase.size - 1
+    return int(fast[0]), int(fast[-1])
+
+
 def _moving_part(smooth: FloatArray) -> tuple[int, int]:
     """First and last index of the motion between the rests (step 1 of the module doc)."""
     from_start = np.linalg.norm(smooth - smooth[0], axis=1)
@@ -242,19 +260,40 @@ def _moving_part(smooth: FloatArray) -> tuple[int, int]:
     return first, last
 
 
-def _drift(offset: FloatArray, on: np.ndarray, window_s: float) -> FloatArray:
-    """Slow drift: running median of the offsets of the on-loop samples, interpolated between.
+def _drift(path: FloatArray, guide: FloatArray, on: np.ndarray, degree: int) -> FloatArray:
+    """Slow drift: a smooth translation of the guide over time that best fits the samples.
 
-    Samples off the loop (approach, retreat, excursions) take no part, so the estimate cannot
-    follow an approach onto the guide.
+    The drift is a polynomial in time of `degree` (loops − 1, at most 4; a constant for one
+    loop, which cannot tell a drift from a shape error), fitted by
+    point-to-tangent least squares: each sample pulls the guide along the normal at its nearest
+    guide point, so a hand that drifts sideways is followed in every direction. Three
+    reweighted passes (Cauchy weights, scale 3 mm; nearest points found again each time) make
+    the samples that do not follow the loop (approach, retreat, excursions) count little, and
+    only samples within twice the tolerance (`on`) take part at all.
+
+    Returns:
+        The drift of each sample, shape (T, 2), in [m].
     """
-    near = np.flatnonzero(on)
-    if near.size < 3:
-        return np.zeros_like(offset)
-    window = max(3, int(window_s * _CLOCK_HZ) | 1)
-    smooth = median_filter(offset[near], size=(window, 1), mode="mirror")
-    index = np.arange(offset.shape[0])
-    return np.stack([np.interp(index, near, smooth[:, d]) for d in range(2)], axis=1)
+    drift = np.zeros_like(path)
+    if int(on.sum()) < 8:
+        return drift
+    degree = max(0, degree)
+    u = np.linspace(-1.0, 1.0, path.shape[0])
+    basis = np.polynomial.legendre.legvander(u, degree)  # (T, K)
+    p = guide.shape[0]
+    weight = on.astype(np.float64)
+    for _ in range(3):
+        nearest = _nearest(guide, path - drift)
+        tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-15
+        target = np.sum(normal * (path - guide[nearest]), axis=1)
+        rows = (basis[:, :, None] * normal[:, None, :]).reshape(path.shape[0], -1)  # (T, 2K)
+        w = weight / (1.0 + ((target - np.sum(normal * drift, axis=1)) / _DRIFT_SCALE_M) ** 2)
+        gram = rows.T @ (w[:, None] * rows) + 1e-6 * np.eye(rows.shape[1])
+        coef = np.linalg.solve(gram, rows.T @ (w * target))
+        drift = basis @ coef.reshape(-1, 2)
+    return drift
 
 
 def _along(path: FloatArray, guide: FloatArray, nearest: np.ndarray) -> np.ndarray:
