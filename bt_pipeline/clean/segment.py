@@ -21,11 +21,13 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    of the last such run, extended over neighbours within twice that distance; pauses inside it
    are kept (they are the demonstrator's timing).
 5. **Travel.** The span is trimmed to where the hand travels along the guide: from the first
-   to the last sample whose phase speed exceeds a quarter of the span's typical (75th
-   percentile) phase speed. The slow end of an approach near the guide, a rest on the loop and
-   the slow start of a retreat fall out; pauses between loops stay.
-6. **Preference.** The guide is fitted again to the kept span with its drift removed; that fit's
-   θ/ρ are the demo's estimate.
+   to the last sample whose phase speed exceeds 45 % of the span's typical (75th percentile)
+   phase speed, or 20 % where the slower edge would cut more than 15 % of a loop (a hesitant
+   loop). The slow end of an approach near the guide, a rest on the loop and the slow start of
+   a retreat fall out; pauses between loops stay.
+6. **Preference.** The guide is fitted again to the kept span with its drift removed (on the path
+   smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops); that fit's
+   θ/ρ are the demo's estimate. A lopsided loop is fitted by consensus (:func:`fit_guide`).
 7. **Cycles.** The phase along the guide is tracked sample by sample
    (:func:`track_phase`), and cycles = |phase travelled| / one loop.
 
@@ -48,15 +50,18 @@ from bt_pipeline.exceptions import DemoError
 
 _CLOCK_HZ = 50.0  # Analysis clock [Hz].
 _SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
+_FIT_SMOOTH_S = 0.03  # Gaussian σ of the path θ/ρ are fitted to [s].
 _REST_M = 0.010  # A hand within this of its rest pose still rests [m].
 _MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
 _DRIFT_MAX_DEGREE = 4  # Highest degree of the drift polynomial (one per loop beyond the first).
 _DRIFT_SCALE_M = 0.003  # Cauchy scale of the drift fit's reweighting [m].
 _TRACK_POINTS = 512  # Guide points for the distance and the phase track.
-_TIGHT = 3.0  # On-loop tolerance: this many times the 75th percentile of the on-loop distances,
+_TIGHT = 3.0  # On-loop tolerance: this many times the 90th percentile of the on-loop distances,
 _TIGHT_MIN_M = 0.003  # but at least this [m] (and at most the loose tolerance).
 _SPEED_SMOOTH_S = 0.05  # Gaussian σ of the phase before its speed is read [s].
-_TRAVEL_SHARE = 0.45  # The span travels faster than this share of its typical phase speed.
+_TRAVEL_SHARE = 0.45  # The span travels faster than this share of its typical phase speed,
+_TRAVEL_MIN_SHARE = 0.2  # or than this share where the slower edge travels more than
+_TRAVEL_MAX_TRIM = 0.15  # this many loops (a hesitant loop, not an approach).
 _MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
 
 
@@ -150,7 +155,7 @@ def segment_demo(
     # hand's approach that runs beside the loop is then not taken for it.
     if on.any():
         tolerance = float(
-            np.clip(_TIGHT * np.percentile(distance[on], 75), _TIGHT_MIN_M, tolerance)
+            np.clip(_TIGHT * np.percentile(distance[on], 90), _TIGHT_MIN_M, tolerance)
         )
         on = (distance <= tolerance) & along
     runs = _runs(on, int(_MIN_RUN_S * _CLOCK_HZ))
@@ -173,7 +178,11 @@ def segment_demo(
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     # θ/ρ from the kept span with its drift removed: approach, retreat and drift no longer bias
     # them (the same bounded fit, started from the first one).
-    fit = fit_guide(span, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit)
+    # Fitted on a lightly smoothed path (σ = 0.03 s): the analysis path's smoothing shrinks
+    # a loop (by ~1 % at a 3 s period), which would bias ρ low.
+    light = gaussian_filter1d(path, _FIT_SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
+    fspan = light[first + a : first + b + 1] - drift[a : b + 1]
+    fit = fit_guide(fspan, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit)
     # Snap the span to raw sample times: the first and last raw sample inside it.
     i0 = min(int(np.searchsorted(t, clock[first + a] - 1e-9)), t.size - 2)
     i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
@@ -224,19 +233,30 @@ def track_phase(
 def _travel(phase: FloatArray, p: int) -> tuple[int, int]:
     """First and last index of the span's travel along the loop (step 5 of the module doc).
 
-    The phase speed (loops/s, σ = 0.05 s, in the direction of travel) is compared with the
-    span's typical speed (its 75th percentile, so pauses do not lower it): the span starts at
-    the first sample faster than a quarter of that and ends at the last one. The slow end of an
-    approach that creeps onto the guide, a rest on the loop and the slow start of a retreat fall
-    out; pauses between the two are kept.
+    The phase speed (σ = 0.05 s, in the direction of travel) is compared with the span's
+    typical speed (its 75th percentile, so pauses do not lower it). The span starts at the
+    first sample faster than 45 % of that, unless the slower part before it already travels
+    more than 15 % of a loop (a hesitant first loop, not an approach): then at the first
+    sample faster than 20 %. The end likewise. The slow end of an approach that creeps onto
+    the guide, a rest on the loop and the slow start of a retreat fall out; pauses between
+    loops stay.
     """
     sign = 1.0 if phase[-1] >= phase[0] else -1.0
-    speed = sign * np.gradient(gaussian_filter1d(phase, _SPEED_SMOOTH_S * _CLOCK_HZ)) / p
+    travelled = sign * (phase - phase[0]) / p  # Loops.
+    speed = np.gradient(gaussian_filter1d(travelled, _SPEED_SMOOTH_S * _CLOCK_HZ))
     typical = float(np.percentile(speed, 75))
-    fast = np.flatnonzero(speed > _TRAVEL_SHARE * typical)
-    if typical <= 0.0 or fast.size < 2:
+    if typical <= 0.0:
         return 0, phase.size - 1
-    return int(fast[0]), int(fast[-1])
+    fast = np.flatnonzero(speed > _TRAVEL_SHARE * typical)
+    moving = np.flatnonzero(speed > _TRAVEL_MIN_SHARE * typical)
+    if fast.size < 2 or moving.size < 2:
+        return 0, phase.size - 1
+    head, tail = int(fast[0]), int(fast[-1])
+    if travelled[head] - travelled[moving[0]] > _TRAVEL_MAX_TRIM:
+        head = int(moving[0])
+    if travelled[moving[-1]] - travelled[tail] > _TRAVEL_MAX_TRIM:
+        tail = int(moving[-1])
+    return head, tail
 
 
 def _moving_part(smooth: FloatArray) -> tuple[int, int]:
