@@ -283,8 +283,8 @@ def _moving_part(smooth: FloatArray) -> tuple[int, int]:
 def _drift(path: FloatArray, guide: FloatArray, on: np.ndarray, degree: int) -> FloatArray:
     """Slow drift: a smooth translation of the guide over time that best fits the samples.
 
-    The drift is a polynomial in time of `degree` (loops − 1, at most 4; a constant for one
-    loop, which cannot tell a drift from a shape error), fitted by
+    The drift is a polynomial in time of `degree` (loops − 1, at most 4; none for one loop,
+    which cannot tell a drift from a shape error), fitted by
     point-to-tangent least squares: each sample pulls the guide along the normal at its nearest
     guide point, so a hand that drifts sideways is followed in every direction. Three
     reweighted passes (Cauchy weights, scale 3 mm; nearest points found again each time) make
@@ -295,9 +295,8 @@ def _drift(path: FloatArray, guide: FloatArray, on: np.ndarray, degree: int) -> 
         The drift of each sample, shape (T, 2), in [m].
     """
     drift = np.zeros_like(path)
-    if int(on.sum()) < 8:
+    if int(on.sum()) < 8 or degree < 1:
         return drift
-    degree = max(0, degree)
     u = np.linspace(-1.0, 1.0, path.shape[0])
     basis = np.polynomial.legendre.legvander(u, degree)  # (T, K)
     p = guide.shape[0]
