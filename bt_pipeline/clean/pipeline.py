@@ -51,7 +51,7 @@ from bt_pipeline.score.utility import (
 )
 
 _STEADY_CYCLES = 1.5  # Loops a demo needs before its own place can be told from drift,
-_STEADY_OFFSET = 0.03  # A demo's offset is its own when its drift stays within 3 % of its size
+_STEADY_OFFSET = 0.015  # A demo's offset is its own when its drift stays within 1.5 % of its size
 _STEADY_MISFIT = 0.03  # and 90 % of its samples within 3 % of its size of the fitted guide.
 MIN_EXTENT_M = 1e-3
 """A demo whose bounding box is smaller than this in both directions does not move [m]."""
@@ -272,7 +272,7 @@ def clean_demos(
     # A demo of at least 1.5 loops (fewer cannot tell an offset from a drift) drawn steadily
     # off-centre keeps its place: its reference is the best demo's centre c
     # moved by the offset between the two demos' guide fits. A drifting demo (its offset wanders
-    # over more than 3 % of the loop's size) or a misshapen one (a tenth of its samples more
+    # over more than 1.5 % of the loop's size) or a misshapen one (a tenth of its samples more
     # than 3 % of the size off the fitted guide: the fit's place is then unsure) is pulled to c,
     # as in the paper.
     offsets = [
