@@ -15,6 +15,8 @@ The fit is a trimmed iterative-closest-point similarity fit:
 3. The start with the smallest trimmed residual wins. Within the range the near-symmetric
    shapes' twins (wiping and weaving look the same turned by 180°) are outside the range, so
    the smallest rotation is the one kept.
+4. A lopsided loop (one side drawn bigger) is fitted by consensus over half-loop refits, the
+   smaller of two equally good modes winning (:func:`_consensus`).
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
 """
@@ -40,7 +42,8 @@ _SURVIVORS = 1  # Starts carried on to convergence.
 _POINT_WEIGHT = 0.05  # Weight of the point-to-point term beside the point-to-tangent one.
 _CONSENSUS_KEEP = 0.4  # Fits are compared by the mean of their 40 % smallest distances.
 _HALF_TRIM = 0.9  # Share of a half's points kept by its refit.
-_CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (smaller ρ wins).
+_CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (smaller ρ wins),
+_CONSENSUS_FLOOR_M = 0.0005  # or within this of it [m] (a clean loop's costs are near 0).
 
 
 @dataclass(frozen=True)
@@ -197,11 +200,14 @@ def _consensus(
 
     A loop drawn bigger on one side (lopsided) pulls a least-squares fit (even a trimmed one)
     to a compromise that fits neither side. The guide is fitted again to each half of the
-    points (left, right, upper, lower in the compromise's frame, 90 % trim), and every fit is
-    judged on all points by a capped distance: the mean of min(d, max(3 mm, 2 % of the loop's
-    size)). A half's fit replaces the compromise only when its cost is below 80 % of the
-    compromise's; among half fits within 10 % of the lowest cost the smaller ρ wins (a
-    misshapen side is taken to bulge out, not to be pinched in).
+    points (left, right, upper, lower in the compromise's frame, 90 % trim), and from each
+    half's fit a least-trimmed fit to all points (the 40 % that fit best) follows whichever
+    part of the loop matches the guide. Every fit, the compromise included, is judged by the
+    mean of its 40 % smallest distances. The fits within max(2 x, + 0.5 mm) of the lowest
+    cost are the loop's modes, and the one with the smallest ρ wins: a misshapen side is taken
+    to bulge out, not to be pinched in (both are exact similarities of half the guide, so one
+    demo alone cannot tell them apart; pooling a demonstrator's demos helps). On a loop without
+    such a defect every fit lands on the same mode and nothing changes.
     """
     size = float(np.max(np.ptp(guide, axis=0)))
     keep = max(3, int(_CONSENSUS_KEEP * points.shape[0]))
@@ -238,7 +244,8 @@ def _consensus(
                 found.append((_trimmed_cost(points, tree, candidate, keep), candidate))
     found.append((base, fit))
     low = min(c for c, _ in found)
-    return min((f for c, f in found if c <= _CONSENSUS_TIE * low), key=lambda f: f.rho)
+    tie = max(_CONSENSUS_TIE * low, low + _CONSENSUS_FLOOR_M)
+    return min((f for c, f in found if c <= tie), key=lambda f: f.rho)
 
 
 def _icp(
