@@ -15,7 +15,8 @@ The fit is a trimmed iterative-closest-point similarity fit:
 3. The start with the smallest trimmed residual wins. Within the range the near-symmetric
    shapes' twins (wiping and weaving look the same turned by 180°) are outside the range, so
    the smallest rotation is the one kept.
-4. A lopsided loop (one side drawn bigger) is fitted by consensus over half-loop refits, the
+4. A lopsided loop (one side drawn bigger; 90 % of the points lie on average more than 1 % of the
+   size off the fit) is fitted by consensus over half-loop refits, the
    smaller of two equally good modes winning (:func:`_consensus`).
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
@@ -40,6 +41,9 @@ _FIT_POINTS = 240  # Arc-length resampled demo points used by the fit.
 _COARSE_ITERATIONS = 4  # ICP steps from every start before the best are kept.
 _SURVIVORS = 1  # Starts carried on to convergence.
 _POINT_WEIGHT = 0.05  # Weight of the point-to-point term beside the point-to-tangent one.
+_LOPSIDED = (
+    0.01  # Consensus only when 90 % of the points lie this share of the size off on average.
+)
 _CONSENSUS_KEEP = 0.4  # Fits are compared by the mean of their 40 % smallest distances.
 _HALF_TRIM = 0.9  # Share of a half's points kept by its refit.
 _CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (smaller ρ wins),
@@ -113,6 +117,7 @@ def fit_guide(
     trim: float = 0.6,
     max_iterations: int = 25,
     initial: GuideFit | None = None,
+    consensus: bool = True,
 ) -> GuideFit:
     """Fit the task's guide to a demo by a trimmed similarity ICP (module doc).
 
@@ -126,6 +131,7 @@ def fit_guide(
         trim: Share of the points kept in each refit (the best-fitting ones).
         max_iterations: Most ICP iterations per start.
         initial: Start from this fit only (a refit of a similar demo).
+        consensus: Resolve a lopsided loop by consensus over half-loop refits (step 4).
 
     Raises:
         DemoError: Non-finite positions or no motion.
@@ -174,7 +180,7 @@ def fit_guide(
         _, th, r, t, residual = fits[0]
         best = GuideFit(th, r, t, residual, r * float(np.max(np.ptp(guide, axis=0))))
     assert best is not None  # starts is never empty
-    if rho is None or theta_deg is None:
+    if consensus and (rho is None or theta_deg is None):
         best = _consensus(points, guide, tree, best, theta_deg, rho, allowed, max_iterations)
     return best
 
@@ -211,6 +217,8 @@ def _consensus(
     """
     size = float(np.max(np.ptp(guide, axis=0)))
     keep = max(3, int(_CONSENSUS_KEEP * points.shape[0]))
+    if _trimmed_cost(points, tree, fit, int(0.9 * points.shape[0])) < _LOPSIDED * fit.size_m:
+        return fit  # 90 % of the loop lies close to the fit: no side is misshapen.
     base = _trimmed_cost(points, tree, fit, keep)
     local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
     found: list[tuple[float, GuideFit]] = []
