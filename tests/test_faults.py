@@ -58,3 +58,28 @@ def test_a_writer_that_finishes_passes_the_check(tmp_path) -> None:
     subprocess.run(command, check=True, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert snapshot(folder / "s.hdf5") is not None
     assert check("synth", folder, old) == ()
+
+
+def test_the_check_finds_an_evaluate_set_mixing_two_runs_or_missing_a_file(tmp_path) -> None:
+    from bt_pipeline.data.output_set import OutputSet
+    from bt_pipeline.testing.faults import EVALUATE_OUTPUTS
+
+    folder = tmp_path / "evaluate"
+    prepare("synth", tmp_path / "valid")  # a valid recording for the .hdf5 outputs
+    recording = (tmp_path / "valid" / "s.hdf5").read_bytes()
+
+    def publish(names: tuple[str, ...]) -> None:
+        with OutputSet(folder / "rollouts") as outputs:
+            for name in names:
+                path = folder / name
+                body = recording if name.endswith(".hdf5") else name.encode()
+                outputs.path(path.name, path.parent).write_bytes(body)
+            outputs.commit()
+
+    publish(EVALUATE_OUTPUTS)
+    assert check("evaluate", folder) == ()
+    publish(("plots/rewards.png",))  # a later run replaced one file only
+    assert any("mixes runs" in p for p in check("evaluate", folder))
+    publish(EVALUATE_OUTPUTS)
+    (folder / "table.json").unlink()
+    assert any("only part of the set" in p for p in check("evaluate", folder))

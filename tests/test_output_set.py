@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -122,3 +123,73 @@ def test_stale_temp_files_of_killed_writers_are_removed(tmp_path, dead_pid) -> N
 def test_output_names_must_be_plain(tmp_path, name) -> None:
     with OutputSet(tmp_path) as outputs, pytest.raises(Exception, match="plain"):
         outputs.path(name)
+
+
+def _publish_two(a: Path, b: Path, body: bytes) -> None:
+    with OutputSet(a) as outputs:
+        outputs.path("x.png").write_bytes(body)
+        outputs.path("y.hdf5", b).write_bytes(body)
+        outputs.commit()
+
+
+def test_a_set_across_two_folders_is_published_together(tmp_path) -> None:
+    a, b = tmp_path / "plots", tmp_path / "rollouts"
+    _publish_two(a, b, b"one")
+    assert (a / "x.png").read_bytes() == (b / "y.hdf5").read_bytes() == b"one"
+    assert verify(a) == [] and verify(b) == []
+    runs = [json.loads((f / MANIFEST).read_text())["files"] for f in (a, b)]
+    assert runs[0]["x.png"]["run"] == runs[1]["y.hdf5"]["run"]
+    assert not list(tmp_path.rglob(f"{STAGING_PREFIX}*"))
+
+
+def _killed_run(a: Path, b: Path, pid: int, committed: bool) -> tuple[Path, Path]:
+    """Staging folders of run `pid` into a (primary) and b, as a kill leaves them."""
+    primary, secondary = a / f"{STAGING_PREFIX}{pid}-aa", b / f"{STAGING_PREFIX}{pid}-aa"
+    primary.mkdir()
+    secondary.mkdir()
+    (secondary / "PRIMARY.json").write_text(json.dumps({"primary": str(primary)}))
+    for folder, name in ((primary, "x.png"), (secondary, "y.hdf5")):
+        (folder / name).write_bytes(b"two")
+        digest = hashlib.sha256(b"two").hexdigest()
+        (folder / MANIFEST).write_text(json.dumps({"files": {name: {"sha256": digest}}}))
+    if committed:
+        journal = {"files": ["x.png", MANIFEST], "folders": {str(b): str(secondary)}}
+        (primary / JOURNAL).write_text(json.dumps(journal))
+    return primary, secondary
+
+
+@pytest.mark.parametrize("first", ["primary", "secondary"])
+def test_a_killed_two_folder_set_is_rolled_back_from_either_folder(
+    tmp_path, dead_pid, first
+) -> None:
+    a, b = tmp_path / "plots", tmp_path / "rollouts"
+    _publish_two(a, b, b"one")
+    primary, secondary = _killed_run(a, b, dead_pid, committed=False)
+    recover(a if first == "primary" else b)
+    recover(b if first == "primary" else a)
+    assert not primary.exists() and not secondary.exists()
+    assert (a / "x.png").read_bytes() == (b / "y.hdf5").read_bytes() == b"one"
+
+
+@pytest.mark.parametrize("first", ["primary", "secondary"])
+def test_a_committed_two_folder_set_is_rolled_forward_from_either_folder(
+    tmp_path, dead_pid, first
+) -> None:
+    a, b = tmp_path / "plots", tmp_path / "rollouts"
+    _publish_two(a, b, b"one")
+    primary, secondary = _killed_run(a, b, dead_pid, committed=True)
+    recover(a if first == "primary" else b)
+    recover(b if first == "primary" else a)
+    assert not primary.exists() and not secondary.exists()
+    assert (a / "x.png").read_bytes() == (b / "y.hdf5").read_bytes() == b"two"
+    assert verify(a) == [] and verify(b) == []
+
+
+def test_a_secondary_whose_primary_is_gone_is_rolled_back(tmp_path, dead_pid) -> None:
+    """Roll-forward deletes the primary last, so a secondary without one was being undone."""
+    a, b = tmp_path / "plots", tmp_path / "rollouts"
+    _publish_two(a, b, b"one")
+    primary, secondary = _killed_run(a, b, dead_pid, committed=False)
+    shutil.rmtree(primary)
+    assert "removed the partial outputs" in recover(b)[0]
+    assert not secondary.exists() and (b / "y.hdf5").read_bytes() == b"one"

@@ -4,18 +4,21 @@ Four writers, each on small data in its own folder (:func:`prepare`):
 
 * ``clean``: ``bt clean IN --out OUT`` over an OUT holding a previous complete run;
 * ``synth``: ``bt synth --overwrite`` over an existing file;
-* ``evaluate``: ``bt evaluate --rollouts-out OUT`` (quick learners) over previous rollouts;
+* ``evaluate``: ``bt evaluate --plots --rrd --rollouts-out --json-out`` (quick learners) over a
+  previous run's outputs: one set across four folders;
 * ``take``: the app's recorder saving scripted takes (``bt_teleop.script.run_script``).
 
 After the kill, :func:`check` runs what the next run would run first (the recovery of
 :mod:`bt_pipeline.data.output_set`, which removes stale temp files and finishes or undoes a
 killed output set) and then asks: is every output complete (readable, its manifest hash
-matches) or absent? Does an overwritten file hold its old or its new content, nothing else? Is
-any temporary file or staging folder left?
+matches) or absent? Does an overwritten file hold its old or its new content, nothing else? Do
+the outputs of a set all come from one run (all present, one run id in every manifest)? Is any
+temporary file or staging folder left?
 """
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -26,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bt_pipeline.data.output_set import STAGING_PREFIX, recover, verify
+from bt_pipeline.data.output_set import MANIFEST, STAGING_PREFIX, recover, verify
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.exceptions import RecordingError
@@ -85,7 +88,9 @@ def prepare(scenario: str, folder: Path, previous: bool = True) -> list[str]:
     if scenario == "evaluate":
         command = [*bt, "evaluate", "--noisy", str(source), "--cleaned", str(source)]
         command += ["--learners", "bc", "--rollouts", "2", "--steps", "5", "--quick"]
-        command += ["--rollouts-out", str(folder / "rollouts")]
+        command += ["--rollouts-out", str(folder / "rollouts"), "--plots", str(folder / "plots")]
+        command += ["--rrd", str(folder / "viz" / "eval.rrd")]
+        command += ["--json-out", str(folder / "table.json")]
         if previous and not (folder / "rollouts").exists():
             subprocess.run(command, check=True, capture_output=True)
         return command
@@ -128,6 +133,8 @@ def check(
     }[scenario]
     if outputs.is_dir():
         recover(outputs)
+    if scenario == "evaluate":
+        problems += _check_set(folder, EVALUATE_OUTPUTS)
     for path in sorted(outputs.glob("*.hdf5")) if outputs.is_dir() else []:
         try:
             read_recording(path)
@@ -145,6 +152,52 @@ def check(
             problems.append("s.hdf5 holds neither its old nor its new content")
     problems += [f"left behind: {p.name}" for p in _leftovers(folder)]
     return tuple(problems)
+
+
+EVALUATE_OUTPUTS = (
+    "plots/rewards.png",
+    "plots/wiping.rollouts.png",
+    "viz/eval.rrd",
+    "table.json",
+    "rollouts/wiping.bc.noisy.rollouts.hdf5",
+    "rollouts/wiping.bc.cleaned.rollouts.hdf5",
+)
+"""The outputs of the evaluate scenario, relative to its folder: one set."""
+
+
+def _check_set(folder: Path, names: tuple[str, ...]) -> list[str]:
+    """Recover every folder of a set, then: all of `names` present or none, each matching its
+    folder's manifest, and every one written by the same run."""
+    folders = sorted({(folder / name).parent for name in names})
+    for out in folders:
+        if out.is_dir():
+            recover(out)
+    present = [name for name in names if (folder / name).is_file()]
+    if not present:
+        return []
+    problems = []
+    if len(present) != len(names):
+        problems.append(f"only part of the set: {sorted(set(names) - set(present))} missing")
+    runs: set[object] = set()
+    for name in present:
+        path = folder / name
+        entry = _manifest(path.parent).get(path.name)
+        if entry is None:
+            problems.append(f"{name} is not in its folder's manifest")
+        else:
+            runs.add(entry.get("run"))
+    for out in folders:
+        problems += [f"{out.name}/{bad} does not match the manifest" for bad in verify(out)]
+    if len(runs) != 1:
+        problems.append(f"the set mixes runs: {sorted(map(str, runs))}")
+    return problems
+
+
+def _manifest(out: Path) -> dict[str, dict]:
+    try:
+        return json.loads((out / MANIFEST).read_text(encoding="utf-8"))["files"]
+    except (OSError, ValueError, KeyError):
+        return {}
 
 
 def _leftovers(folder: Path) -> list[Path]:
