@@ -43,6 +43,7 @@ from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.cleaning import CleanRunner
 from bt_teleop.connections import ConnectionWatch
+from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.rerun_live import RERUN_MODES, RerunHub, RerunMode
 from bt_teleop.scene import Robot, parse_robot
 from bt_teleop.session import SessionConfig
@@ -184,6 +185,7 @@ class TeleopApp:
             cleaner=self.cleaner,
             rerun=self.rerun,
             background=self._background,
+            libraries=LibraryLoader(options.recordings, self._background),
             versions=self.versions,
             session_config=options.session,
             publish_hz=options.publish_hz,

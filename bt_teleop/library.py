@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -25,7 +26,7 @@ import numpy as np
 from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.records import DemoRecord, FloatArray, Recording
 from bt_pipeline.data.tasks import Task, parse_task
-from bt_pipeline.exceptions import BtError, ConfigError
+from bt_pipeline.exceptions import BtError, ConfigError, RecordingError
 from bt_teleop.cleaning import cleaned_path, task_dir
 from bt_teleop.escape import markdown_text
 
@@ -128,19 +129,34 @@ class TaskLibrary:
         raise ConfigError(f"no demo {key!r}; valid are: {valid}")
 
 
-def load_library(recordings_dir: str | Path, task: str) -> TaskLibrary:
-    """Read `task`'s raw and cleaned demos (unreadable files are skipped with a warning)."""
-    from bt_pipeline.data.paths import expand_paths
-    from bt_pipeline.data.recording import read_recording, read_recordings
+def load_library(
+    recordings_dir: str | Path, task: str, read: Callable[[Path], Recording] | None = None
+) -> TaskLibrary:
+    """Read `task`'s raw and cleaned demos (unreadable files are skipped with a warning).
 
+    Args:
+        recordings_dir: Root folder of the recordings.
+        task: The task.
+        read: Reads one file (e.g. from a cache: :class:`bt_teleop.library_loader.LibraryLoader`);
+            :func:`~bt_pipeline.data.recording.read_recording` when None.
+    """
+    from bt_pipeline.data.paths import expand_paths
+    from bt_pipeline.data.recording import read_recording
+
+    read = read or read_recording
     parsed = parse_task(task)
     folder = task_dir(recordings_dir, parsed)
     raw_recordings: list[Recording] = []
     if folder.is_dir():
         try:
-            raw_recordings = read_recordings(expand_paths([folder]), strict=False)
+            paths = expand_paths([folder])
         except BtError:  # an empty folder
-            raw_recordings = []
+            paths = []
+        for path in paths:
+            try:
+                raw_recordings.append(read(path))
+            except RecordingError as exc:
+                LOGGER.warning("skipping %s", exc)
     raw_recordings = [r for r in raw_recordings if r.task == parsed]
     raw = _raw_tracks(raw_recordings)
     cleaned: tuple[ReplayTrack, ...] = ()
@@ -148,7 +164,7 @@ def load_library(recordings_dir: str | Path, task: str) -> TaskLibrary:
     cleaned_file = cleaned_path(recordings_dir, parsed)
     if cleaned_file.is_file():
         try:
-            cleaned = _cleaned_tracks(read_recording(cleaned_file))
+            cleaned = _cleaned_tracks(read(cleaned_file))
         except BtError as exc:
             LOGGER.warning("skipping %s", exc)
         stale = _newest_change(raw_recordings) > cleaned_file.stat().st_mtime

@@ -1,0 +1,109 @@
+"""Loading a task's library for every tab at once, reading each file only once.
+
+Every Stop & save bumps the task's version (:class:`~bt_teleop.ui_context.TaskVersions`) and
+every tab on that task then wants the new library. Loaded per tab, from scratch, 8 tabs saving
+a take every few seconds made the app read every file of the task 8 times per save: in the soak
+benchmark, 140 s of a 120 s run went into those reads, on the app's CPU, beside the control
+loops. :class:`LibraryLoader` makes that cost one incremental load per change::
+
+    tab._poll: version changed -> loader.request(task) -> Future[TaskLibrary]
+        a load of `task` queued and not yet started?  share it (it reads the files as they
+                                                        are when it starts: newer than asked)
+        otherwise                                      queue a new one on the app's reader
+    the load: load_library(dir, task, read=cached read)
+        a file whose (size, mtime, inode) did not change is not read again
+
+The cache holds what the tabs' libraries hold anyway (the recordings of the task on disk); the
+entries of files that are gone are dropped at each load.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+import os
+import threading
+from pathlib import Path
+
+from bt_pipeline.data.records import Recording
+from bt_pipeline.exceptions import RecordingError
+from bt_teleop.cleaning import task_dir
+from bt_teleop.library import TaskLibrary, load_library
+
+__all__ = ["LibraryLoader"]
+
+LOGGER = logging.getLogger("bt.teleop")
+_Key = tuple[int, int, int]
+
+
+class LibraryLoader:
+    """Loads task libraries on a shared executor: one queued load per task, files cached."""
+
+    def __init__(self, recordings_dir: Path, executor: concurrent.futures.Executor) -> None:
+        """Load `recordings_dir`'s tasks on `executor` (the app's one reader thread)."""
+        self.recordings_dir = Path(recordings_dir)
+        self._executor = executor
+        self._lock = threading.Lock()
+        self._queued: dict[str, tuple[object, concurrent.futures.Future[TaskLibrary]]] = {}
+        self._files: dict[Path, tuple[_Key, Recording]] = {}
+        self.loads = 0
+        """Loads run so far."""
+        self.files_read = 0
+        """Files read from disk so far (a cached file is not counted again)."""
+
+    def request(self, task: str) -> concurrent.futures.Future[TaskLibrary]:
+        """A future of `task`'s library as it is on disk now or later.
+
+        Raises:
+            RuntimeError: The executor is shut down (the app is stopping).
+        """
+        with self._lock:
+            queued = self._queued.get(task)
+            if queued is not None:
+                return queued[1]
+            token = object()
+            future = self._executor.submit(self._load, task, token)
+            self._queued[task] = (token, future)
+            return future
+
+    def _load(self, task: str, token: object) -> TaskLibrary:
+        with self._lock:  # started: later requests need a newer load
+            if self._queued.get(task, (None,))[0] is token:
+                del self._queued[task]
+        seen: set[Path] = set()
+
+        def read(path: Path) -> Recording:
+            seen.add(path)
+            return self._read(path)
+
+        library = load_library(self.recordings_dir, task, read=read)
+        with self._lock:
+            self.loads += 1
+            folder = task_dir(self.recordings_dir, library.task)
+            for path in [p for p in self._files if p.parent == folder and p not in seen]:
+                del self._files[path]  # deleted (or no longer listed) since the last load
+        return library
+
+    def _read(self, path: Path) -> Recording:
+        """`path`'s recording, from the cache when the file did not change.
+
+        Raises:
+            RecordingError: The file cannot be read (not cached: a file being replaced may be
+                readable next time).
+        """
+        from bt_pipeline.data.recording import read_recording
+
+        try:
+            stat = os.stat(path)
+        except OSError as exc:
+            raise RecordingError(f"{path}: cannot read it ({exc.strerror})") from exc
+        key = (stat.st_size, stat.st_mtime_ns, stat.st_ino)
+        with self._lock:
+            cached = self._files.get(path)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        recording = read_recording(path)
+        with self._lock:
+            self._files[path] = (key, recording)
+            self.files_read += 1
+        return recording
