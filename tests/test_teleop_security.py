@@ -123,6 +123,19 @@ def test_a_clean_job_can_be_cancelled_and_the_task_cleaned_again(recordings) -> 
     runner.close()
 
 
+def test_a_clean_job_runs_at_a_lower_cpu_priority_than_the_app(recordings) -> None:
+    from bt_teleop.cleaning import CLEAN_NICE
+
+    runner = CleanRunner(recordings, CleanOptions(epochs=100_000, write_rrd=False), processes=True)
+    try:
+        runner.start("wiping")
+        process = psutil.Process(runner._processes["wiping"].pid)
+        wait_until(lambda: process.nice() != os.nice(0), 60.0, "the job to lower its priority")
+        assert process.nice() == min(os.nice(0) + CLEAN_NICE, 19)
+    finally:
+        runner.close()
+
+
 def test_a_non_loopback_host_prints_a_warning(monkeypatch, capsys) -> None:
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
     assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.5")
