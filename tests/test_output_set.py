@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from bt_pipeline.data.atomic import pid_alive, remove_stale_temps
+from bt_pipeline.data.atomic import pid_alive, publish_dir, recover_dir, remove_stale_temps
 from bt_pipeline.data.output_set import (
     JOURNAL,
     MANIFEST,
@@ -193,3 +193,36 @@ def test_a_secondary_whose_primary_is_gone_is_rolled_back(tmp_path, dead_pid) ->
     shutil.rmtree(primary)
     assert "removed the partial outputs" in recover(b)[0]
     assert not secondary.exists() and (b / "y.hdf5").read_bytes() == b"one"
+
+
+def test_a_directory_replaced_by_a_killed_writer_is_put_back_or_finished(
+    tmp_path, dead_pid
+) -> None:
+    out = tmp_path / "ds"
+    out.mkdir()
+    (out / "info.json").write_text("old")
+    # killed between its two renames: the old tree set aside, the new one still hidden
+    os.rename(out, tmp_path / f".ds.old-{dead_pid}-ab12")
+    (tmp_path / f".ds.tmp-{dead_pid}-cd34").mkdir()
+    lines = recover_dir(out)
+    assert len(lines) == 2 and (out / "info.json").read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+    # killed after the second rename: the new tree is in place, the old one is deleted
+    (tmp_path / f".ds.old-{dead_pid}-ef56").mkdir()
+    recover_dir(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+    live = tmp_path / f".ds.tmp-{os.getpid()}-0a0b"  # a running writer's tree: left alone
+    live.mkdir()
+    assert recover_dir(out) == [] and live.exists()
+
+
+def test_publish_dir_replaces_a_tree_only_when_asked(tmp_path) -> None:
+    out, new = tmp_path / "ds", tmp_path / ".ds.tmp-1-aa"
+    out.mkdir()
+    (out / "a").write_text("old")
+    new.mkdir()
+    (new / "a").write_text("new")
+    with pytest.raises(Exception, match="exists"):
+        publish_dir(new, out, overwrite=False)
+    publish_dir(new, out, overwrite=True)
+    assert (out / "a").read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == ["ds"]

@@ -119,6 +119,7 @@ def run_trial(
     """Start `scenario`'s writer, SIGKILL its process group after `delay_s` [s], check."""
     command = prepare(scenario, folder, previous)
     old = snapshot(folder / "s.hdf5") if scenario == "synth" else None
+    had_dataset = (folder / "ds").is_dir()
     env = {**os.environ, "PYTHONPATH": str(repo)} if repo is not None else None
     process = subprocess.Popen(
         command,
@@ -133,13 +134,18 @@ def run_trial(
         os.killpg(process.pid, signal.SIGKILL)
     process.wait()
     left = len(_leftovers(folder))
-    return Trial(scenario, delay_s, killed, left, check(scenario, folder, old))
+    problems = check(scenario, folder, old, previous_dataset=had_dataset)
+    return Trial(scenario, delay_s, killed, left, problems)
 
 
 def check(
-    scenario: str, folder: Path, old: tuple[np.ndarray, ...] | None = None
+    scenario: str,
+    folder: Path,
+    old: tuple[np.ndarray, ...] | None = None,
+    previous_dataset: bool = False,
 ) -> tuple[str, ...]:
-    """Recover `folder` as the next run would, then list what is wrong with its outputs."""
+    """Recover `folder` as the next run would, then list what is wrong with its outputs
+    (`old`: the synth file's content before; `previous_dataset`: a LeRobot export existed)."""
     problems: list[str] = []
     outputs = {
         "clean": folder / "out",
@@ -157,6 +163,8 @@ def check(
         recover_dir(folder / "ds")
         if (folder / "ds").exists():
             problems += _check_lerobot(folder / "ds")
+        elif previous_dataset:
+            problems.append("the previous lerobot dataset is gone")
     if scenario == "export_robomimic":
         problems += _check_set(folder, ROBOMIMIC_OUTPUTS)
         problems += [p for name in ROBOMIMIC_OUTPUTS for p in _check_robomimic(folder / name)]
