@@ -155,6 +155,17 @@ class Sampler:
         return float(np.polyfit(half[:, 0] / 60.0, half[:, 1], 1)[0])
 
 
+def cache_bytes(app: TeleopApp) -> int:
+    """Bytes of the numpy arrays in the recordings the shared library loader holds."""
+    total = 0
+    for _key, recording in list(app.context.libraries._files.values()):
+        for record in recording.demos.values():
+            for value in vars(record).values():
+                if isinstance(value, np.ndarray):
+                    total += value.nbytes
+    return total
+
+
 def drive(ui: ClientUI, stop: threading.Event, seed: int, counts: dict[str, int]) -> None:
     """Record takes of 2-4 s with the target on a circle until `stop`."""
     rng = np.random.default_rng(seed)
@@ -224,6 +235,7 @@ def main() -> None:
         received = sum(tab.bytes for tab in tabs)
         saved_ui = sum(len(ui.saved) for ui in uis)
         files = len(list((Path(tmp) / "rec" / "wiping").glob("*.hdf5")))
+        cached = cache_bytes(app) / 2**20
     gaps = np.concatenate([np.asarray(c.gaps) for c in clocks])
     compute = np.concatenate([np.asarray(c.compute) for c in clocks])
     period = 1.0 / uis[0].session.config.control_hz
@@ -257,6 +269,11 @@ def main() -> None:
     )
     print(
         "  t [s]  RSS [MiB]  load: " + "; ".join(f"{t:.0f} {m:.0f} {la:.1f}" for t, m, la in rows)
+    )
+    growth = rows[-1, 1] - rows[0, 1]
+    print(
+        f"RSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; the tabs' "
+        f"shared library holds {cached:.1f} MiB of demo arrays ({files} files)"
     )
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
