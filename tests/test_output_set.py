@@ -159,29 +159,19 @@ def _killed_run(a: Path, b: Path, pid: int, committed: bool) -> tuple[Path, Path
 
 
 @pytest.mark.parametrize("first", ["primary", "secondary"])
-def test_a_killed_two_folder_set_is_rolled_back_from_either_folder(
-    tmp_path, dead_pid, first
+@pytest.mark.parametrize(("committed", "kept"), [(False, b"one"), (True, b"two")])
+def test_a_killed_two_folder_set_is_recovered_from_either_folder(
+    tmp_path, dead_pid, first, committed, kept
 ) -> None:
+    """Before its commit point: rolled back; after: rolled forward; whichever folder's next
+    run comes first."""
     a, b = tmp_path / "plots", tmp_path / "rollouts"
     _publish_two(a, b, b"one")
-    primary, secondary = _killed_run(a, b, dead_pid, committed=False)
+    primary, secondary = _killed_run(a, b, dead_pid, committed=committed)
     recover(a if first == "primary" else b)
     recover(b if first == "primary" else a)
     assert not primary.exists() and not secondary.exists()
-    assert (a / "x.png").read_bytes() == (b / "y.hdf5").read_bytes() == b"one"
-
-
-@pytest.mark.parametrize("first", ["primary", "secondary"])
-def test_a_committed_two_folder_set_is_rolled_forward_from_either_folder(
-    tmp_path, dead_pid, first
-) -> None:
-    a, b = tmp_path / "plots", tmp_path / "rollouts"
-    _publish_two(a, b, b"one")
-    primary, secondary = _killed_run(a, b, dead_pid, committed=True)
-    recover(a if first == "primary" else b)
-    recover(b if first == "primary" else a)
-    assert not primary.exists() and not secondary.exists()
-    assert (a / "x.png").read_bytes() == (b / "y.hdf5").read_bytes() == b"two"
+    assert (a / "x.png").read_bytes() == (b / "y.hdf5").read_bytes() == kept
     assert verify(a) == [] and verify(b) == []
 
 
