@@ -198,7 +198,11 @@ def main() -> None:
     bt_teleop.library_loader.load_library = loads.wrap(bt_teleop.library.load_library)
     tmp = tempfile.mkdtemp(prefix="bt-soak-")
     with app_factory(Path(tmp) / "rec") as make, tab_factory() as open_tab:
-        app: TeleopApp = make(max_sessions=args.sessions, clean_epochs=5)
+        # The drivers act through the app's handles, not the websocket, so every tab looks
+        # silent: idle closing (tests/test_connections.py) would end them at the 10-min mark.
+        app: TeleopApp = make(
+            max_sessions=args.sessions, clean_epochs=5, idle_timeout_s=float("inf")
+        )
         tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
         clocks = [TickClock(ui) for ui in uis]
