@@ -15,6 +15,12 @@ loops. :class:`LibraryLoader` makes that cost one incremental load per change::
         demos' raw metrics (I, L1-L3: 14 ms a demo) computed again; only the normalisation
         over the task's demos (Eqs. 7-8) is redone
 
+Loads of a task are also spaced out: the next one starts no sooner than ``max(min_interval_s,
+duty × the last load's time)`` after the last one ended, so with a thousand takes on a loaded
+machine (a load then takes seconds of wall time) the reader thread still leaves the CPU and the
+GIL to the control loops most of the time; the table then lags the saves by that much (the save
+notice itself is immediate).
+
 The cache holds what the tabs' libraries hold anyway (the recordings of the task on disk); the
 entries of files that are gone are dropped at each load.
 """
@@ -25,6 +31,8 @@ import concurrent.futures
 import logging
 import os
 import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -46,10 +54,31 @@ _Key = tuple[int, int, int]
 class LibraryLoader:
     """Loads task libraries on a shared executor: one queued load per task, files cached."""
 
-    def __init__(self, recordings_dir: Path, executor: concurrent.futures.Executor) -> None:
-        """Load `recordings_dir`'s tasks on `executor` (the app's one reader thread)."""
+    def __init__(
+        self,
+        recordings_dir: Path,
+        executor: concurrent.futures.Executor,
+        *,
+        min_interval_s: float = 1.0,
+        duty: float = 3.0,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        """Load `recordings_dir`'s tasks on `executor` (the app's one reader thread).
+
+        Args:
+            recordings_dir: Root folder of the recordings.
+            executor: Where loads run.
+            min_interval_s: Least time between the end of a task's load and the next [s].
+            duty: The next load also waits `duty` × the last load's duration.
+            clock: Monotonic time [s] (tests).
+            sleep: Waits [s] (tests).
+        """
         self.recordings_dir = Path(recordings_dir)
         self._executor = executor
+        self.min_interval_s, self.duty = min_interval_s, duty
+        self._clock, self._sleep = clock, sleep
+        self._next_start: dict[str, float] = {}
         self._lock = threading.Lock()
         self._queued: dict[str, tuple[object, concurrent.futures.Future[TaskLibrary]]] = {}
         self._files: dict[Path, tuple[_Key, Recording]] = {}
@@ -75,9 +104,14 @@ class LibraryLoader:
             return future
 
     def _load(self, task: str, token: object) -> TaskLibrary:
-        with self._lock:  # started: later requests need a newer load
+        with self._lock:
+            delay = self._next_start.get(task, 0.0) - self._clock()
+        if delay > 0.0:
+            self._sleep(delay)  # requests meanwhile still share this load
+        with self._lock:  # reading from now on: later requests need a newer load
             if self._queued.get(task, (None,))[0] is token:
                 del self._queued[task]
+        started = self._clock()
         seen: set[Path] = set()
 
         def read(path: Path) -> Recording:
@@ -85,8 +119,11 @@ class LibraryLoader:
             return self._read(path)
 
         library = load_library(self.recordings_dir, task, read=read, metrics=self._raw_metrics)
+        ended = self._clock()
         with self._lock:
             self.loads += 1
+            pause = max(self.min_interval_s, self.duty * (ended - started))
+            self._next_start[task] = ended + pause
             folder = task_dir(self.recordings_dir, library.task)
             for path in [p for p in self._files if p.parent == folder and p not in seen]:
                 del self._files[path]  # deleted (or no longer listed) since the last load

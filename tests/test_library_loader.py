@@ -70,3 +70,38 @@ def test_an_unreadable_file_is_skipped_and_read_again_once_fixed(tmp_path) -> No
         assert len(loader.request("wiping").result(60).raw) == 1
         _write(tmp_path, "bad.hdf5", 1)
         assert len(loader.request("wiping").result(60).raw) == 2
+
+
+def test_loads_of_a_task_are_spaced_by_their_own_duration(tmp_path, monkeypatch) -> None:
+    """The next load waits max(min_interval_s, duty × the last load's time) after it ended."""
+    import bt_teleop.library_loader as module
+
+    _write(tmp_path, "a.hdf5", 0)
+    now = [100.0]
+    sleeps: list[float] = []
+
+    def sleep(seconds: float) -> None:
+        sleeps.append(seconds)
+        now[0] += seconds
+
+    real_load = module.load_library
+
+    def slow_load(*args, **kwargs):  # a load that takes 2 s of the fake clock
+        now[0] += 2.0
+        return real_load(*args, **kwargs)
+
+    monkeypatch.setattr(module, "load_library", slow_load)
+    with concurrent.futures.ThreadPoolExecutor(1) as executor:
+        loader = LibraryLoader(
+            tmp_path, executor, min_interval_s=1.0, duty=3.0, clock=lambda: now[0], sleep=sleep
+        )
+        loader.request("wiping").result(60)
+        assert sleeps == []  # the first load starts at once
+        now[0] += 0.5  # a save half a second after the load ended
+        loader.request("wiping").result(60)
+        assert sleeps == [5.5]  # 3 × 2 s after the end, 0.5 s of which had passed
+        now[0] += 100.0
+        loader.request("wiping").result(60)
+        assert sleeps == [5.5]  # long after: at once
+        assert loader.request("weaving").result(60).task == "weaving"  # other tasks: own clock
+        assert sleeps == [5.5]
