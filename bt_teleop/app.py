@@ -254,6 +254,7 @@ class TeleopApp:
                 LOGGER.info("saved the incomplete recording %s", path)
         self.server.stop()
         self.cleaner.close()
+        self.context.libraries.close()  # a load waiting its turn runs now, not later
         self._background.shutdown(wait=True)
         self.rerun.close()
 

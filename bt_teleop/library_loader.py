@@ -62,7 +62,7 @@ class LibraryLoader:
         min_interval_s: float = 1.0,
         duty: float = 3.0,
         clock: Callable[[], float] = time.monotonic,
-        sleep: Callable[[float], None] = time.sleep,
+        sleep: Callable[[float], object] | None = None,
     ) -> None:
         """Load `recordings_dir`'s tasks on `executor` (the app's one reader thread).
 
@@ -72,12 +72,13 @@ class LibraryLoader:
             min_interval_s: Least time between the end of a task's load and the next [s].
             duty: The next load also waits `duty` × the last load's duration.
             clock: Monotonic time [s] (tests).
-            sleep: Waits [s] (tests).
+            sleep: Waits [s] (tests); by default a wait that :meth:`close` cuts short.
         """
         self.recordings_dir = Path(recordings_dir)
         self._executor = executor
         self.min_interval_s, self.duty = min_interval_s, duty
-        self._clock, self._sleep = clock, sleep
+        self._closed = threading.Event()
+        self._clock, self._sleep = clock, sleep or self._closed.wait
         self._next_start: dict[str, float] = {}
         self._lock = threading.Lock()
         self._queued: dict[str, tuple[object, concurrent.futures.Future[TaskLibrary]]] = {}
@@ -103,10 +104,14 @@ class LibraryLoader:
             self._queued[task] = (token, future)
             return future
 
+    def close(self) -> None:
+        """Stop spacing loads out (the app is stopping: queued loads run at once)."""
+        self._closed.set()
+
     def _load(self, task: str, token: object) -> TaskLibrary:
         with self._lock:
             delay = self._next_start.get(task, 0.0) - self._clock()
-        if delay > 0.0:
+        if delay > 0.0 and not self._closed.is_set():
             self._sleep(delay)  # requests meanwhile still share this load
         with self._lock:  # reading from now on: later requests need a newer load
             if self._queued.get(task, (None,))[0] is token:

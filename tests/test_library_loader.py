@@ -105,3 +105,13 @@ def test_loads_of_a_task_are_spaced_by_their_own_duration(tmp_path, monkeypatch)
         assert sleeps == [5.5]  # long after: at once
         assert loader.request("weaving").result(60).task == "weaving"  # other tasks: own clock
         assert sleeps == [5.5]
+
+
+def test_close_ends_the_wait_of_a_spaced_load(tmp_path) -> None:
+    _write(tmp_path, "a.hdf5", 0)
+    with concurrent.futures.ThreadPoolExecutor(1) as executor:
+        loader = LibraryLoader(tmp_path, executor, min_interval_s=3600.0)
+        loader.request("wiping").result(60)
+        waiting = loader.request("wiping")  # due in an hour
+        loader.close()
+        assert len(waiting.result(60).raw) == 1
