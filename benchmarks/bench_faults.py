@@ -1,14 +1,19 @@
-"""Fault injection: ≥ 100 kill -9 trials at random moments during four writers, with counts.
+"""Fault injection: ≥ 100 kill -9 trials at random moments during six writers, with counts.
 
 Writers (bt_pipeline.testing.faults): ``bt clean`` (over a previous run's outputs), ``bt synth
---overwrite``, ``bt evaluate --rollouts-out`` (over previous rollouts) and the app's recorder
-saving takes. Each writer is first run once to completion to time it; each trial then kills it
-(SIGKILL to its process group) at a moment drawn uniformly from [0, 1.1 × that time], so some
-trials hit the imports, some the computation, some the writing and some come too late. After
-each kill the next run's recovery is applied and the outputs checked: complete (readable,
-matching the manifest) or absent, an overwritten file old or new, no temp file left.
+--overwrite``, ``bt evaluate`` with four outputs (``--plots``, ``--rrd``, ``--rollouts-out``,
+``--json-out``: one set, over a previous run's), the app's recorder saving takes, and ``bt
+export --overwrite`` in both formats (a LeRobot dataset tree over a previous one; robomimic files
+of two tasks into a folder, one set). Each writer is first run once to completion to time it;
+each trial then kills it (SIGKILL to its process group) at a moment drawn uniformly from [0, 1.1
+× that time], so some trials hit the imports, some the computation, some the writing and some
+come too late. After each kill the next run's recovery is applied and the outputs checked:
+complete (readable, matching the manifest) or absent, an overwritten file old or new, a set
+from one run, no temp file left.
 
     nice -n 10 .venv/bin/python benchmarks/bench_faults.py --trials 100
+    nice -n 10 .venv/bin/python benchmarks/bench_faults.py --trials 60 \
+        --scenarios evaluate,export_lerobot,export_robomimic
 """
 
 from __future__ import annotations

@@ -11,8 +11,14 @@ Reported:
 
 * the largest control-loop stall over all sessions: the longest wall time between two control
   ticks minus the tick period (each session's ``_tick`` is wrapped with a timestamp), and the
-  99th percentile of those gaps;
-* resident memory of the process after the sessions are up and at the end (psutil);
+  distribution of those gaps (p50, p99, p99.9, max);
+* where the time went (to attribute stalls): the compute time of the ticks themselves, the
+  garbage collector's pauses (``gc.callbacks``), the task-library loads every save triggers
+  (:func:`bt_teleop.library.load_library` as the tabs' shared loader calls it, timed), the
+  process's CPU use in cores;
+* resident memory (psutil) every ``--sample-every`` seconds, and its slope over the second
+  half of the run [MiB/min] (flat: about 0), with the machine's 1-minute load average at the
+  same moments (other jobs share the CPU);
 * takes saved vs intended (Stop & save presses; files counted on disk at the end).
 
 Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes.
@@ -23,15 +29,20 @@ Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes.
 from __future__ import annotations
 
 import argparse
+import gc
+import os
 import shutil
 import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import psutil
 
+import bt_teleop.library
+import bt_teleop.library_loader
 from bt_teleop.app import TeleopApp
 from bt_teleop.testing import app_factory, circle_uv, tab_factory, wait_until
 from bt_teleop.ui import ClientUI
@@ -41,10 +52,11 @@ REFUSALS = ("Not done", "Error")
 
 
 class TickClock:
-    """Wraps a session's ``_tick`` to keep the largest gaps between ticks."""
+    """Wraps a session's ``_tick`` to keep the gaps between ticks and each tick's own time."""
 
     def __init__(self, ui: ClientUI) -> None:
         self.gaps: list[float] = []
+        self.compute: list[float] = []
         self._last: float | None = None
         session = ui.session
         tick = session._tick
@@ -55,8 +67,103 @@ class TickClock:
                 self.gaps.append(now - self._last)
             self._last = now
             tick()
+            self.compute.append(time.perf_counter() - now)
 
         session._tick = timed  # type: ignore[method-assign]
+
+
+class Timed:
+    """Durations [s] of the calls of a wrapped function."""
+
+    def __init__(self) -> None:
+        self.durations: list[float] = []
+
+    def wrap(self, function: Any) -> Any:
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            t0 = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.durations.append(time.perf_counter() - t0)
+
+        return timed
+
+    def summary(self) -> str:
+        d = np.asarray(self.durations) * 1e3
+        if not d.size:
+            return "none"
+        total = d.sum() / 1e3
+        return (
+            f"{d.size} calls, total {total:.1f} s, p50 {np.median(d):.1f} ms, max {d.max():.0f} ms"
+        )
+
+
+class GcPauses:
+    """The garbage collector's pauses, by generation (``gc.callbacks``)."""
+
+    def __init__(self) -> None:
+        self.pauses: dict[int, list[float]] = {0: [], 1: [], 2: []}
+        self._t0 = 0.0
+        gc.callbacks.append(self._callback)
+
+    def _callback(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+        else:
+            self.pauses[info["generation"]].append(time.perf_counter() - self._t0)
+
+    def summary(self) -> str:
+        parts = []
+        for generation, pauses in self.pauses.items():
+            d = np.asarray(pauses) * 1e3
+            top = f", max {d.max():.1f} ms" if d.size else ""
+            parts.append(f"gen{generation} {d.size}× (total {d.sum() / 1e3:.2f} s{top})")
+        return "; ".join(parts)
+
+
+class Sampler:
+    """RSS [MiB] and the 1-minute load average every `every_s` seconds, in a thread."""
+
+    def __init__(self, every_s: float) -> None:
+        self.rows: list[tuple[float, float, float]] = []  # (t [s], RSS [MiB], load)
+        self._process = psutil.Process()
+        self._t0 = time.monotonic()
+        self._stop = threading.Event()
+        self.sample()
+        self._thread = threading.Thread(target=self._run, args=(every_s,), daemon=True)
+        self._thread.start()
+
+    def sample(self) -> None:
+        rss = self._process.memory_info().rss / 2**20
+        self.rows.append((time.monotonic() - self._t0, rss, os.getloadavg()[0]))
+
+    def _run(self, every_s: float) -> None:
+        while not self._stop.wait(every_s):
+            self.sample()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self.sample()
+
+    def slope_second_half(self) -> float:
+        """Least-squares slope of RSS over the second half of the run [MiB/min]."""
+        rows = np.asarray(self.rows)
+        half = rows[rows[:, 0] >= rows[-1, 0] / 2.0]
+        if len(half) < 2:
+            return float("nan")
+        return float(np.polyfit(half[:, 0] / 60.0, half[:, 1], 1)[0])
+
+
+def cache_bytes(app: TeleopApp) -> int:
+    """Bytes of the numpy arrays in the recordings the shared library loader holds."""
+    total = 0
+    for _key, recording in list(app.context.libraries._files.values()):
+        for record in recording.demos.values():
+            for value in vars(record).values():
+                if isinstance(value, np.ndarray):
+                    total += value.nbytes
+    return total
 
 
 def drive(ui: ClientUI, stop: threading.Event, seed: int, counts: dict[str, int]) -> None:
@@ -84,16 +191,25 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--sessions", type=int, default=8)
     parser.add_argument("--clean-every", type=float, default=120.0, help="[s]; 0: never")
+    parser.add_argument("--sample-every", type=float, default=30.0, help="RSS and load [s]")
     args = parser.parse_args()
     process = psutil.Process()
+    loads = Timed()
+    bt_teleop.library_loader.load_library = loads.wrap(bt_teleop.library.load_library)
     tmp = tempfile.mkdtemp(prefix="bt-soak-")
     with app_factory(Path(tmp) / "rec") as make, tab_factory() as open_tab:
-        app: TeleopApp = make(max_sessions=args.sessions, clean_epochs=5)
+        # The drivers act through the app's handles, not the websocket, so every tab looks
+        # silent: idle closing (tests/test_connections.py) would end them at the 10-min mark.
+        app: TeleopApp = make(
+            max_sessions=args.sessions, clean_epochs=5, idle_timeout_s=float("inf")
+        )
         tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
         clocks = [TickClock(ui) for ui in uis]
         time.sleep(2.0)
-        rss_start = process.memory_info().rss
+        sampler = Sampler(args.sample_every)
+        pauses = GcPauses()
+        cpu_start, wall_start = process.cpu_times(), time.monotonic()
         stop = threading.Event()
         counts = [{"intended": 0} for _ in uis]
         drivers = [
@@ -118,20 +234,51 @@ def main() -> None:
         for ui in uis:
             ui.wait_idle(120.0)  # the last Stop & save may still be queued
         refused = [body for ui in uis for title, body in ui.messages if title in REFUSALS]
-        rss_end = process.memory_info().rss
+        sampler.stop()
+        cpu_end, wall = process.cpu_times(), time.monotonic() - wall_start
         received = sum(tab.bytes for tab in tabs)
         saved_ui = sum(len(ui.saved) for ui in uis)
         files = len(list((Path(tmp) / "rec" / "wiping").glob("*.hdf5")))
+        cached = cache_bytes(app) / 2**20
     gaps = np.concatenate([np.asarray(c.gaps) for c in clocks])
+    compute = np.concatenate([np.asarray(c.compute) for c in clocks])
     period = 1.0 / uis[0].session.config.control_hz
     intended = sum(c["intended"] for c in counts)
     print(f"{args.sessions} sessions for {args.minutes:g} min, {cleans} Clean presses")
-    print(f"control ticks: {gaps.size}, period {1e3 * period:.1f} ms")
+    print(
+        f"control ticks: {gaps.size} ({gaps.size / wall:.0f}/s of {args.sessions / period:.0f}/s"
+        f" intended), period {1e3 * period:.1f} ms"
+    )
     print(f"largest stall: {1e3 * (gaps.max() - period):.1f} ms beyond the period")
-    p99, p999 = (1e3 * np.percentile(gaps, q) for q in (99, 99.9))
-    print(f"gap p99: {p99:.1f} ms, p99.9: {p999:.1f} ms")
+    p50, p99, p999 = (1e3 * np.percentile(gaps, q) for q in (50, 99, 99.9))
+    print(
+        f"gap p50: {p50:.1f} ms, p99: {p99:.1f} ms, p99.9: {p999:.1f} ms, "
+        f"max {1e3 * gaps.max():.0f} ms"
+    )
     print(f"stalls > 50 ms: {int(np.sum(gaps - period > 0.05))}")
-    print(f"memory (RSS): {rss_start / 2**20:.0f} MiB at start, {rss_end / 2**20:.0f} MiB at end")
+    c50, c99 = (1e3 * np.percentile(compute, q) for q in (50, 99))
+    print(f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * compute.max():.0f} ms")
+    print(f"gc pauses: {pauses.summary()}")
+    print(f"task-library loads (after saves): {loads.summary()}")
+    used = (cpu_end.user + cpu_end.system - cpu_start.user - cpu_start.system) / wall
+    print(f"CPU of the app: {used:.2f} cores of {psutil.cpu_count()}")
+    rows = np.asarray(sampler.rows)
+    print(
+        f"load average (1 min): min {rows[:, 2].min():.1f}, mean {rows[:, 2].mean():.1f}, "
+        f"max {rows[:, 2].max():.1f}"
+    )
+    print(
+        f"memory (RSS): {rows[0, 1]:.0f} MiB at start, {rows[-1, 1]:.0f} MiB at end, "
+        f"slope over the second half {sampler.slope_second_half():+.2f} MiB/min"
+    )
+    print(
+        "  t [s]  RSS [MiB]  load: " + "; ".join(f"{t:.0f} {m:.0f} {la:.1f}" for t, m, la in rows)
+    )
+    growth = rows[-1, 1] - rows[0, 1]
+    print(
+        f"RSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; the tabs' "
+        f"shared library holds {cached:.1f} MiB of demo arrays ({files} files)"
+    )
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")

@@ -8,7 +8,8 @@ alone writes outputs (atomically), so every executor gives the same files for th
     items ──run_jobs(fn, items, ExecutorConfig)──▶ results, in the order of the items
       local:     fn(item) in this process, one after another
       processes: a spawn-context ProcessPoolExecutor of ``workers`` processes
-      ray:       one Ray task per item (``ray.init(address)``, or a local Ray without dashboard)
+      ray:       one Ray task per item (``ray.init(address)``, or a private local Ray without
+                 dashboard whose every socket binds to 127.0.0.1: :func:`start_local_ray`)
 
 Fault tolerance: a worker that dies mid-job (killed, out of memory, segfault) is retried up to
 ``retries`` times; a job that raises a :class:`~bt_pipeline.exceptions.BtError` is not retried
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
+import os
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures.process import BrokenProcessPool
@@ -160,19 +162,10 @@ def _run_ray(
 ) -> list[R]:
     ray = _import_ray()
     if not ray.is_initialized():
-        init: dict[str, Any] = {
-            "include_dashboard": False,
-            "log_to_driver": False,
-            "configure_logging": False,
-        }
         if config.ray_address is None:
-            # A private single-node Ray on loopback (docs/scale.md: which of Ray's own sockets
-            # still listen wider, and how Ray's token authentication guards them).
-            init["num_cpus"] = max(config.workers, 1)
-            init["_node_ip_address"] = "127.0.0.1"
+            start_local_ray(max(config.workers, 1))
         else:
-            init["address"] = config.ray_address
-        ray.init(**init)
+            ray.init(address=config.ray_address, **_RAY_QUIET)
     # max_retries reruns a task whose worker process died; exceptions raised by the job itself
     # are not retried (retry_exceptions=False): bad input fails the same way every time.
     remote = ray.remote(max_retries=config.retries, retry_exceptions=False)(fn)
@@ -201,6 +194,40 @@ def _run_ray(
                 ) from None
             bar.update(1)
     return [results[i] for i in range(len(items))]
+
+
+_RAY_QUIET = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
+RAY_LOCAL_ONLY_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+"""Ray's switch between "a local Ray only" (0) and "may join a cluster" (Linux default)."""
+
+
+def start_local_ray(num_cpus: int) -> None:
+    """Start a private single-node Ray whose every socket binds to 127.0.0.1.
+
+    ``ray.init(_node_ip_address="127.0.0.1")`` alone is not enough: Ray 2.60 replaces a loopback
+    node address by the machine's address (``ray/_private/services.py``,
+    ``resolve_ip_for_localhost`` -> ``get_node_ip_address``) unless clusters are disabled
+    (``ray_constants.ENABLE_RAY_CLUSTER``, set from ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER``), and
+    its GCS, raylet, workers and agents then listen on every interface. With clusters disabled
+    for this start, they all get node address 127.0.0.1 and bind to it (docs/security.md).
+
+    Args:
+        num_cpus: CPUs the local Ray may use.
+    """
+    ray = _import_ray()
+    from ray._private import ray_constants
+
+    saved_env, saved_flag = os.environ.get(RAY_LOCAL_ONLY_ENV), ray_constants.ENABLE_RAY_CLUSTER
+    os.environ[RAY_LOCAL_ONLY_ENV] = "0"  # what Ray's own processes read when they start
+    ray_constants.ENABLE_RAY_CLUSTER = False  # the same, for a Ray imported before
+    try:
+        ray.init(num_cpus=num_cpus, _node_ip_address="127.0.0.1", **_RAY_QUIET)
+    finally:  # later connections of this process (e.g. to a cluster) are not affected
+        ray_constants.ENABLE_RAY_CLUSTER = saved_flag
+        if saved_env is None:
+            os.environ.pop(RAY_LOCAL_ONLY_ENV, None)
+        else:
+            os.environ[RAY_LOCAL_ONLY_ENV] = saved_env
 
 
 def _import_ray() -> Any:

@@ -10,6 +10,8 @@
         on_client_connect  -> slot free? ClientUI(client) : "full, try later" message, then
                               the socket is closed (REFUSED_CLOSE_S later; at once when more
                               than max_sessions refused sockets are still open)
+        ConnectionWatch    -> a tab that sends nothing for idle_timeout_s (and is not recording)
+                              is told, then closed (bt_teleop/connections.py)
         on_client_disconnect -> ClientUI.close(): a recording in progress is saved flagged
                                 incomplete (or discarded: save_incomplete=False)
       shared by the tabs: CleanRunner (one clean job at a time, in a process),
@@ -22,7 +24,6 @@ Rerun's gRPC server and the executor.
 
 from __future__ import annotations
 
-import asyncio
 import concurrent.futures
 import ipaddress
 import logging
@@ -41,6 +42,8 @@ from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.cleaning import CleanRunner
+from bt_teleop.connections import ConnectionWatch
+from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.rerun_live import RERUN_MODES, RerunHub, RerunMode
 from bt_teleop.scene import Robot, parse_robot
 from bt_teleop.session import SessionConfig
@@ -58,6 +61,11 @@ EXPOSED_WARNING = (
     "bt teleop: WARNING: --host {host} exposes the app to every machine that can reach this "
     "one: anyone can record, clean and watch sessions. Use 127.0.0.1 (the default) with an SSH "
     "tunnel, or a reverse proxy with a login in front (docs/security.md)."
+)
+IDLE_TITLE = "Closed: no activity"
+IDLE_BODY = (
+    "Nothing happened in this tab for {minutes:g} min, so its robot was closed to free a "
+    "place. Reload the page (or click it) to start again."
 )
 FULL_MESSAGE = (
     "## This teleop server is full\n\n"
@@ -82,6 +90,9 @@ class AppOptions:
     """serve (live web viewer), save (.rrd files) or off."""
     max_sessions: int = 8
     """Most browser tabs with a robot at once."""
+    idle_timeout_s: float = 600.0
+    """A tab that sends no message for this long [s] (no drag, click, typing or camera move)
+    is closed to free its place, unless it is recording a take; ``inf``: never."""
     operator_token: str | None = None
     """Typed into a tab's *Operator token* box, lets that tab exclude or restore anyone's demo
     (None: every tab moderates only its own demos)."""
@@ -111,6 +122,10 @@ class AppOptions:
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
             raise ConfigError(f"--port must be in 0..65535; got {self.port}")
+        if not self.idle_timeout_s > 0.0:
+            raise ConfigError(
+                f"--idle-timeout-s must be > 0 (inf: never); got {self.idle_timeout_s}"
+            )
         if self.max_sessions < 1:
             raise ConfigError(f"--max-sessions must be ≥ 1; got {self.max_sessions}")
         if self.rerun not in RERUN_MODES:
@@ -170,6 +185,7 @@ class TeleopApp:
             cleaner=self.cleaner,
             rerun=self.rerun,
             background=self._background,
+            libraries=LibraryLoader(options.recordings, self._background),
             versions=self.versions,
             session_config=options.session,
             publish_hz=options.publish_hz,
@@ -181,6 +197,9 @@ class TeleopApp:
         )
         self.server.initial_camera.position = CAMERA_POSITION
         self.server.initial_camera.look_at = CAMERA_LOOK_AT
+        self.connections = ConnectionWatch(
+            self.server, options.idle_timeout_s, busy=self._busy, notify=self._notify_idle
+        )
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
 
@@ -228,16 +247,19 @@ class TeleopApp:
             self._stopping = True
             uis = [*self._uis.values(), *self._closing]
             self._uis.clear()
+        self.connections.stop()
         for ui in uis:
             path = ui.close()
             if path is not None:
                 LOGGER.info("saved the incomplete recording %s", path)
         self.server.stop()
         self.cleaner.close()
+        self.context.libraries.close()  # a load waiting its turn runs now, not later
         self._background.shutdown(wait=True)
         self.rerun.close()
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
+        self.connections.touch(client.client_id)
         with self._lock:
             full = len(self._uis) + len(self._pending) >= self.options.max_sessions
             if self._stopping or full:
@@ -285,18 +307,26 @@ class TeleopApp:
         timer.start()
 
     def _close_socket(self, client_id: int) -> None:
-        """Close a client's websocket. viser 1.1 has no public call for one client; its server
-        keeps the live connections by client id (as its own ``disconnect_all_clients`` uses)."""
-        ws_server = self.server._websock_server  # private: viser has no per-client close
-        loop = ws_server._background_event_loop
-        connection = ws_server._live_connections.get(client_id)
-        if loop is not None and connection is not None and not loop.is_closed():
-            asyncio.run_coroutine_threadsafe(connection.close(1013, "server full"), loop)
-        else:
+        """Close a refused client's websocket."""
+        if not self.connections.close(client_id, 1013, "server full"):
             with self._lock:
                 self._refused.discard(client_id)
 
+    def _busy(self, client_id: int) -> bool:
+        """Whether a tab must stay open however long it is silent: being set up, or recording."""
+        with self._lock:
+            ui = self._uis.get(client_id)
+            pending = client_id in self._pending
+        return pending or (ui is not None and ui.session.recording)
+
+    def _notify_idle(self, client_id: int) -> None:
+        client = self.server.get_clients().get(client_id)
+        if client is not None:
+            body = IDLE_BODY.format(minutes=round(self.options.idle_timeout_s / 60.0, 1))
+            client.add_notification(IDLE_TITLE, body, color="yellow", with_close_button=False)
+
     def _on_disconnect(self, client: viser.ClientHandle) -> None:
+        self.connections.forget(client.client_id)
         with self._lock:
             self._refused.discard(client.client_id)
             ui = self._uis.pop(client.client_id, None)

@@ -5,7 +5,8 @@ purpose, so every directory scan of bt (:func:`bt_pipeline.data.paths.expand_pat
 cleaned demos are never taken for raw input.
 
 A job runs in a spawned process (torch training holds a core; the sessions' control loops keep
-the other), with one thread in the app reading its progress queue::
+the other) at a lower CPU priority (``nice`` +10, :data:`CLEAN_NICE`), with one thread in the
+app reading its progress queue::
 
     CleanRunner.start(task) -> process: read raw demos -> clean_demos(on_epoch -> queue)
                                          -> write <task>.cleaned.hdf5 (+ .rrd) -> queue(result)
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import queue
 import threading
 import time
@@ -280,6 +282,20 @@ class CleanRunner:
                 return
 
 
+CLEAN_NICE = 10
+"""How much lower than the app a clean job's process runs (``nice``): training is batch work,
+and on a busy machine the sessions' control loops must get the CPU first."""
+
+
+def lower_priority(increment: int = CLEAN_NICE) -> None:
+    """Lower this process's CPU priority by `increment` (``os.nice``; nothing where absent)."""
+    if hasattr(os, "nice"):
+        try:
+            os.nice(increment)
+        except OSError:  # not permitted here: run at the app's priority
+            LOGGER.debug("could not lower the clean job's priority", exc_info=True)
+
+
 def run_clean_job(
     recordings_dir: Path,
     task: Task,
@@ -297,6 +313,7 @@ def run_clean_job(
             import torch
 
             torch.set_num_threads(1)  # leave the other cores to the sessions
+            lower_priority()
         messages.put(("stage", "reading recordings"))
         notes: list[str] = []
         output, result = clean_task(

@@ -16,18 +16,23 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.records import DemoRecord, FloatArray, Recording
 from bt_pipeline.data.tasks import Task, parse_task
-from bt_pipeline.exceptions import BtError, ConfigError
+from bt_pipeline.exceptions import BtError, ConfigError, RecordingError
 from bt_teleop.cleaning import cleaned_path, task_dir
 from bt_teleop.escape import markdown_text
+
+if TYPE_CHECKING:
+    from bt_pipeline.data.demo import Demo
+    from bt_pipeline.score.utility import RawMetrics
 
 __all__ = [
     "ReplayTrack",
@@ -128,27 +133,49 @@ class TaskLibrary:
         raise ConfigError(f"no demo {key!r}; valid are: {valid}")
 
 
-def load_library(recordings_dir: str | Path, task: str) -> TaskLibrary:
-    """Read `task`'s raw and cleaned demos (unreadable files are skipped with a warning)."""
-    from bt_pipeline.data.paths import expand_paths
-    from bt_pipeline.data.recording import read_recording, read_recordings
+def load_library(
+    recordings_dir: str | Path,
+    task: str,
+    read: Callable[[Path], Recording] | None = None,
+    metrics: MetricsOf | None = None,
+) -> TaskLibrary:
+    """Read `task`'s raw and cleaned demos (unreadable files are skipped with a warning).
 
+    Args:
+        recordings_dir: Root folder of the recordings.
+        task: The task.
+        read: Reads one file (e.g. from a cache: :class:`bt_teleop.library_loader.LibraryLoader`);
+            :func:`~bt_pipeline.data.recording.read_recording` when None.
+        metrics: The raw metrics (I, L1-L3) of a file's demo (e.g. from a cache);
+            :func:`~bt_pipeline.score.utility.raw_metrics` when None. Ũ is then normalised over
+            the task's usable demos (Eqs. 7-8), exactly as
+            :func:`~bt_pipeline.score.utility.score_demos` does.
+    """
+    from bt_pipeline.data.paths import expand_paths
+    from bt_pipeline.data.recording import read_recording
+
+    read = read or read_recording
     parsed = parse_task(task)
     folder = task_dir(recordings_dir, parsed)
     raw_recordings: list[Recording] = []
     if folder.is_dir():
         try:
-            raw_recordings = read_recordings(expand_paths([folder]), strict=False)
+            paths = expand_paths([folder])
         except BtError:  # an empty folder
-            raw_recordings = []
+            paths = []
+        for path in paths:
+            try:
+                raw_recordings.append(read(path))
+            except RecordingError as exc:
+                LOGGER.warning("skipping %s", exc)
     raw_recordings = [r for r in raw_recordings if r.task == parsed]
-    raw = _raw_tracks(raw_recordings)
+    raw = _raw_tracks(raw_recordings, metrics or _raw_metrics)
     cleaned: tuple[ReplayTrack, ...] = ()
     stale = False
     cleaned_file = cleaned_path(recordings_dir, parsed)
     if cleaned_file.is_file():
         try:
-            cleaned = _cleaned_tracks(read_recording(cleaned_file))
+            cleaned = _cleaned_tracks(read(cleaned_file))
         except BtError as exc:
             LOGGER.warning("skipping %s", exc)
         stale = _newest_change(raw_recordings) > cleaned_file.stat().st_mtime
@@ -171,9 +198,28 @@ def _newest_change(recordings: list[Recording]) -> float:
     return newest
 
 
-def _raw_tracks(recordings: list[Recording]) -> tuple[ReplayTrack, ...]:
+MetricsOf = Callable[[Path, str, "Demo"], "RawMetrics"]
+"""(file, demo name, demo) -> its raw metrics."""
+
+
+def _raw_metrics(_path: Path, _name: str, demo: Demo) -> RawMetrics:
+    from bt_pipeline.score.utility import raw_metrics
+
+    return raw_metrics(demo.positions, demo.actions, demo.theta_deg)
+
+
+def _utilities(metrics: list[RawMetrics]) -> FloatArray:
+    """Ũ of each demo from its raw metrics, normalised over all of them (Eqs. 7-8)."""
+    from bt_pipeline.score.utility import Normaliser, ScoreConfig, normalised_utility
+
+    config = ScoreConfig()
+    normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
+    normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
+    return normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
+
+
+def _raw_tracks(recordings: list[Recording], metrics_of: MetricsOf) -> tuple[ReplayTrack, ...]:
     from bt_pipeline.data.demo import demos_from_recording
-    from bt_pipeline.score.utility import score_demos
 
     tracks: list[ReplayTrack] = []
     demos = []
@@ -205,17 +251,17 @@ def _raw_tracks(recordings: list[Recording]) -> tuple[ReplayTrack, ...]:
             )
             if track.usable:
                 usable.append(len(tracks))
-                demos.append(demo)
+                demos.append((recording.path, name, demo))
             tracks.append(track)
     if not demos:
         return tuple(tracks)
     try:
-        scores = score_demos(demos).scores
+        utilities = _utilities([metrics_of(*usable_demo) for usable_demo in demos])
     except BtError as exc:
         LOGGER.warning("cannot score the raw demos: %s", exc)
         return tuple(tracks)
-    for index, score in zip(usable, scores, strict=True):
-        tracks[index] = replace(tracks[index], utility=float(score.utility))
+    for index, utility in zip(usable, utilities, strict=True):
+        tracks[index] = replace(tracks[index], utility=float(utility))
     return tuple(tracks)
 
 

@@ -40,7 +40,7 @@ from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.cleaning import CleanJob
 from bt_teleop.escape import breakable, display_text
-from bt_teleop.library import TaskLibrary, load_library
+from bt_teleop.library import TaskLibrary
 from bt_teleop.replay import ReplayPlayer
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
@@ -298,9 +298,7 @@ class ClientUI:
         if version != self._library_version and self._library_future is None:
             self._library_version = version
             try:
-                self._library_future = self.ctx.background.submit(
-                    load_library, self.ctx.recordings_dir, task
-                )
+                self._library_future = self.ctx.libraries.request(task)
             except RuntimeError:  # the app is stopping
                 return
         future = self._library_future

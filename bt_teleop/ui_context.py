@@ -11,6 +11,7 @@ from pathlib import Path
 
 from bt_pipeline.data.tasks import Task
 from bt_teleop.cleaning import CleanRunner
+from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.rerun_live import RerunHub
 from bt_teleop.scene import Robot
 from bt_teleop.session_config import SessionConfig
@@ -46,6 +47,8 @@ class UiContext:
     rerun: RerunHub
     background: concurrent.futures.Executor
     """Runs slow reads (loading and scoring a task's demos) off the tab workers."""
+    libraries: LibraryLoader
+    """Loads a task's library once for every tab, reading only changed files."""
     versions: TaskVersions = field(default_factory=TaskVersions)
     session_config: SessionConfig = field(default_factory=SessionConfig)
     publish_hz: float = 30.0

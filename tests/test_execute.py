@@ -4,14 +4,17 @@ reach the caller unchanged, and a worker that dies mid-job is retried (issue 14)
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from bt_pipeline.exceptions import ConfigError, DemoError
-from bt_pipeline.execute import ExecutorConfig, WorkerLostError, run_jobs
+from bt_pipeline.execute import ExecutorConfig, WorkerLostError, run_jobs, start_local_ray
+from bt_pipeline.testing.sockets import is_loopback_address, listening
 
 
 def square(item: tuple[int, str]) -> int:
@@ -40,7 +43,7 @@ def ray_local() -> Iterator[None]:
     import ray  # installed with the dev extras (bt[dev] pulls bt[ray])
     from ray import cloudpickle
 
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    start_local_ray(2)  # what bt does: loopback only
     # Ship this test module's functions by value: Ray workers do not have tests/ on sys.path.
     cloudpickle.register_pickle_by_value(sys.modules[__name__])
     yield
@@ -118,3 +121,32 @@ def test_config_is_validated() -> None:
         ExecutorConfig("processes", ray_address="auto")
     with pytest.raises(ConfigError, match="retries"):
         ExecutorConfig("ray", retries=-1)
+
+
+def test_the_local_ray_listens_on_loopback_only(ray_local: None) -> None:
+    """Ray's GCS, raylet, agents and workers of the private local Ray bt starts."""
+    run_jobs(square, [(1, ""), (2, "")], ExecutorConfig("ray", workers=2))  # workers are up
+    sockets = listening(os.getpid())
+    assert len(sockets) >= 3, sockets  # GCS, raylet (2), agents, workers
+    exposed = [s for s in sockets if not is_loopback_address(s[1])]
+    assert not exposed, f"Ray sockets on non-loopback interfaces: {exposed}"
+
+
+def test_bt_clean_with_ray_listens_on_loopback_only(tmp_path, write_example_file) -> None:
+    """Every listening socket of `bt clean --executor ray` and its children, sampled while the
+    command runs (Ray's services come and go with it)."""
+    source = write_example_file(tmp_path, task="wiping", n_demos=3, n_samples=60)
+    command = [sys.executable, "-m", "bt_pipeline", "clean", str(source), "--out"]
+    command += [str(tmp_path / "out"), "--epochs", "2", "--executor", "ray", "--workers", "2"]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    log = tmp_path / "stderr.txt"
+    with open(log, "wb") as stderr:
+        process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=stderr)
+        seen: set[tuple[int, str, int]] = set()
+        while process.poll() is None:
+            seen.update(listening(process.pid))
+            time.sleep(0.2)
+    assert process.returncode == 0, log.read_text()
+    assert len(seen) >= 3, f"saw too few of Ray's sockets to judge: {seen}"
+    exposed = [s for s in seen if not is_loopback_address(s[1])]
+    assert not exposed, f"sockets on non-loopback interfaces: {exposed}"

@@ -1,7 +1,8 @@
-"""kill -9 at chosen moments during bt clean, bt synth --overwrite, bt evaluate --rollouts-out and
-an app take being saved (bt_pipeline.testing.faults): every output complete or absent, an
-overwritten file old or new, no temp file left after the next run's recovery. The big suite
-(≥ 100 trials at random moments) is benchmarks/bench_faults.py."""
+"""kill -9 at chosen moments during bt clean, bt synth --overwrite, bt evaluate (four outputs),
+bt export (both formats) and an app take being saved (bt_pipeline.testing.faults): every output
+complete or absent, an overwritten file old or new, a set from one run, no temp file left after
+the next run's recovery. The big suite (≥ 100 trials at random moments) is
+benchmarks/bench_faults.py."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from bt_pipeline.data.output_set import STAGING_PREFIX
 from bt_pipeline.testing.faults import check, prepare, run_trial, snapshot
 
 REPO = Path(__file__).resolve().parents[1]
-DELAYS = np.random.default_rng(10).uniform(0.3, 6.0, size=6)
+DELAYS = np.random.default_rng(10).uniform(0.3, 6.0, size=8)
 """Seeded kill moments [s]: from the imports to the outputs of these small runs."""
 
 
@@ -27,6 +28,8 @@ DELAYS = np.random.default_rng(10).uniform(0.3, 6.0, size=6)
         ("take", DELAYS[3]),
         ("clean", DELAYS[4]),
         ("evaluate", DELAYS[5]),
+        ("export_lerobot", DELAYS[6]),
+        ("export_robomimic", DELAYS[7]),
     ],
 )
 def test_a_killed_writer_leaves_complete_or_absent_outputs(tmp_path, scenario, delay_s) -> None:
@@ -58,3 +61,40 @@ def test_a_writer_that_finishes_passes_the_check(tmp_path) -> None:
     subprocess.run(command, check=True, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert snapshot(folder / "s.hdf5") is not None
     assert check("synth", folder, old) == ()
+
+
+def test_the_check_finds_an_evaluate_set_mixing_two_runs_or_missing_a_file(tmp_path) -> None:
+    from bt_pipeline.data.output_set import OutputSet
+    from bt_pipeline.testing.faults import EVALUATE_OUTPUTS
+
+    folder = tmp_path / "evaluate"
+    prepare("synth", tmp_path / "valid")  # a valid recording for the .hdf5 outputs
+    recording = (tmp_path / "valid" / "s.hdf5").read_bytes()
+
+    def publish(names: tuple[str, ...]) -> None:
+        with OutputSet(folder / "rollouts") as outputs:
+            for name in names:
+                path = folder / name
+                body = recording if name.endswith(".hdf5") else name.encode()
+                outputs.path(path.name, path.parent).write_bytes(body)
+            outputs.commit()
+
+    publish(EVALUATE_OUTPUTS)
+    assert check("evaluate", folder) == ()
+    publish(("plots/rewards.png",))  # a later run replaced one file only
+    assert any("mixes runs" in p for p in check("evaluate", folder))
+    publish(EVALUATE_OUTPUTS)
+    (folder / "table.json").unlink()
+    assert any("only part of the set" in p for p in check("evaluate", folder))
+
+
+def test_the_check_finds_a_lost_or_torn_lerobot_dataset(tmp_path) -> None:
+    import shutil
+
+    folder = tmp_path / "export_lerobot"
+    prepare("export_lerobot", folder)
+    assert check("export_lerobot", folder, previous_dataset=True) == ()
+    (folder / "ds" / "meta" / "stats.json").unlink()
+    assert any("meta/stats.json" in p for p in check("export_lerobot", folder))
+    shutil.rmtree(folder / "ds")
+    assert any("is gone" in p for p in check("export_lerobot", folder, previous_dataset=True))

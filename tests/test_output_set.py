@@ -5,13 +5,14 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from bt_pipeline.data.atomic import pid_alive, remove_stale_temps
+from bt_pipeline.data.atomic import pid_alive, publish_dir, recover_dir, remove_stale_temps
 from bt_pipeline.data.output_set import (
     JOURNAL,
     MANIFEST,
@@ -122,3 +123,96 @@ def test_stale_temp_files_of_killed_writers_are_removed(tmp_path, dead_pid) -> N
 def test_output_names_must_be_plain(tmp_path, name) -> None:
     with OutputSet(tmp_path) as outputs, pytest.raises(Exception, match="plain"):
         outputs.path(name)
+
+
+def _publish_two(a: Path, b: Path, body: bytes) -> None:
+    with OutputSet(a) as outputs:
+        outputs.path("x.png").write_bytes(body)
+        outputs.path("y.hdf5", b).write_bytes(body)
+        outputs.commit()
+
+
+def test_a_set_across_two_folders_is_published_together(tmp_path) -> None:
+    a, b = tmp_path / "plots", tmp_path / "rollouts"
+    _publish_two(a, b, b"one")
+    assert (a / "x.png").read_bytes() == (b / "y.hdf5").read_bytes() == b"one"
+    assert verify(a) == [] and verify(b) == []
+    runs = [json.loads((f / MANIFEST).read_text())["files"] for f in (a, b)]
+    assert runs[0]["x.png"]["run"] == runs[1]["y.hdf5"]["run"]
+    assert not list(tmp_path.rglob(f"{STAGING_PREFIX}*"))
+
+
+def _killed_run(a: Path, b: Path, pid: int, committed: bool) -> tuple[Path, Path]:
+    """Staging folders of run `pid` into a (primary) and b, as a kill leaves them."""
+    primary, secondary = a / f"{STAGING_PREFIX}{pid}-aa", b / f"{STAGING_PREFIX}{pid}-aa"
+    primary.mkdir()
+    secondary.mkdir()
+    (secondary / "PRIMARY.json").write_text(json.dumps({"primary": str(primary)}))
+    for folder, name in ((primary, "x.png"), (secondary, "y.hdf5")):
+        (folder / name).write_bytes(b"two")
+        digest = hashlib.sha256(b"two").hexdigest()
+        (folder / MANIFEST).write_text(json.dumps({"files": {name: {"sha256": digest}}}))
+    if committed:
+        journal = {"files": ["x.png", MANIFEST], "folders": {str(b): str(secondary)}}
+        (primary / JOURNAL).write_text(json.dumps(journal))
+    return primary, secondary
+
+
+@pytest.mark.parametrize("first", ["primary", "secondary"])
+@pytest.mark.parametrize(("committed", "kept"), [(False, b"one"), (True, b"two")])
+def test_a_killed_two_folder_set_is_recovered_from_either_folder(
+    tmp_path, dead_pid, first, committed, kept
+) -> None:
+    """Before its commit point: rolled back; after: rolled forward; whichever folder's next
+    run comes first."""
+    a, b = tmp_path / "plots", tmp_path / "rollouts"
+    _publish_two(a, b, b"one")
+    primary, secondary = _killed_run(a, b, dead_pid, committed=committed)
+    recover(a if first == "primary" else b)
+    recover(b if first == "primary" else a)
+    assert not primary.exists() and not secondary.exists()
+    assert (a / "x.png").read_bytes() == (b / "y.hdf5").read_bytes() == kept
+    assert verify(a) == [] and verify(b) == []
+
+
+def test_a_secondary_whose_primary_is_gone_is_rolled_back(tmp_path, dead_pid) -> None:
+    """Roll-forward deletes the primary last, so a secondary without one was being undone."""
+    a, b = tmp_path / "plots", tmp_path / "rollouts"
+    _publish_two(a, b, b"one")
+    primary, secondary = _killed_run(a, b, dead_pid, committed=False)
+    shutil.rmtree(primary)
+    assert "removed the partial outputs" in recover(b)[0]
+    assert not secondary.exists() and (b / "y.hdf5").read_bytes() == b"one"
+
+
+def test_a_directory_replaced_by_a_killed_writer_is_put_back_or_finished(
+    tmp_path, dead_pid
+) -> None:
+    out = tmp_path / "ds"
+    out.mkdir()
+    (out / "info.json").write_text("old")
+    # killed between its two renames: the old tree set aside, the new one still hidden
+    os.rename(out, tmp_path / f".ds.old-{dead_pid}-ab12")
+    (tmp_path / f".ds.tmp-{dead_pid}-cd34").mkdir()
+    lines = recover_dir(out)
+    assert len(lines) == 2 and (out / "info.json").read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+    # killed after the second rename: the new tree is in place, the old one is deleted
+    (tmp_path / f".ds.old-{dead_pid}-ef56").mkdir()
+    recover_dir(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+    live = tmp_path / f".ds.tmp-{os.getpid()}-0a0b"  # a running writer's tree: left alone
+    live.mkdir()
+    assert recover_dir(out) == [] and live.exists()
+
+
+def test_publish_dir_replaces_a_tree_only_when_asked(tmp_path) -> None:
+    out, new = tmp_path / "ds", tmp_path / ".ds.tmp-1-aa"
+    out.mkdir()
+    (out / "a").write_text("old")
+    new.mkdir()
+    (new / "a").write_text("new")
+    with pytest.raises(Exception, match="exists"):
+        publish_dir(new, out, overwrite=False)
+    publish_dir(new, out, overwrite=True)
+    assert (out / "a").read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == ["ds"]

@@ -18,6 +18,7 @@ import pytest
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.testing.sockets import is_loopback_address, listening
 from bt_teleop import app as app_module
 from bt_teleop.app import AppOptions, is_loopback, start_app
 from bt_teleop.cleaning import CleanRunner
@@ -123,6 +124,19 @@ def test_a_clean_job_can_be_cancelled_and_the_task_cleaned_again(recordings) -> 
     runner.close()
 
 
+def test_a_clean_job_runs_at_a_lower_cpu_priority_than_the_app(recordings) -> None:
+    from bt_teleop.cleaning import CLEAN_NICE
+
+    runner = CleanRunner(recordings, CleanOptions(epochs=100_000, write_rrd=False), processes=True)
+    try:
+        runner.start("wiping")
+        process = psutil.Process(runner._processes["wiping"].pid)
+        wait_until(lambda: process.nice() != os.nice(0), 60.0, "the job to lower its priority")
+        assert process.nice() == min(os.nice(0) + CLEAN_NICE, 19)
+    finally:
+        runner.close()
+
+
 def test_a_non_loopback_host_prints_a_warning(monkeypatch, capsys) -> None:
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
     assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.5")
@@ -153,15 +167,9 @@ def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
                 break
         assert any("open http://" in line for line in lines), "".join(lines)
         time.sleep(1.0)  # let Rerun's servers come up
-        tree = [psutil.Process(process.pid), *psutil.Process(process.pid).children(True)]
-        listening = [
-            (p.pid, c.laddr)
-            for p in tree
-            for c in p.net_connections(kind="inet")
-            if c.status == psutil.CONN_LISTEN
-        ]
-        assert listening, "bt teleop listens on nothing"
-        exposed = [(pid, a) for pid, a in listening if not is_loopback(a.ip)]
+        sockets = listening(process.pid)
+        assert sockets, "bt teleop listens on nothing"
+        exposed = [s for s in sockets if not is_loopback_address(s[1])]
         assert not exposed, f"sockets on non-loopback interfaces: {exposed}"
     finally:
         process.terminate()

@@ -20,6 +20,7 @@ def evaluate(
     plots: Path | None = None,
     rrd: Path | None = None,
     rollouts_out: Path | None = None,
+    json_out: Path | None = None,
     quick: bool = False,
     samples: int = 300,
     steps: int | None = None,
@@ -45,6 +46,8 @@ def evaluate(
         plots: Write Figs. 8-10-style rollout plots and a Fig. 11-style bar chart (PNG) here.
         rrd: Write the rollouts and the table to this Rerun recording (.rrd).
         rollouts_out: Write each learner's rollouts here (format v1, replayable on the FR3).
+        json_out: Write the JSON document of --json to this file. The files of --plots, --rrd,
+            --rollouts-out and --json-out appear together or not at all.
         quick: Use the learners' quick (CI-sized) presets.
         samples: N, samples per demo after resampling uniformly in time.
         steps: Override every learner's optimiser steps (smoke tests; results are not meaningful).
@@ -60,11 +63,9 @@ def evaluate(
         evaluate_paths,
         parse_learners,
         print_eval_table,
-        write_plots,
-        write_rollouts,
+        write_outputs,
     )
     from bt_pipeline.evaluate.protocol import EvalConfig
-    from bt_pipeline.viz.rerun_eval import save_eval_rrd
 
     if rrd is not None and rrd.suffix != ".rrd":
         raise ConfigError(f"--rrd must end in .rrd; got {rrd}")
@@ -85,13 +86,9 @@ def evaluate(
         n_samples=samples,
         executor=ExecutorConfig(executor, workers, ray_address),
     )
-    written = []
-    if plots is not None:
-        written += write_plots(evaluations, plots)
-    if rrd is not None:
-        written.append(save_eval_rrd(evaluations, rrd))
-    if rollouts_out is not None:
-        written += write_rollouts(evaluations, rollouts_out, seed=seed)
+    written = write_outputs(
+        evaluations, plots=plots, rrd=rrd, rollouts_out=rollouts_out, json_out=json_out, seed=seed
+    )
     for path in written:
         log.info("wrote %s", path)
     if json:

@@ -14,6 +14,7 @@ def teleop(
     recordings: Path = Path("recordings"),
     rerun: Literal["serve", "save", "off"] = "serve",
     max_sessions: int = 8,
+    idle_timeout_s: float = 600.0,
     operator_token: str | None = None,
     script: Path | None = None,
 ) -> None:
@@ -29,6 +30,9 @@ def teleop(
         rerun: "serve" streams to Rerun's web viewer on localhost, "save" writes .rrd files next
             to the recordings, "off" disables Rerun.
         max_sessions: Most browser tabs at once; more get a "full, try later" message.
+        idle_timeout_s: A tab that sends nothing (no drag, click, typing or camera move) for
+            this many seconds is closed to free its place, unless it is recording a take
+            ("inf": never).
         operator_token: A secret (at least 8 characters); a tab that types it in the Recordings
             panel may exclude or restore anyone's demo. Without it, a tab moderates only its own
             demos. $BT_OPERATOR_TOKEN is used when the flag is not given.
@@ -49,6 +53,7 @@ def teleop(
             recordings=recordings,
             rerun=rerun,
             max_sessions=max_sessions,
+            idle_timeout_s=idle_timeout_s,
             operator_token=operator_token or os.environ.get("BT_OPERATOR_TOKEN") or None,
         )
     )

@@ -1,4 +1,10 @@
-"""Atomic publication of an output file: temporary file beside it, fsync, rename, fsync dir."""
+"""Atomic publication of an output file: temporary file beside it, fsync, rename, fsync dir.
+
+A directory tree (a LeRobot dataset) is built in ``.<name>.tmp-<pid>-<hex>`` beside it and
+renamed into place (:func:`publish_dir`); replacing an existing one takes two renames (old
+aside to ``.<name>.old-<pid>-<hex>``, new into place), so :func:`recover_dir`, run before the
+next write, puts a killed writer's old tree back (when the new one never arrived) or deletes it.
+"""
 
 from __future__ import annotations
 
@@ -6,9 +12,10 @@ import glob
 import os
 import re
 import secrets
+import shutil
 from pathlib import Path
 
-from bt_pipeline.exceptions import RecordingError
+from bt_pipeline.exceptions import ConfigError, RecordingError
 
 
 def publish_atomic(tmp: Path, path: Path, overwrite: bool) -> None:
@@ -72,6 +79,52 @@ def remove_stale_temps(path: Path) -> list[Path]:
     return removed
 
 
+def publish_dir(tmp: Path, out: Path, overwrite: bool) -> None:
+    """Move the finished directory `tmp` to `out`; an existing `out` is replaced only at the
+    end (without `overwrite` it is an error).
+
+    Raises:
+        ConfigError: `out` exists and `overwrite` is False.
+    """
+    if os.name == "posix":
+        for folder in (p for p in tmp.rglob("*") if p.is_dir()):
+            fsync_path(folder, os.O_RDONLY)
+        for file in (p for p in tmp.rglob("*") if p.is_file()):
+            fsync_path(file, os.O_RDONLY)
+    if out.exists():
+        if not overwrite:
+            raise ConfigError(f"{out} exists; choose another --out or pass --overwrite")
+        old = out.with_name(f".{out.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
+        os.rename(out, old)
+        os.rename(tmp, out)  # a kill between the renames: recover_dir puts `old` back
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, out)
+    if os.name == "posix":
+        fsync_path(out.parent, os.O_RDONLY)
+
+
+def recover_dir(out: Path) -> list[str]:
+    """Undo what killed writers of the directory `out` left: their unfinished trees are
+    deleted, an old tree set aside is put back when `out` is missing (else deleted).
+
+    Returns:
+        One line per action, naming the path.
+    """
+    done: list[str] = []
+    for candidate in sorted(out.parent.glob(f".{glob.escape(out.name)}.*")):
+        match = _DIR_TEMP.fullmatch(candidate.name[len(out.name) + 2 :])
+        if match is None or not candidate.is_dir() or pid_alive(int(match.group("pid"))):
+            continue
+        if match.group("kind") == "old" and not out.exists():
+            os.rename(candidate, out)
+            done.append(f"{out}: put back the previous output a killed writer had set aside")
+        else:
+            shutil.rmtree(candidate, ignore_errors=True)
+            done.append(f"{candidate}: removed what a killed writer left")
+    return done
+
+
 def pid_alive(pid: int) -> bool:
     """Whether a process with id `pid` exists on this machine."""
     if pid == os.getpid():
@@ -88,3 +141,4 @@ def pid_alive(pid: int) -> bool:
 
 
 _TEMP = re.compile(r"tmp-(?P<pid>\d{1,10})-[0-9a-f]+|[0-9a-f]{8,32}\.tmp")
+_DIR_TEMP = re.compile(r"(?P<kind>tmp|old)-(?P<pid>\d{1,10})-[0-9a-f]+")

@@ -12,6 +12,19 @@ mix of two runs. :class:`OutputSet` prevents that::
 A run killed before the journal exists is rolled back by the next run into DIR (its staging
 folder is deleted); one killed after is rolled forward (the remaining renames are done). Either
 way the files in DIR then all come from one run, and ``bt-outputs.json`` lists their hashes.
+
+A set may span several folders (``bt evaluate --plots A --rollouts-out B --rrd C/x.rrd``):
+``path(name, folder)`` stages into ``folder/.bt-staging-<run>/`` (same file system as its
+destination, so the renames stay atomic), which holds ``PRIMARY.json`` naming the first
+folder's staging folder. The one journal, in that primary staging folder, lists the others::
+
+    commit point   primary journal written (it names every secondary staging folder)
+    roll forward   each secondary's files renamed into its folder, secondary deleted; then the
+                   primary's files; primary deleted last
+    roll back      secondaries deleted first, then the primary
+
+So a secondary whose primary holds a journal is rolled forward by the next run into its folder,
+and one whose primary is gone or holds no journal is rolled back.
 Temporary files of killed writers (``.<name>.tmp-<pid>-<hex>``) in DIR are removed too. A
 staging folder whose process still runs is left alone, so two runs into one folder do not
 interfere (the later commit wins, file by file).
@@ -38,6 +51,9 @@ JOURNAL = "COMMIT.json"
 """The journal in a staging folder; its presence is the run's commit point."""
 MANIFEST = "bt-outputs.json"
 """The manifest in the output folder: every output's sha256, size and the run that wrote it."""
+PRIMARY = "PRIMARY.json"
+"""In a secondary staging folder: the path of the set's primary staging folder."""
+_INTERNAL = (JOURNAL, MANIFEST, PRIMARY)
 
 _STAGING = re.compile(re.escape(STAGING_PREFIX) + r"(?P<pid>\d{1,10})-[0-9a-f]+")
 _TEMP = re.compile(r"\.(?P<name>.+)\.(tmp-\d{1,10}-[0-9a-f]+|[0-9a-f]{8,32}\.tmp)")
@@ -64,35 +80,61 @@ class OutputSet:
         self.run = f"{os.getpid()}-{secrets.token_hex(6)}"
         self.staging = self.out_dir / f"{STAGING_PREFIX}{self.run}"
         self.staging.mkdir()
-        self._names: list[str] = []
+        self._stagings: dict[Path, Path] = {self.out_dir.resolve(): self.staging}
 
-    def path(self, name: str) -> Path:
-        """Where to write the output `name` (a plain file name) before the commit."""
-        if not name or "/" in name or "\\" in name or name.startswith(".") or name == MANIFEST:
+    def path(self, name: str, folder: str | Path | None = None) -> Path:
+        """Where to write the output `name` (a plain file name) of `folder` (default: the
+        set's output folder) before the commit."""
+        if not name or "/" in name or "\\" in name or name.startswith(".") or name in _INTERNAL:
             raise ConfigError(f"output name {name!r} must be a plain, non-hidden file name")
-        if name not in self._names:
-            self._names.append(name)
-        return self.staging / name
+        return self.staging_of(folder) / name
+
+    def staging_of(self, folder: str | Path | None = None) -> Path:
+        """The staging folder of `folder` (created, after recovering `folder`, on first use):
+        every plain file a writer puts there is published into `folder` by :meth:`commit`."""
+        if folder is None:
+            return self.staging
+        key = Path(folder).resolve()
+        if key not in self._stagings:
+            key.mkdir(parents=True, exist_ok=True)
+            self.recovered += recover(key)
+            staging = key / self.staging.name
+            staging.mkdir()
+            _write_json(staging / PRIMARY, {"primary": str(self.staging.resolve())})
+            self._stagings[key] = staging
+        return self._stagings[key]
 
     def commit(self) -> list[Path]:
-        """Publish every staged file (and the manifest) into the output folder; return them."""
-        names = [name for name in self._names if (self.staging / name).is_file()]
-        manifest = _read_manifest(self.out_dir)
-        manifest = {n: e for n, e in manifest.items() if (self.out_dir / n).is_file()}
-        for name in names:
-            staged = self.staging / name
-            manifest[name] = {
-                "sha256": sha256_file(staged),
-                "bytes": staged.stat().st_size,
-                "run": self.run,
-            }
-        _write_json(self.staging / MANIFEST, {"files": manifest})
-        _write_json(self.staging / JOURNAL, {"files": [*names, MANIFEST]})
+        """Publish every staged file (and a manifest per folder) into its folder; return them."""
+        published: list[Path] = []
+        journal: dict[str, object] = {"folders": {}}
+        for folder, staging in self._stagings.items():
+            names = _staged_names(staging)
+            manifest = _read_manifest(folder)
+            manifest = {n: e for n, e in manifest.items() if (folder / n).is_file()}
+            for name in names:
+                staged = staging / name
+                manifest[name] = {
+                    "sha256": sha256_file(staged),
+                    "bytes": staged.stat().st_size,
+                    "run": self.run,
+                }
+            _write_json(staging / MANIFEST, {"files": manifest})
+            if staging == self.staging:
+                journal["files"] = [*names, MANIFEST]
+            else:
+                journal["folders"][str(folder)] = str(staging)  # type: ignore[index]
+            published += [folder / name for name in names]
+        _write_json(self.staging / JOURNAL, journal)
         _roll_forward(self.staging, self.out_dir)
-        return [self.out_dir / name for name in names]
+        return published
 
     def discard(self) -> None:
-        """Delete the staging folder and everything in it (the output folder is untouched)."""
+        """Delete the staging folders (secondaries first) and everything in them; the output
+        folders are untouched."""
+        for staging in self._stagings.values():
+            if staging != self.staging:
+                shutil.rmtree(staging, ignore_errors=True)
         shutil.rmtree(self.staging, ignore_errors=True)
 
     def __enter__(self) -> OutputSet:
@@ -124,6 +166,9 @@ def recover(out_dir: Path) -> list[str]:
                 continue
             if (item / JOURNAL).is_file():
                 _roll_forward(item, out_dir)
+                done.append(f"{item}: completed the outputs of a killed run")
+            elif (item / PRIMARY).is_file() and _primary_committed(item):
+                _publish(item, out_dir, [*_staged_names(item), MANIFEST])
                 done.append(f"{item}: completed the outputs of a killed run")
             else:
                 shutil.rmtree(item, ignore_errors=True)
@@ -158,9 +203,19 @@ def sha256_file(path: Path) -> str:
 
 
 def _roll_forward(staging: Path, out_dir: Path) -> None:
-    """Do the renames the journal of `staging` lists (those left), then delete `staging`."""
+    """Do the renames the journal of `staging` lists (those left): the other folders' first,
+    then this folder's; then delete `staging`."""
     with open(staging / JOURNAL, encoding="utf-8") as file:
-        names = json.load(file)["files"]
+        journal = json.load(file)
+    for folder, secondary in journal.get("folders", {}).items():
+        secondary = Path(secondary)
+        if secondary.is_dir():
+            _publish(secondary, Path(folder), [*_staged_names(secondary), MANIFEST])
+    _publish(staging, out_dir, journal["files"])
+
+
+def _publish(staging: Path, out_dir: Path, names: list[str]) -> None:
+    """Rename `names` (those left) from `staging` into `out_dir`, fsync it, delete `staging`."""
     for name in names:
         source = staging / Path(name).name
         if source.is_file():
@@ -168,6 +223,23 @@ def _roll_forward(staging: Path, out_dir: Path) -> None:
     if os.name == "posix":
         fsync_path(out_dir, os.O_RDONLY)
     shutil.rmtree(staging, ignore_errors=True)
+
+
+def _staged_names(staging: Path) -> list[str]:
+    """The outputs in a staging folder: its plain, visible files but the set's own."""
+    return sorted(
+        p.name
+        for p in staging.iterdir()
+        if p.is_file() and not p.name.startswith(".") and p.name not in _INTERNAL
+    )
+
+
+def _primary_committed(secondary: Path) -> bool:
+    """Whether the primary staging folder named in `secondary` holds its journal."""
+    with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
+        primary = json.loads((secondary / PRIMARY).read_text(encoding="utf-8"))["primary"]
+        return (Path(primary) / JOURNAL).is_file()
+    return False
 
 
 def _read_manifest(out_dir: Path) -> dict[str, dict[str, object]]:

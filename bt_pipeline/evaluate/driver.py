@@ -9,12 +9,16 @@ Data flow (I/O at the edges of :mod:`bt_pipeline.evaluate.protocol`)::
         ──▶ --plots DIR: <task>.rollouts.png (Figs. 8-10), rewards.png (Fig. 11)
         ──▶ --rrd FILE: rollouts, references and the table in one Rerun recording
         ──▶ --rollouts-out DIR: <task>.<learner>.<dataset>.rollouts.hdf5, format v1, replayable
+        ──▶ --json-out FILE: the JSON document of --json
 
-Outputs are written only after every task has been evaluated, each atomically.
+Outputs are written only after every task has been evaluated, and published as one set across
+their folders (:func:`write_outputs`, :class:`~bt_pipeline.data.output_set.OutputSet`): all of
+them appear, or none, and a killed run's leftovers are removed by the next run.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,6 +30,7 @@ from rich.table import Table
 from tqdm import tqdm
 
 from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo, group_by_task, load_demos
+from bt_pipeline.data.output_set import OutputSet
 from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_actions
 from bt_pipeline.data.tasks import Task
@@ -311,3 +316,48 @@ def markdown_table(evaluations: Sequence[TaskEvaluation]) -> str:
                 f"{np.mean(m.utilities):.3f} | {r.train_seconds:.1f} |"
             )
     return "\n".join(lines)
+
+
+def write_outputs(
+    evaluations: Sequence[TaskEvaluation],
+    *,
+    plots: Path | None = None,
+    rrd: Path | None = None,
+    rollouts_out: Path | None = None,
+    json_out: Path | None = None,
+    seed: int = 0,
+) -> list[Path]:
+    """Write the chosen outputs of ``bt evaluate`` as one set: all of them or none.
+
+    Every file is staged in a hidden folder beside its destination and published by one commit
+    (a manifest ``bt-outputs.json`` lands in each folder). An error, Ctrl-C or kill before the
+    commit leaves every folder as it was; the next run removes what a killed one left.
+
+    Args:
+        evaluations: The evaluated tasks.
+        plots: Folder of the PNG figures (:func:`write_plots`).
+        rrd: The Rerun recording (.rrd file).
+        rollouts_out: Folder of the rollout recordings (:func:`write_rollouts`).
+        json_out: File of the JSON document (:func:`eval_json`).
+        seed: Seed recorded in the rollout files.
+
+    Returns:
+        The files published (manifests not included); empty when no output was asked for.
+    """
+    from bt_pipeline.viz.rerun_eval import save_eval_rrd
+
+    folders = [plots, rollouts_out, *(p.parent for p in (rrd, json_out) if p is not None)]
+    primary = next((Path(f) for f in folders if f is not None), None)
+    if primary is None:
+        return []
+    with OutputSet(primary) as outputs:
+        if plots is not None:
+            write_plots(evaluations, outputs.staging_of(plots))
+        if rrd is not None:
+            save_eval_rrd(evaluations, outputs.path(rrd.name, rrd.parent))
+        if rollouts_out is not None:
+            write_rollouts(evaluations, outputs.staging_of(rollouts_out), seed=seed)
+        if json_out is not None:
+            text = json.dumps(eval_json(evaluations), indent=2) + "\n"
+            outputs.path(json_out.name, json_out.parent).write_text(text, encoding="utf-8")
+        return outputs.commit()

@@ -21,9 +21,8 @@ leaves nothing behind. Field meanings: docs/interop.md.
 from __future__ import annotations
 
 import json
-import os
+import logging
 import shutil
-import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,11 +32,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from bt_pipeline.data.atomic import publish_dir, recover_dir, temp_name
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.interop import lerobot_stats
 from bt_pipeline.interop.resample import FixedRateDemo, resample_fixed_rate
 from bt_pipeline.interop.sources import ExportTask, load_export_tasks
+
+LOGGER = logging.getLogger("bt")
 
 CODEBASE_VERSION = "v3.0"
 """LeRobot dataset format written."""
@@ -119,15 +121,17 @@ def export_lerobot(
     out = Path(out)
     if fps < 1:
         raise ConfigError(f"--fps must be a positive integer; got {fps}")
+    for line in recover_dir(out):  # a killed export's leftovers; its old dataset put back
+        LOGGER.info("%s", line)
     if out.exists() and not overwrite:
         raise ConfigError(f"{out} exists; choose another --out or pass --overwrite")
     tasks = load_export_tasks(paths)
     texts = parse_task_texts(task_texts, [t.task for t in tasks])
     layout = _StateLayout.of(tasks)
-    tmp = out.with_name(f".{out.name}.tmp-{uuid.uuid4().hex[:12]}")
+    tmp = temp_name(out)
     try:
         result = _write(tmp, tasks, texts, layout, fps)
-        _publish_dir(tmp, out, overwrite)
+        publish_dir(tmp, out, overwrite)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -400,16 +404,3 @@ def _write_tasks(root: Path, texts: Sequence[str]) -> None:
 def _write_json(path: Path, value: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(value, indent=4, allow_nan=True) + "\n", encoding="utf-8")
-
-
-def _publish_dir(tmp: Path, out: Path, overwrite: bool) -> None:
-    """Move the finished dataset directory into place; an old one is replaced only at the end."""
-    if out.exists():
-        if not overwrite:
-            raise ConfigError(f"{out} exists; choose another --out or pass --overwrite")
-        old = out.with_name(f".{out.name}.old-{uuid.uuid4().hex[:12]}")
-        os.rename(out, old)
-        os.rename(tmp, out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.rename(tmp, out)

@@ -13,7 +13,10 @@ What robomimic 0.3.0 checks, and what this writes for it (docs/interop.md has th
                           next_obs is obs one step ahead (the last row repeated)
     /mask/{train,valid,best,top_<k>}  + the inputs' own filter keys
 
-The file is written to a hidden temporary file beside the destination and renamed into place.
+Each file is written to a hidden temporary file beside the destination (``.<name>.tmp-<pid>-<hex>``;
+a killed export's is removed by the next one), fsynced and renamed into place. Into a folder
+(several tasks) the files are one output set (:class:`~bt_pipeline.data.output_set.OutputSet`):
+all of them appear, or none.
 """
 
 from __future__ import annotations
@@ -21,15 +24,16 @@ from __future__ import annotations
 import json
 import logging
 import os
-import uuid
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import h5py
 import numpy as np
 
 from bt_pipeline.clean.stage1.extract import run_stage1
+from bt_pipeline.data.atomic import remove_stale_temps, temp_name
+from bt_pipeline.data.output_set import OutputSet, recover
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.interop.sources import ExportTask, load_export_tasks, top_k_indices
 
@@ -93,13 +97,26 @@ def export_robomimic(
                 f"{', '.join(t.task for t in tasks)}: give a directory as --out to write one "
                 "file per task"
             )
-        targets = [(tasks[0], out)]
-    else:
-        targets = [(t, out / f"{t.task}.robomimic.hdf5") for t in tasks]
-    for _, path in targets:
+        remove_stale_temps(out)  # a killed export's temporary file
+        _refuse_existing([out], overwrite)
+        return [_export_task(tasks[0], out, valid_fraction, top_k, seed)]
+    if out.is_dir():
+        recover(out)  # finish or undo a killed export into this folder first
+    targets = [(t, f"{t.task}.robomimic.hdf5") for t in tasks]
+    _refuse_existing([out / name for _, name in targets], overwrite)
+    with OutputSet(out) as outputs:  # one file per task: all of them or none
+        staged = [
+            _export_task(task, outputs.path(name), valid_fraction, top_k, seed)
+            for task, name in targets
+        ]
+        outputs.commit()
+    return [replace(e, path=out / name) for e, (_, name) in zip(staged, targets, strict=True)]
+
+
+def _refuse_existing(paths: list[Path], overwrite: bool) -> None:
+    for path in paths:
         if path.is_dir() or (path.exists() and not overwrite):
             raise ConfigError(f"{path} exists; choose another --out or pass --overwrite")
-    return [_export_task(task, path, valid_fraction, top_k, seed) for task, path in targets]
 
 
 def _export_task(
@@ -111,14 +128,15 @@ def _export_task(
     masks = _masks(task, valid_fraction, top_k, seed)
     rewards = step_rewards(task, seed)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{uuid.uuid4().hex[:12]}")
+    tmp = temp_name(out)
     try:
         with h5py.File(tmp, "w") as file:
             _write(file, task, actions, scale, masks, rewards)
+        with open(tmp, "rb+") as written:
+            os.fsync(written.fileno())
         os.replace(tmp, out)
-    except BaseException:
+    finally:
         tmp.unlink(missing_ok=True)
-        raise
     return RobomimicExport(
         path=out,
         demos=len(task.demos),

@@ -1,0 +1,117 @@
+"""The tabs' shared library loader (bt_teleop/library_loader.py): one queued load per task for
+every tab, files read once and again only when they change, the same library as a fresh load."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import threading
+from pathlib import Path
+
+from bt_pipeline.data.recording import write_recording
+from bt_pipeline.data.synth import make_demo_set
+from bt_teleop.library import load_library
+from bt_teleop.library_loader import LibraryLoader
+
+
+def _write(root: Path, name: str, seed: int) -> Path:
+    recording = make_demo_set("wiping", n_demos=1, seed=seed).recording
+    return write_recording(root / "wiping" / name, recording, overwrite=True)
+
+
+def _summary(library) -> list[tuple[str, float | None]]:
+    return sorted((t.key, t.utility) for t in library.raw)
+
+
+def test_requests_while_a_load_is_queued_share_it(tmp_path) -> None:
+    _write(tmp_path, "a.hdf5", 0)
+    executor = concurrent.futures.ThreadPoolExecutor(1)
+    gate = threading.Event()
+    try:
+        executor.submit(gate.wait)  # the reader is busy: the next load stays queued
+        loader = LibraryLoader(tmp_path, executor)
+        futures = [loader.request("wiping") for _ in range(8)]  # 8 tabs after one save
+        assert all(f is futures[0] for f in futures)
+        gate.set()
+        assert len(futures[0].result(60).raw) == 1
+        assert loader.loads == 1
+        assert loader.request("wiping") is not futures[0]  # started: a new change needs a new load
+    finally:
+        gate.set()
+        executor.shutdown(wait=True)
+
+
+def test_only_new_or_changed_files_are_read_again(tmp_path) -> None:
+    for k in range(3):
+        _write(tmp_path, f"d{k}.hdf5", k)
+    with concurrent.futures.ThreadPoolExecutor(1) as executor:
+        loader = LibraryLoader(tmp_path, executor)
+        first = loader.request("wiping").result(60)
+        assert loader.files_read == 3 and len(first.raw) == 3
+        _write(tmp_path, "d3.hdf5", 3)
+        second = loader.request("wiping").result(60)
+        assert loader.files_read == 4 and len(second.raw) == 4
+        assert _summary(second) == _summary(load_library(tmp_path, "wiping"))
+        _write(tmp_path, "d0.hdf5", 10)  # replaced: read again
+        third = loader.request("wiping").result(60)
+        assert loader.files_read == 5
+        assert _summary(third) == _summary(load_library(tmp_path, "wiping"))
+        (tmp_path / "wiping" / "d1.hdf5").unlink()
+        fourth = loader.request("wiping").result(60)
+        assert len(fourth.raw) == 3 and loader.files_read == 5
+        assert tmp_path / "wiping" / "d1.hdf5" not in loader._files
+
+
+def test_an_unreadable_file_is_skipped_and_read_again_once_fixed(tmp_path) -> None:
+    _write(tmp_path, "good.hdf5", 0)
+    bad = tmp_path / "wiping" / "bad.hdf5"
+    bad.write_bytes(b"not hdf5")
+    with concurrent.futures.ThreadPoolExecutor(1) as executor:
+        loader = LibraryLoader(tmp_path, executor)
+        assert len(loader.request("wiping").result(60).raw) == 1
+        _write(tmp_path, "bad.hdf5", 1)
+        assert len(loader.request("wiping").result(60).raw) == 2
+
+
+def test_loads_of_a_task_are_spaced_by_their_own_duration(tmp_path, monkeypatch) -> None:
+    """The next load waits max(min_interval_s, duty × the last load's time) after it ended."""
+    import bt_teleop.library_loader as module
+
+    _write(tmp_path, "a.hdf5", 0)
+    now = [100.0]
+    sleeps: list[float] = []
+
+    def sleep(seconds: float) -> None:
+        sleeps.append(seconds)
+        now[0] += seconds
+
+    real_load = module.load_library
+
+    def slow_load(*args, **kwargs):  # a load that takes 2 s of the fake clock
+        now[0] += 2.0
+        return real_load(*args, **kwargs)
+
+    monkeypatch.setattr(module, "load_library", slow_load)
+    with concurrent.futures.ThreadPoolExecutor(1) as executor:
+        loader = LibraryLoader(
+            tmp_path, executor, min_interval_s=1.0, duty=3.0, clock=lambda: now[0], sleep=sleep
+        )
+        loader.request("wiping").result(60)
+        assert sleeps == []  # the first load starts at once
+        now[0] += 0.5  # a save half a second after the load ended
+        loader.request("wiping").result(60)
+        assert sleeps == [5.5]  # 3 × 2 s after the end, 0.5 s of which had passed
+        now[0] += 100.0
+        loader.request("wiping").result(60)
+        assert sleeps == [5.5]  # long after: at once
+        assert loader.request("weaving").result(60).task == "weaving"  # other tasks: own clock
+        assert sleeps == [5.5]
+
+
+def test_close_ends_the_wait_of_a_spaced_load(tmp_path) -> None:
+    _write(tmp_path, "a.hdf5", 0)
+    with concurrent.futures.ThreadPoolExecutor(1) as executor:
+        loader = LibraryLoader(tmp_path, executor, min_interval_s=3600.0)
+        loader.request("wiping").result(60)
+        waiting = loader.request("wiping")  # due in an hour
+        loader.close()
+        assert len(waiting.result(60).raw) == 1
