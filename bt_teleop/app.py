@@ -348,7 +348,11 @@ def serve(options: AppOptions | None = None) -> None:
     app = start_app(options)
     print(f"bt teleop: open {app.url}", flush=True)
     if app.rerun.viewer_url is not None:
-        print(f"bt teleop: live Rerun viewer at {app.rerun.viewer_url}", flush=True)
+        print(
+            f"bt teleop: Rerun web viewer at {app.rerun.viewer_url} (each tab links to its own "
+            "live recording)",
+            flush=True,
+        )
     print("bt teleop: press Ctrl-C to stop", flush=True)
     try:
         while True:

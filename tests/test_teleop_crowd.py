@@ -19,7 +19,8 @@ from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_teleop.app import TeleopApp
 from bt_teleop.cleaning import clean_task
 from bt_teleop.library import library_markdown, load_library
-from bt_teleop.rerun_live import RerunHub, session_blueprint
+from bt_teleop.rerun_layout import session_blueprint
+from bt_teleop.rerun_live import RerunHub
 from bt_teleop.script import run_script
 from bt_teleop.testing import FakeTab, guide_script, wait_until
 from bt_teleop.ui import ClientUI
