@@ -1,8 +1,8 @@
 """The layout (Rerun blueprint) of a teleop session's recording.
 
 It is compact on purpose: every view of a blueprint costs the web viewer time on every frame.
-With the cleaner's full layout per task (46 views in all), the web viewer in headless Chromium
-(software WebGL) fell further behind one session the longer it ran; with this one (10 views)
+With the cleaner's full layout per task (43 views in all), the web viewer in headless Chromium
+(software WebGL) stayed tens of seconds behind one session; with this one (16 views)
 it keeps up (docs/teleop.md, "Live Rerun latency"). The cleaner's full layout (every metric,
 the training curves, the notes) is in each Clean's ``<recordings>/.cleaned/<task>.rrd``.
 

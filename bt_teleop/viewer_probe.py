@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import base64
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import proto  # proto-plus (dev dependency)
 
@@ -28,8 +28,6 @@ if TYPE_CHECKING:
     from playwright.sync_api import Page
 
 __all__ = ["ViewerProbe", "ViewerReport", "ViewerState", "ViewerView"]
-
-_PACKAGE = "rerun.viewer_control.v1alpha1"
 
 
 class _TimeRange(proto.Message):
@@ -113,10 +111,6 @@ class _Response(proto.Message):
     get_recording_schema = proto.Field(_SchemaResponse, number=7, oneof="kind")
 
 
-for _message in (_TimeRange, _Timeline, _ViewerTimeline, _ViewerRecording, _Report, _View):
-    _message.meta.package = _PACKAGE  # type: ignore[attr-defined]  # proto-plus metadata
-
-
 @dataclass(frozen=True)
 class ViewerReport:
     """A warning or error a view reported."""
@@ -177,7 +171,7 @@ class ViewerProbe:
     def state(self) -> ViewerState:
         """The viewer's state now (answered without waiting for a frame)."""
         raw = self._call("window._handle.viewer_state()")
-        message = _StateResponse.deserialize(raw)
+        message: Any = _StateResponse.deserialize(raw)  # proto-plus fields are untyped
         newest: dict[str, dict[str, float]] = {}
         for recording in message.recordings:
             times = newest.setdefault(recording.store_id, {})
@@ -208,7 +202,8 @@ class ViewerProbe:
         response = self._control(_Request(get_recording_schema=request))
         return [e.entity_path for e in response.get_recording_schema.entities]
 
-    def _control(self, request: _Request) -> _Response:
+    def _control(self, request: _Request) -> Any:
+        """The `_Response` to `request` (untyped: proto-plus fields are not)."""
         payload = base64.b64encode(_Request.serialize(request)).decode("ascii")
         call = (
             f"window._handle.viewer_control(Uint8Array.from(atob('{payload}'), "

@@ -15,6 +15,7 @@ loaded machine); nothing asserts on wall-clock time.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +40,7 @@ expect.set_options(timeout=PAGE_TIMEOUT_MS)
 
 
 @pytest.fixture
-def page() -> Page:  # type: ignore[misc]  # a generator fixture
+def page() -> Iterator[Page]:
     with chromium_page(viewport={"width": 1400, "height": 900}, timeout_ms=PAGE_TIMEOUT_MS) as tab:
         yield tab
 
