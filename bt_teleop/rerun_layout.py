@@ -17,6 +17,7 @@ from __future__ import annotations
 import rerun.blueprint as rrb
 
 from bt_pipeline.data.tasks import TASKS
+from bt_pipeline.viz.rerun_clean import plane_views
 
 __all__ = ["SIM_TIMELINE", "TRAIL_S", "session_blueprint"]
 
@@ -52,23 +53,7 @@ def _task_tab(task: str) -> rrb.Container:
     root = f"/{task}"
     plane = f"{root}/plane"
     views = rrb.Horizontal(
-        rrb.Spatial2DView(
-            name=f"{task}: raw demos, best, x^d, aligned references, V_E",
-            origin=root,
-            contents=[
-                f"{plane}/value_map",
-                f"{plane}/raw/**",
-                f"{plane}/best",
-                f"{plane}/reference",
-                f"{plane}/centre",
-                f"{plane}/aligned/**",
-            ],
-        ),
-        rrb.Spatial2DView(
-            name=f"{task}: cleaned demos over aligned references",
-            origin=root,
-            contents=[f"{plane}/cleaned/**", f"{plane}/aligned/**", f"{plane}/centre"],
-        ),
+        *plane_views(task),
         rrb.Spatial2DView(
             name=f"{task}: DMP rollouts behind V_E",
             origin=root,
