@@ -11,8 +11,7 @@ and waits until each gRPC port answers. Every tab streams to its *own* proxy
 (``rerun+http://<host>:<port>/proxy``), and its link opens the web viewer on that proxy alone:
 a proxy sends every recording it holds to every viewer, and the web viewer makes the last
 recording that arrives the active one, so one shared proxy opened another tab's recording and
-made each viewer replay every tab's backlog (docs/teleop.md, "Live Rerun latency"). An idle
-``rerun --serve-grpc`` takes about 32 MiB and starts in well under a second.
+made each viewer replay every tab's backlog (docs/teleop.md, "Live Rerun latency").
 """
 
 from __future__ import annotations
