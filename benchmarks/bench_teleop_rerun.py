@@ -13,10 +13,10 @@ One late viewer per run: opened after ``--warm-s`` seconds of streaming, so the 
 holds that backlog. Reported: seconds from opening the page until the viewer holds any of the
 tab's states ("first data": the web viewer's own start in software WebGL, the same with or
 without a backlog) and until it holds them within 2 s of the present ("to the present"); the
-lag afterwards (median over 5 s); whether the active recording was the tab's own. Two proxy
-orders run in the same process: in order (the app's default) and ``--newest-first`` (a viewer
-that opens late gets the newest data first). Medians over runs; the load average (1 min) is
-printed with each run.
+lag afterwards (median over 5 s); whether the active recording was the tab's own. "First
+data" is the baseline of the same run: what the viewer needs before any backlog. With
+``--newest-first``, every case also runs (interleaved, same process) with the proxy's
+``--newest-first`` order. Medians over runs; the load average (1 min) is printed with each run.
 
     nice -n 10 .venv/bin/python benchmarks/bench_teleop_rerun.py --runs 3
 """
@@ -49,6 +49,8 @@ class Args:
     """Seconds of streaming before the late viewer opens."""
     watch_s: float = 90.0
     """Longest wait for a viewer to reach the present [s]; the lag is then watched 5 s more."""
+    newest_first: bool = False
+    """Also run every case with the proxy's ``--newest-first`` order (interleaved)."""
 
 
 @dataclass(frozen=True)
@@ -141,7 +143,8 @@ def main(args: Args) -> None:
     print(f"live Rerun latency in the web viewer, medians of {args.runs} runs")
     rows = []
     for n_tabs in (1, 4):
-        by_order: dict[str, list[ViewerRun]] = {"in order": [], "newest first": []}
+        orders = ("in order", "newest first") if args.newest_first else ("in order",)
+        by_order: dict[str, list[ViewerRun]] = {order: [] for order in orders}
         for run in range(args.runs):
             for order, runs in by_order.items():  # interleaved: both see the same load
                 result = run_once(n_tabs, order == "newest first", args)

@@ -28,7 +28,9 @@ Entities of a session's recording (timeline ``sim_time``, simulation seconds of 
 :func:`bt_pipeline.viz.rerun_clean.log_clean_result` logs under ``/<task>``, plus Stage 1's DMP
 rollouts behind the value map V_E under ``/<task>/plane/rollouts``. The blueprint
 (:func:`session_blueprint`) puts the 3-D robot content in a 3-D view and each task's 2-D plane
-content in 2-D views (:mod:`bt_teleop.rerun_layout`).
+content in 2-D views (:mod:`bt_teleop.rerun_layout`). It starts with the robot view alone and
+grows a tab for each task whose Clean result is logged: every view costs the web viewer time,
+on every frame and when it ingests the layout.
 """
 
 from __future__ import annotations
@@ -92,6 +94,8 @@ class SessionLogger:
         `on_close` runs after the stream is closed (e.g. stops the session's proxy)."""
         self.rec = rec
         self._on_close = on_close
+        self.cleaned_tasks: list[str] = []
+        """Tasks whose Clean result was logged (each has a tab in the layout), in order."""
         self.dropped = 0
         """Items dropped because the queue was full."""
         self._queue: queue.Queue[object] = queue.Queue(maxsize=queue_size)
@@ -163,6 +167,10 @@ class SessionLogger:
         def job(rec: rr.RecordingStream) -> None:
             log_clean_result(rec, shown)
             rec.log(f"{result.task}/plane/rollouts", rr.LineStrips2D(_rollouts(result, seed)))
+            if result.task not in self.cleaned_tasks:  # the layout grows a tab for the task
+                layout = session_blueprint([*self.cleaned_tasks, result.task])
+                rec.send_blueprint(layout, make_active=True, make_default=True)
+                self.cleaned_tasks.append(result.task)
 
         self._submit(job)
 

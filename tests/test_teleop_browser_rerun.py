@@ -24,6 +24,7 @@ import rerun.blueprint as rrb
 from playwright.sync_api import Page, expect
 
 from bt_pipeline.clean.pipeline import CleanOptions
+from bt_pipeline.data.tasks import TASKS
 from bt_teleop.clean_task import clean_task
 from bt_teleop.rerun_layout import session_blueprint
 from bt_teleop.rerun_live import RerunHub
@@ -133,9 +134,10 @@ def test_no_view_of_the_session_blueprint_reports_an_error(tmp_path: Path, page:
         logger.log_demo("demo_file", path)
         logger.log_replay("raw: demo_file", path, "raw")
         logger.log_clean_result(result)
-        # Show every view of the session blueprint at once (reports come from shown views),
+        wait_until(lambda: logger.cleaned_tasks == ["wiping"], 60.0, "the Clean to be logged")
+        # Show every view of every task's layout at once (reports come from shown views),
         # beside a control view that wrongly puts 2-D plane content in a 3-D view.
-        views = all_views(session_blueprint())
+        views = all_views(session_blueprint(TASKS))
         control = rrb.Spatial3DView(name="control", origin="/", contents=["/wiping/plane/raw/**"])
         grid = rrb.Blueprint(rrb.Grid(*views, control), rrb.SelectionPanel(state="collapsed"))
         assert logger.rec is not None

@@ -16,6 +16,7 @@ import pytest
 
 from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.recording import read_recording
+from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_teleop.app import TeleopApp
 from bt_teleop.cleaning import clean_task
@@ -133,6 +134,8 @@ def test_clean_skips_flagged_and_excluded_demos(tmp_path: Path) -> None:
             rollouts += chunk.num_rows
     assert "&#60;script&#62;" in summary and "<script>" not in summary
     assert rollouts >= 1
+    assert logger.cleaned_tasks == ["wiping"]  # the layout grew the task's tab
+    assert len(rr.chunk.RrdReader(rrd).blueprints()) == 2  # the robot's, then with wiping
 
 
 def test_clean_without_recordings_names_no_server_path(tmp_path: Path) -> None:
@@ -255,16 +258,8 @@ def _alive(process: psutil.Process) -> bool:
 
 
 def test_the_blueprint_keeps_2d_plane_content_out_of_3d_views() -> None:
-    blueprint = session_blueprint()
-    views = []
-
-    def walk(item) -> None:
-        for child in getattr(item, "contents", None) or []:
-            if hasattr(child, "class_identifier"):
-                views.append(child)
-            walk(child)
-
-    walk(blueprint.root_container)
+    assert len(_views(session_blueprint())) == 1  # a session starts with the robot view alone
+    views = _views(session_blueprint(TASKS))
     kinds = {type(view).__name__ for view in views}
     assert "Spatial3DView" in kinds and "Spatial2DView" in kinds
     for view in views:
@@ -274,6 +269,19 @@ def test_the_blueprint_keeps_2d_plane_content_out_of_3d_views() -> None:
         if "/plane/" in contents:
             assert type(view).__name__ == "Spatial2DView"
     assert any("rollouts" in " ".join(str(q) for q in (v.contents or [])) for v in views)
+
+
+def _views(blueprint) -> list:
+    views = []
+
+    def walk(item) -> None:
+        for child in getattr(item, "contents", None) or []:
+            if hasattr(child, "class_identifier"):
+                views.append(child)
+            walk(child)
+
+    walk(blueprint.root_container)
+    return views
 
 
 def test_the_state_stream_is_bounded_to_30_hz(tmp_path: Path) -> None:
