@@ -100,8 +100,8 @@ class AppOptions:
     rerun_web_port: int = 9090
     """Preferred port of Rerun's web viewer (serve mode)."""
     rerun_newest_first: bool = False
-    """A Rerun viewer that connects late gets the newest data first (serve mode; off: with 4
-    sessions it lagged more in benchmarks/bench_teleop_rerun.py)."""
+    """A Rerun viewer that connects late gets the newest data first (serve mode; off: it did
+    not reach the present sooner in benchmarks/bench_teleop_rerun.py, docs/teleop.md)."""
     session: SessionConfig = field(default_factory=SessionConfig)
     """Control and recording rates of every session."""
     fancy_lighting: bool = False
