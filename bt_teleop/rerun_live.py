@@ -166,7 +166,9 @@ class SessionLogger:
 
         def job(rec: rr.RecordingStream) -> None:
             log_clean_result(rec, shown)
-            rec.log(f"{result.task}/plane/rollouts", rr.LineStrips2D(_rollouts(result, seed)))
+            # White over V_E: in V_E's own colours they vanish into the ridge they made.
+            strips = rr.LineStrips2D(_rollouts(result, seed), colors=[(255, 255, 255, 150)])
+            rec.log(f"{result.task}/plane/rollouts", strips)
             if result.task not in self.cleaned_tasks:  # the layout grows a tab for the task
                 layout = session_blueprint([*self.cleaned_tasks, result.task])
                 rec.send_blueprint(layout, make_active=True, make_default=True)
