@@ -111,8 +111,8 @@ class AppOptions:
     rerun_web_port: int = 9090
     """Preferred port of Rerun's web viewer (serve mode)."""
     rerun_newest_first: bool = False
-    """A Rerun viewer that connects late gets the newest data first (serve mode; off: with 4
-    sessions it lagged more in benchmarks/bench_teleop_rerun.py)."""
+    """A Rerun viewer that connects late gets the newest data first (serve mode; off: it did
+    not reach the present sooner in benchmarks/bench_teleop_rerun.py, docs/teleop.md)."""
     session: SessionConfig = field(default_factory=SessionConfig)
     """Control and recording rates of every session."""
     fancy_lighting: bool = False
@@ -378,7 +378,11 @@ def serve(options: AppOptions | None = None) -> None:
     app = start_app(options)
     print(f"bt teleop: open {app.url}", flush=True)
     if app.rerun.viewer_url is not None:
-        print(f"bt teleop: live Rerun viewer at {app.rerun.viewer_url}", flush=True)
+        print(
+            f"bt teleop: Rerun web viewer at {app.rerun.viewer_url} (each tab links to its own "
+            "live recording)",
+            flush=True,
+        )
     print("bt teleop: press Ctrl-C to stop", flush=True)
     try:
         while True:

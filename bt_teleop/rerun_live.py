@@ -2,10 +2,11 @@
 
 One :class:`RerunHub` per app decides where data goes (``--rerun``):
 
-* ``serve`` (default): Rerun's gRPC proxy and web viewer run as a child process bound to the
-  app's ``--host`` (:mod:`bt_teleop.rerun_proxy`); every session streams its own recording
-  (recording id = session id) to it. :meth:`RerunHub.session_url` is the link a tab shows: the
-  web viewer, connected to the proxy, opened on that tab's own recording.
+* ``serve`` (default): Rerun's web viewer runs as a child process bound to the app's
+  ``--host``, and every session streams its own recording (recording id = session id) to a
+  gRPC proxy of its own, another child process (:mod:`bt_teleop.rerun_proxy`).
+  :meth:`RerunHub.session_url` is the link a tab shows: the web viewer connected to that
+  session's proxy, which holds that session's recording and nothing else.
 * ``save``: every session writes ``<recordings>/rerun/<UTC time>_<session>.rrd`` (the footer is
   written when the session ends). Nothing is served.
 * ``off``: nothing is logged.
@@ -16,8 +17,9 @@ events, which only enqueue; a worker thread does the Rerun calls::
     publisher thread --put_nowait--> bounded queue (drops when full) --> worker --> RecordingStream
 
 Robot states reach the stream at most :data:`MAX_STATE_HZ` times per second of simulation
-time, batched: one ``send_columns`` per worker pass. A viewer opened at any time thus has
-little to catch up on (see docs/teleop.md for the measured latency).
+time, batched: one ``send_columns`` per entity every :data:`STATE_BATCH_S` of simulation time.
+A viewer opened at any time thus has few messages to catch up on (docs/teleop.md, "Live Rerun
+latency").
 
 Entities of a session's recording (timeline ``sim_time``, simulation seconds of the session):
 ``/ee/position`` (Points3D) and ``/joints`` (Scalars, fr3_joint1..7), sent as columns;
@@ -26,7 +28,9 @@ Entities of a session's recording (timeline ``sim_time``, simulation seconds of 
 :func:`bt_pipeline.viz.rerun_clean.log_clean_result` logs under ``/<task>``, plus Stage 1's DMP
 rollouts behind the value map V_E under ``/<task>/plane/rollouts``. The blueprint
 (:func:`session_blueprint`) puts the 3-D robot content in a 3-D view and each task's 2-D plane
-content in 2-D views.
+content in 2-D views (:mod:`bt_teleop.rerun_layout`). It starts with the robot view alone and
+grows a tab for each task whose Clean result is logged: every view costs the web viewer time,
+on every frame and when it ingests the layout.
 """
 
 from __future__ import annotations
@@ -43,14 +47,13 @@ from typing import Literal, get_args
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 
 from bt_pipeline.clean.pipeline import TaskCleanResult
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.escape import display_text, markdown_text
 from bt_teleop.naming import utc_stamp
+from bt_teleop.rerun_layout import SIM_TIMELINE, session_blueprint
 from bt_teleop.rerun_proxy import RerunProxy
 
 RerunMode = Literal["serve", "save", "off"]
@@ -58,8 +61,6 @@ RerunMode = Literal["serve", "save", "off"]
 RERUN_MODES: tuple[RerunMode, ...] = get_args(RerunMode)
 APP_ID = "bt_teleop"
 """Rerun application id of every teleop recording."""
-SIM_TIMELINE = "sim_time"
-"""Duration timeline: a session's simulation time [s]."""
 RRD_DIRNAME = "rerun"
 """Folder under the recordings root for ``save`` mode's .rrd files."""
 
@@ -69,43 +70,38 @@ _STOP = object()
 _MAX_PENDING_STATES = 512
 MAX_STATE_HZ = 30.0
 """Most robot states per second of simulation time that reach the stream."""
+STATE_BATCH_S = 1.0
+"""Robot states are sent in one message per entity per this much simulation time [s]. The web
+viewer ingests messages for at most 10 ms per frame (at least one), and a frame takes hundreds
+of ms in software WebGL: one message per state (60 a second per tab) left it minutes behind;
+two a second keep it at the present (docs/teleop.md, "Live Rerun latency")."""
+SESSION_MEMORY_LIMIT = "64MiB"
+"""Log data a session's proxy keeps for viewers that open late (the oldest is dropped)."""
 ROLLOUTS_SHOWN = 20
 """DMP rollouts of the value map drawn per task (of its ``n_rollouts``)."""
-
-
-def session_blueprint() -> rrb.Blueprint:
-    """A session's layout: the robot in 3-D; per task, the cleaner's 2-D views (raw, best, x^d,
-    aligned references, V_E; cleaned) and the DMP rollouts over V_E; all in 2-D views, so no
-    2-D entity sits under a 3-D view."""
-    from bt_pipeline.viz.rerun_clean import task_layout
-
-    live = rrb.Spatial3DView(
-        name="robot: end effector, saved and replayed demos",
-        origin="/",
-        contents=["/ee/**", "/demos/**", "/replay/**"],
-    )
-    tabs: list[rrb.Container | rrb.View] = [live]
-    for task in TASKS:
-        rollouts = rrb.Spatial2DView(
-            name=f"{task}: DMP rollouts behind V_E",
-            origin=f"/{task}",
-            contents=[f"/{task}/plane/value_map", f"/{task}/plane/rollouts/**"],
-        )
-        tabs.append(rrb.Tabs(task_layout(task), rollouts, name=task))
-    return rrb.Blueprint(rrb.Tabs(*tabs), rrb.SelectionPanel(state="collapsed"))
 
 
 class SessionLogger:
     """Logs one session to its own RecordingStream from a worker thread; never blocks callers."""
 
-    def __init__(self, rec: rr.RecordingStream | None, queue_size: int = 64) -> None:
-        """Start the worker for `rec` (None: a logger that drops everything, for ``off``)."""
+    def __init__(
+        self,
+        rec: rr.RecordingStream | None,
+        queue_size: int = 64,
+        on_close: Callable[[], None] | None = None,
+    ) -> None:
+        """Start the worker for `rec` (None: a logger that drops everything, for ``off``);
+        `on_close` runs after the stream is closed (e.g. stops the session's proxy)."""
         self.rec = rec
+        self._on_close = on_close
+        self.cleaned_tasks: list[str] = []
+        """Tasks whose Clean result was logged (each has a tab in the layout), in order."""
         self.dropped = 0
         """Items dropped because the queue was full."""
         self._queue: queue.Queue[object] = queue.Queue(maxsize=queue_size)
         self._states: list[tuple[float, FloatArray, FloatArray]] = []
         self._next_state_s = -np.inf
+        self._next_flush_s = -np.inf
         self._flush_pending = False
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -122,7 +118,8 @@ class SessionLogger:
         """Queue one robot snapshot: end-effector position (3,) [m], arm joints (7,) [rad].
 
         At most :data:`MAX_STATE_HZ` snapshots per second of simulation time are kept; the
-        others are dropped (a bounded rate)."""
+        others are dropped (a bounded rate). They reach the stream together, one message per
+        :data:`STATE_BATCH_S` of simulation time."""
         if self.rec is None:
             return
         with self._lock:
@@ -133,8 +130,10 @@ class SessionLogger:
             if len(self._states) > _MAX_PENDING_STATES:  # the worker is far behind: drop
                 del self._states[0]
                 self.dropped += 1
-            submit = not self._flush_pending
-            self._flush_pending = True
+            submit = not self._flush_pending and sim_time_s >= self._next_flush_s
+            if submit:
+                self._flush_pending = True
+                self._next_flush_s = float(sim_time_s) + STATE_BATCH_S
         if submit and not self._submit(self._flush_states):  # one job per batch of snapshots
             with self._lock:
                 self._flush_pending = False
@@ -167,7 +166,13 @@ class SessionLogger:
 
         def job(rec: rr.RecordingStream) -> None:
             log_clean_result(rec, shown)
-            rec.log(f"{result.task}/plane/rollouts", rr.LineStrips2D(_rollouts(result, seed)))
+            # White over V_E: in V_E's own colours they vanish into the ridge they made.
+            strips = rr.LineStrips2D(_rollouts(result, seed), colors=[(255, 255, 255, 150)])
+            rec.log(f"{result.task}/plane/rollouts", strips)
+            if result.task not in self.cleaned_tasks:  # the layout grows a tab for the task
+                layout = session_blueprint([*self.cleaned_tasks, result.task])
+                rec.send_blueprint(layout, make_active=True, make_default=True)
+                self.cleaned_tasks.append(result.task)
 
         self._submit(job)
 
@@ -176,6 +181,7 @@ class SessionLogger:
         if self._thread is None:
             return
         try:
+            self._queue.put(self._flush_states, timeout=timeout_s)  # the last, partial batch
             self._queue.put(_STOP, timeout=timeout_s)
         except queue.Full:
             LOGGER.warning("Rerun logger did not drain in %.1f s; closing anyway", timeout_s)
@@ -187,6 +193,8 @@ class SessionLogger:
         except Exception as exc:  # a viewer that went away must not fail the shutdown
             LOGGER.warning("Rerun flush failed: %s", exc)
         self.rec.disconnect()
+        if self._on_close is not None:
+            self._on_close()
 
     def _submit(self, job: _Job) -> bool:
         """Queue `job` unless the queue is full; whether it was queued."""
@@ -236,63 +244,86 @@ class RerunHub:
         host: str = "127.0.0.1",
         grpc_port: int = 9876,
         web_port: int = 9090,
-        memory_limit: str = "256MiB",
+        memory_limit: str = SESSION_MEMORY_LIMIT,
         newest_first: bool = False,
     ) -> None:
-        """Start serving (``serve``); nothing is started for ``save`` and ``off``.
+        """Start the web viewer (``serve``); nothing is started for ``save`` and ``off``.
 
         Args:
             mode: serve, save or off.
             recordings_dir: Root folder of the recordings (``save`` writes under it).
-            host: Interface the proxy and web viewer bind (the app's ``--host``).
-            grpc_port: Preferred port of the gRPC proxy (a free one when busy).
+            host: Interface the proxies and the web viewer bind (the app's ``--host``).
+            grpc_port: Preferred port of the web viewer's own gRPC proxy (a free one when
+                busy); each session's proxy takes a free port.
             web_port: Preferred port of the web viewer (a free one when busy).
-            memory_limit: Log data the proxy keeps for viewers that connect late.
-            newest_first: A viewer that connects late gets the newest data first.
+            memory_limit: Log data each session's proxy keeps for viewers that open late.
+            newest_first: A viewer that opens late gets a session's newest data first.
 
         Raises:
-            ConfigError: Unknown mode, or the proxy did not start.
+            ConfigError: Unknown mode, or the web viewer did not start.
         """
         if mode not in RERUN_MODES:
             valid = ", ".join(RERUN_MODES)
             raise ConfigError(f"unknown --rerun {mode!r}; valid values are {valid}")
         self.mode: RerunMode = mode
         self.recordings_dir = Path(recordings_dir)
+        self.host = host
+        self.memory_limit = memory_limit
+        self.newest_first = newest_first
         self.grpc_url: str | None = None
-        """``rerun+http://<host>:<port>/proxy`` in serve mode."""
+        """The web viewer process's own proxy, ``rerun+http://<host>:<port>/proxy`` (serve
+        mode; sessions do not stream to it)."""
         self.viewer_url: str | None = None
-        """The web viewer, connected to the proxy, in serve mode."""
+        """The web viewer's page, with no recording (serve mode)."""
         self.proxy: RerunProxy | None = None
+        """The web viewer process (serve mode)."""
+        self._sessions: dict[str, RerunProxy] = {}
+        self._lock = threading.Lock()
         if mode == "serve":
-            self.proxy = RerunProxy(
-                host, grpc_port, web_port, memory_limit, newest_first=newest_first
-            )
+            self.proxy = RerunProxy(host, grpc_port, web_port, "16MiB")
             self.grpc_url = self.proxy.grpc_url
-            query = urllib.parse.urlencode({"url": self.grpc_url})
-            self.viewer_url = f"{self.proxy.web_url}?{query}"
+            self.viewer_url = self.proxy.web_url
+
+    def session_proxy(self, session_id: str) -> RerunProxy | None:
+        """The proxy session `session_id` streams to (serve mode, while its logger is open)."""
+        with self._lock:
+            return self._sessions.get(session_id)
 
     def session_url(self, session_id: str) -> str | None:
-        """The web viewer opened on session `session_id`'s own recording (serve mode only)."""
-        if self.proxy is None or self.grpc_url is None:
+        """The web viewer opened on session `session_id`'s own proxy and recording (serve
+        mode, while its logger is open)."""
+        proxy = self.session_proxy(session_id)
+        if self.proxy is None or proxy is None:
             return None
         route = "about:recording?" + urllib.parse.urlencode(
             {"app_id": APP_ID, "recording_id": session_id}
         )
-        query = urllib.parse.urlencode([("url", self.grpc_url), ("url", route)])
+        query = urllib.parse.urlencode([("url", proxy.grpc_url), ("url", route)])
         return f"{self.proxy.web_url}?{query}"
 
     def session_logger(self, session_id: str, queue_size: int = 64) -> SessionLogger:
-        """A logger for one session (one recording, id `session_id`), its blueprint sent."""
+        """A logger for one session (one recording, id `session_id`), its blueprint sent; in
+        serve mode it streams to a proxy of its own, stopped when the logger closes.
+
+        Raises:
+            ConfigError: The session's proxy did not start.
+        """
         if self.mode == "off":
             return SessionLogger(None)
         rec = rr.RecordingStream(APP_ID, recording_id=session_id, send_properties=False)
+        on_close: Callable[[], None] | None = None
         if self.mode == "serve":
-            assert self.grpc_url is not None
-            rec.connect_grpc(self.grpc_url, default_blueprint=session_blueprint())
+            proxy = RerunProxy(
+                self.host, 0, None, self.memory_limit, newest_first=self.newest_first
+            )
+            with self._lock:
+                self._sessions[session_id] = proxy
+            rec.connect_grpc(proxy.grpc_url, default_blueprint=session_blueprint())
+            on_close = lambda: self._end_session(session_id)  # noqa: E731
         else:
             rec.save(self.rrd_path(session_id), default_blueprint=session_blueprint())
         rec.send_recording_name(f"bt teleop session {session_id}")
-        return SessionLogger(rec, queue_size)
+        return SessionLogger(rec, queue_size, on_close)
 
     def rrd_path(self, session_id: str) -> Path:
         """Where ``save`` mode writes a session: ``<recordings>/rerun/<UTC time>_<id>.rrd``."""
@@ -302,10 +333,20 @@ class RerunHub:
         return folder / f"{utc_stamp(datetime.now(UTC))}_{safe}.rrd"
 
     def close(self) -> None:
-        """Stop the proxy and web viewer (serve mode)."""
+        """Stop the web viewer and any session proxy still running (serve mode)."""
+        with self._lock:
+            sessions, self._sessions = list(self._sessions.values()), {}
+        for proxy in sessions:
+            proxy.close()
         if self.proxy is not None:
             self.proxy.close()
             self.proxy = None
+
+    def _end_session(self, session_id: str) -> None:
+        with self._lock:
+            proxy = self._sessions.pop(session_id, None)
+        if proxy is not None:
+            proxy.close()
 
 
 def _rollouts(result: TaskCleanResult, seed: int) -> list[FloatArray]:

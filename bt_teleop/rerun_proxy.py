@@ -1,18 +1,17 @@
-"""Rerun's gRPC proxy and web viewer as a child process bound to the app's ``--host``.
+"""Rerun's gRPC proxy and web viewer as child processes bound to the app's ``--host``.
 
 Rerun 0.41's Python ``serve_grpc`` / ``serve_web_viewer`` listen on every interface and have
 no host setting; the bundled ``rerun`` binary does (``--bind``). So ``bt teleop --rerun serve``
-starts::
+starts, each in a process group of its own (stopping the app stops them and nothing else)::
 
-    rerun --serve-web --bind <host> --port <grpc> --web-viewer-port <web>
-          --server-memory-limit <limit> [--newest-first]
+    rerun --serve-web --bind <host> --port <grpc> --web-viewer-port <web>    the web viewer page
+    rerun --serve-grpc --bind <host> --port <free> --server-memory-limit <limit>   one per tab
 
-in a session of its own (so stopping the app stops it and nothing else), waits until its
-gRPC port answers, and every session streams to ``rerun+http://<host>:<grpc>/proxy``.
-Sessions log at most 30 states per simulated second, batched, so the backlog a late viewer
-receives is small and it catches up within seconds (benchmarks/bench_teleop_rerun.py).
-``--newest-first`` (``AppOptions.rerun_newest_first``) is off: in that benchmark it made a
-late viewer of 4 sessions lag more, not less.
+and waits until each gRPC port answers. Every tab streams to its *own* proxy
+(``rerun+http://<host>:<port>/proxy``), and its link opens the web viewer on that proxy alone:
+a proxy sends every recording it holds to every viewer, and the web viewer makes the last
+recording that arrives the active one, so one shared proxy opened another tab's recording and
+made each viewer replay every tab's backlog (docs/teleop.md, "Live Rerun latency").
 """
 
 from __future__ import annotations
@@ -79,38 +78,42 @@ def url_host(host: str) -> str:
 
 
 class RerunProxy:
-    """A running ``rerun --serve-web`` child process; :meth:`close` stops it."""
+    """A running ``rerun --serve-web`` (web viewer and proxy) or ``rerun --serve-grpc`` (proxy
+    only) child process; :meth:`close` stops it."""
 
     def __init__(
         self,
         host: str,
         grpc_port: int,
-        web_port: int,
+        web_port: int | None,
         memory_limit: str = "256MiB",
         *,
         newest_first: bool = False,
     ) -> None:
-        """Start the proxy and web viewer on `host` (preferred ports; free ones when busy);
-        `newest_first`: a viewer that connects late gets the newest data first.
+        """Start the proxy, and the web viewer unless `web_port` is None, on `host` (preferred
+        ports; free ones when busy); `newest_first`: a viewer that connects late gets the
+        newest data first.
 
         Raises:
             ConfigError: No rerun binary, or it did not start within :data:`START_TIMEOUT_S`.
         """
         self.host = host
         self.grpc_port = free_port(grpc_port, host)
-        self.web_port = free_port(web_port, host)
-        if self.web_port == self.grpc_port:
-            self.web_port = free_port(0, host)
+        self.web_port: int | None = None
+        serve = ["--serve-grpc"]
+        if web_port is not None:
+            self.web_port = free_port(web_port, host)
+            if self.web_port == self.grpc_port:
+                self.web_port = free_port(0, host)
+            serve = ["--serve-web", "--web-viewer-port", str(self.web_port)]
         self._log = tempfile.TemporaryFile()  # noqa: SIM115  # closed in close()
         command = [
             str(rerun_binary()),
-            "--serve-web",
+            *serve,
             "--bind",
             host,
             "--port",
             str(self.grpc_port),
-            "--web-viewer-port",
-            str(self.web_port),
             "--server-memory-limit",
             memory_limit,
             *(["--newest-first"] if newest_first else []),
@@ -135,7 +138,13 @@ class RerunProxy:
 
     @property
     def web_url(self) -> str:
-        """The web viewer's page (without a recording)."""
+        """The web viewer's page (without a recording).
+
+        Raises:
+            ConfigError: This proxy serves no web viewer.
+        """
+        if self.web_port is None:
+            raise ConfigError("this Rerun proxy serves no web viewer (started without web_port)")
         return f"http://{url_host(self.host)}:{self.web_port}/"
 
     def close(self, timeout_s: float = 5.0) -> None:

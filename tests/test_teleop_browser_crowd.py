@@ -1,12 +1,10 @@
 """The crowdsourcing features in a real browser (Debian's headless Chromium, as
 tests/test_teleop_browser.py): a junk take flagged with a visible reason, a hostile name typed in
 one tab shown as text in a second tab, exclude and restore from the page, Clean succeeding with a
-flagged demo present, and the Rerun link opening the tab's own recording."""
+flagged demo present. The Rerun link: tests/test_teleop_browser_rerun.py."""
 
 from __future__ import annotations
 
-import urllib.parse
-import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -126,23 +124,3 @@ def test_exclude_restore_and_clean_with_a_flagged_demo(tmp_path: Path, page: Pag
         restore.click()
         wait_until(lambda: not is_excluded(target.file), 30.0, "the restore")
         assert target.file.is_file()
-
-
-def test_the_rerun_link_opens_the_tabs_own_recording(tmp_path: Path, page: Page) -> None:
-    with app_factory(tmp_path / "recordings") as make:
-        app = make(rerun="serve", rerun_grpc_port=0, rerun_web_port=0)
-        ui = open_tab(page, app)
-        link = page.get_by_role("link", name="Open the live Rerun viewer")
-        expect(link).to_be_visible()
-        href = link.get_attribute("href")
-        assert href is not None
-        urls = urllib.parse.parse_qs(urllib.parse.urlsplit(href).query)["url"]
-        route = next(u for u in urls if u.startswith("about:recording"))
-        query = urllib.parse.parse_qs(route.split("?", 1)[1])
-        assert query["recording_id"] == [ui.session_id] and query["app_id"] == ["bt_teleop"]
-        assert any(u.startswith("rerun+http://127.0.0.1:") for u in urls)
-        with urllib.request.urlopen(href, timeout=30) as reply:  # the viewer is served there
-            assert reply.status == 200 and b"rerun" in reply.read().lower()
-        viewer = page.context.browser.new_page()  # type: ignore[union-attr]
-        viewer.goto(href, wait_until="load")
-        expect(viewer.locator("canvas").first).to_be_attached(timeout=PAGE_TIMEOUT_MS)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -15,11 +16,13 @@ import pytest
 
 from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.recording import read_recording
+from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_teleop.app import TeleopApp
 from bt_teleop.cleaning import clean_task
 from bt_teleop.library import library_markdown, load_library
-from bt_teleop.rerun_live import RerunHub, session_blueprint
+from bt_teleop.rerun_layout import session_blueprint
+from bt_teleop.rerun_live import RerunHub, SessionLogger
 from bt_teleop.script import run_script
 from bt_teleop.testing import FakeTab, guide_script, wait_until
 from bt_teleop.ui import ClientUI
@@ -131,6 +134,8 @@ def test_clean_skips_flagged_and_excluded_demos(tmp_path: Path) -> None:
             rollouts += chunk.num_rows
     assert "&#60;script&#62;" in summary and "<script>" not in summary
     assert rollouts >= 1
+    assert logger.cleaned_tasks == ["wiping"]  # the layout grew the task's tab
+    assert len(rr.chunk.RrdReader(rrd).blueprints()) == 2  # the robot's, then with wiping
 
 
 def test_clean_without_recordings_names_no_server_path(tmp_path: Path) -> None:
@@ -220,32 +225,41 @@ def test_small_things_of_the_page(make_app, tabs, tmp_path) -> None:
 # -- Rerun --------------------------------------------------------------------------------------
 
 
-def test_rerun_serve_binds_loopback_and_links_each_tab_to_its_recording(tmp_path: Path) -> None:
+def test_rerun_serve_binds_loopback_and_links_each_tab_to_its_own_proxy(tmp_path: Path) -> None:
     hub = RerunHub("serve", tmp_path, host="127.0.0.1", grpc_port=0, web_port=0)
+    loggers: dict[str, SessionLogger] = {}
     try:
         assert hub.proxy is not None
-        child = psutil.Process(hub.proxy.process.pid)
-        listening = [c.laddr for c in child.net_connections(kind="inet") if c.status == "LISTEN"]
-        assert len(listening) >= 2
-        assert all(address.ip == "127.0.0.1" for address in listening), listening
-        url = hub.session_url("abc123")
-        assert url is not None and "recording_id%3Dabc123" in url and "127.0.0.1" in url
+        loggers.update({n: hub.session_logger(n) for n in ("abc123", "def456")})  # two tabs
+        proxies = {name: hub.session_proxy(name) for name in loggers}
+        children = [psutil.Process(hub.proxy.process.pid)]
+        for name, proxy in proxies.items():
+            assert proxy is not None
+            children.append(psutil.Process(proxy.process.pid))
+            url = hub.session_url(name)
+            assert url is not None and f"recording_id%3D{name}" in url
+            assert f"127.0.0.1%3A{proxy.grpc_port}%2Fproxy" in url  # its own proxy
+        assert len({p.grpc_port for p in proxies.values() if p is not None}) == 2
+        for child in children:
+            listening = [c.laddr for c in child.net_connections("inet") if c.status == "LISTEN"]
+            assert listening and all(a.ip == "127.0.0.1" for a in listening), listening
+        loggers["abc123"].close()  # a closed tab's proxy stops with it
+        assert hub.session_url("abc123") is None and hub.session_proxy("abc123") is None
+        assert not _alive(children[1])
     finally:
+        for logger in loggers.values():
+            logger.close()
         hub.close()
-    assert not child.is_running() or child.status() == psutil.STATUS_ZOMBIE
+    assert not any(_alive(child) for child in children)
+
+
+def _alive(process: psutil.Process) -> bool:
+    return process.is_running() and process.status() != psutil.STATUS_ZOMBIE
 
 
 def test_the_blueprint_keeps_2d_plane_content_out_of_3d_views() -> None:
-    blueprint = session_blueprint()
-    views = []
-
-    def walk(item) -> None:
-        for child in getattr(item, "contents", None) or []:
-            if hasattr(child, "class_identifier"):
-                views.append(child)
-            walk(child)
-
-    walk(blueprint.root_container)
+    assert len(_views(session_blueprint())) == 1  # a session starts with the robot view alone
+    views = _views(session_blueprint(TASKS))
     kinds = {type(view).__name__ for view in views}
     assert "Spatial3DView" in kinds and "Spatial2DView" in kinds
     for view in views:
@@ -257,6 +271,19 @@ def test_the_blueprint_keeps_2d_plane_content_out_of_3d_views() -> None:
     assert any("rollouts" in " ".join(str(q) for q in (v.contents or [])) for v in views)
 
 
+def _views(blueprint) -> list:
+    views = []
+
+    def walk(item) -> None:
+        for child in getattr(item, "contents", None) or []:
+            if hasattr(child, "class_identifier"):
+                views.append(child)
+            walk(child)
+
+    walk(blueprint.root_container)
+    return views
+
+
 def test_the_state_stream_is_bounded_to_30_hz(tmp_path: Path) -> None:
     import rerun as rr
 
@@ -264,10 +291,13 @@ def test_the_state_stream_is_bounded_to_30_hz(tmp_path: Path) -> None:
     logger = hub.session_logger("rate")
     for k in range(200):  # 2 s of simulation time at 100 Hz
         logger.log_state(0.01 * k, np.zeros(3), np.zeros(7))
+        time.sleep(0.005)  # the worker drains between calls: batching is the logger's doing
     logger.close()
     (rrd,) = (tmp_path / "rerun").glob("*.rrd")
-    rows = 0
+    rows, messages = 0, 0
     for chunk in rr.chunk.RrdReader(rrd).stream().to_chunks():
         if str(chunk.entity_path) == "/ee/position":
             rows += chunk.num_rows
+            messages += 1
     assert 55 <= rows <= 61  # 2 s at most 30 Hz
+    assert messages <= 3  # batched: one message per STATE_BATCH_S (1 s), plus the last part

@@ -361,21 +361,17 @@ def _log_text(
     )
 
 
-def task_layout(task: Task) -> rrb.Container:
-    """One task's views (also composed into the teleop app's session blueprint)."""
+def plane_views(task: Task | str) -> tuple[rrb.Spatial2DView, rrb.Spatial2DView]:
+    """A task's two 2-D views: raw demos, best, x^d, aligned references, V_E; cleaned demos."""
     root = f"/{task}"
     plane = f"{root}/plane"
-    curves = rrb.Horizontal(
+    return (
         rrb.Spatial2DView(
             name=f"{task}: raw demos, x^d, aligned references, V_E",
             origin=root,
             contents=[
-                f"{plane}/value_map",
-                f"{plane}/raw/**",
-                f"{plane}/best",
-                f"{plane}/reference",
-                f"{plane}/centre",
-                f"{plane}/aligned/**",
+                f"{plane}/{part}"
+                for part in ("value_map", "raw/**", "best", "reference", "centre", "aligned/**")
             ],
         ),
         rrb.Spatial2DView(
@@ -384,6 +380,12 @@ def task_layout(task: Task) -> rrb.Container:
             contents=[f"{plane}/cleaned/**", f"{plane}/aligned/**", f"{plane}/centre"],
         ),
     )
+
+
+def task_layout(task: Task) -> rrb.Container:
+    """One task's views."""
+    root = f"/{task}"
+    curves = rrb.Horizontal(*plane_views(task))
     bars = rrb.Grid(
         *(
             rrb.BarChartView(
