@@ -15,7 +15,7 @@ The fit is a trimmed iterative-closest-point similarity fit:
 3. The start with the smallest trimmed residual wins. Within the range the near-symmetric
    shapes' twins (wiping and weaving look the same turned by 180°) are outside the range, so
    the smallest rotation is the one kept.
-4. A lopsided loop (one side drawn bigger; 90 % of the points lie on average more than 1 % of the
+4. A lopsided loop (one side drawn bigger; 90 % of the points lie on average more than 0.5 % of the
    size off the fit) is fitted by consensus over half-loop refits, the
    smaller of two equally good modes winning (:func:`_consensus`).
 
@@ -42,7 +42,7 @@ _COARSE_ITERATIONS = 4  # ICP steps from every start before the best are kept.
 _SURVIVORS = 1  # Starts carried on to convergence.
 _POINT_WEIGHT = 0.05  # Weight of the point-to-point term beside the point-to-tangent one.
 _LOPSIDED = (
-    0.01  # Consensus only when 90 % of the points lie this share of the size off on average.
+    0.005  # Consensus only when 90 % of the points lie this share of the size off on average.
 )
 _CONSENSUS_KEEP = 0.4  # Fits are compared by the mean of their 40 % smallest distances.
 _HALF_TRIM = 0.9  # Share of a half's points kept by its refit.
