@@ -24,7 +24,9 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    to the last sample whose phase speed exceeds 45 % of the span's typical (75th percentile)
    phase speed, or 20 % where the slower edge would cut more than 15 % of a loop (a hesitant
    loop). The slow end of an approach near the guide, a rest on the loop and the slow start of
-   a retreat fall out; pauses between loops stay.
+   a retreat fall out; pauses between loops stay. A loop that starts or ends slowly keeps its
+   ramp: the span grows back over samples within the tight tolerance that move along the
+   guide's tangent (|cos| ≥ 0.9); an approach's slow end comes in from the side.
 6. **Preference.** The guide is fitted again to the kept span with its drift removed (on the path
    smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops); that fit's
    θ/ρ are the demo's estimate. A lopsided loop is fitted by consensus (:func:`fit_guide`).
@@ -173,6 +175,14 @@ def segment_demo(
     span = moving[a : b + 1] - drift[a : b + 1]
     phase = track_phase(span, guide)
     head, tail = _travel(phase, guide.shape[0])
+    # A loop that starts (or ends) slowly on the guide keeps that ramp: walk back over samples
+    # that lie within the tight tolerance and move along the guide's tangent (an approach's
+    # slow end comes in from the side).
+    ramp = (distance[a : b + 1] <= tolerance) & _tangential(span, guide)
+    while head > 0 and ramp[head - 1]:
+        head -= 1
+    while tail < span.shape[0] - 1 and ramp[tail + 1]:
+        tail += 1
     if tail > head:
         phase, span, a, b = phase[head : tail + 1], span[head : tail + 1], a + head, a + tail
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
@@ -326,6 +336,20 @@ def _along(path: FloatArray, guide: FloatArray, nearest: np.ndarray) -> np.ndarr
     )
     slow = speed < 0.2 * float(np.median(speed))
     return slow | (cos >= 0.7)
+
+
+def _tangential(path: FloatArray, guide: FloatArray) -> np.ndarray:
+    """Whether each sample moves along the guide's tangent (|cos| ≥ 0.9) at more than 5 % of
+    the path's median speed (a resting hand's jitter has no direction)."""
+    nearest = _nearest(guide, path)
+    velocity = np.gradient(gaussian_filter1d(path, 1.0, axis=0, mode="nearest"), axis=0)
+    p = guide.shape[0]
+    tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
+    speed = np.linalg.norm(velocity, axis=1)
+    cos = np.abs(np.sum(velocity * tangent, axis=1)) / (
+        speed * np.linalg.norm(tangent, axis=1) + 1e-12
+    )
+    return (cos >= 0.9) & (speed > 0.05 * float(np.median(speed)))
 
 
 def _rest_speed(speed: FloatArray, moving: float) -> float:
