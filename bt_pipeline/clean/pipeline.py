@@ -34,8 +34,8 @@ from bt_pipeline.clean.periodic import (
 )
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
-from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, Variant
 from bt_pipeline.clean.stage2.chunked import DEFAULT_CHUNK_SIZE, refine_in_chunks
+from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, Variant
 from bt_pipeline.clean.stage2.refiner import refine_normaliser
 from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo
 from bt_pipeline.data.records import FloatArray
