@@ -7,7 +7,11 @@ memory of the whole tree (sampled every 0.1 s with psutil: this process, worker 
 with Ray, raylet, GCS and Ray workers), and the growth against the smallest M. Ray's overhead is
 the ratio of its wall time to the process executor's at the smallest M, measured in this run.
 
-    python benchmarks/bench_clean_scale.py --sizes 100,1000,5000 --workers 2
+    python benchmarks/bench_clean_scale.py --sizes 100,1000,5000 --workers 2 --chunk-size 256
+
+Stage 2 runs in chunks of at most ``--chunk-size`` demos (``bt clean``'s default, 256), so a task of
+M/3 > K demos sends its chunks to the executor as jobs. Each row also prints the 1-minute load
+average before and after the run (the machine may be shared).
 
 The numbers in docs/scale.md come from this script; it is a benchmark, not a test.
 """
@@ -15,6 +19,7 @@ The numbers in docs/scale.md come from this script; it is a benchmark, not a tes
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import tempfile
 import threading
@@ -101,6 +106,7 @@ def main() -> None:
     parser.add_argument("--sizes", default="100,1000,5000")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--executors", default="processes,ray")
+    parser.add_argument("--chunk-size", type=int, default=256)
     args = parser.parse_args()
     sizes = [int(m) for m in args.sizes.split(",")]
     executors = args.executors.split(",")
@@ -114,17 +120,18 @@ def main() -> None:
             clean_paths(
                 inputs[sizes[0]],
                 root / f"warm_{kind}",
-                CleanOptions(progress=False),
+                CleanOptions(progress=False, chunk_size=args.chunk_size),
                 executor=config,
             )
             for m in sizes:
+                load_before = os.getloadavg()[0]
                 before = _rusage_cpu()
                 with TreeSampler() as sampler:
                     start = time.perf_counter()
                     clean_paths(
                         inputs[m],
                         root / f"out_{kind}_{m}",
-                        CleanOptions(progress=False, write_rrd=False),
+                        CleanOptions(progress=False, write_rrd=False, chunk_size=args.chunk_size),
                         executor=config,
                     )
                     wall = time.perf_counter() - start
@@ -133,7 +140,8 @@ def main() -> None:
                 rows.append((kind, m, wall, cpu, sampler.peak / 2**30))
                 print(
                     f"{kind} M={m}: {wall:.1f} s wall, {cpu:.1f} s CPU, "
-                    f"{sampler.peak / 2**30:.2f} GiB peak",
+                    f"{sampler.peak / 2**30:.2f} GiB peak; load average {load_before:.2f} before, "
+                    f"{os.getloadavg()[0]:.2f} after",
                     flush=True,
                 )
     print()
