@@ -43,6 +43,7 @@ class TreeSampler:
     def __init__(self, period_s: float = 0.1) -> None:
         self.period_s = period_s
         self.peak = 0
+        self.peak_driver = 0
         self.cpu_at_start = 0.0
         self._cpu: dict[int, float] = {}
         self._stop = threading.Event()
@@ -75,6 +76,7 @@ class TreeSampler:
             except psutil.Error:
                 continue
         self.peak = max(self.peak, rss)
+        self.peak_driver = max(self.peak_driver, me.memory_info().rss)
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -140,7 +142,8 @@ def main() -> None:
                 rows.append((kind, m, wall, cpu, sampler.peak / 2**30))
                 print(
                     f"{kind} M={m}: {wall:.1f} s wall, {cpu:.1f} s CPU, "
-                    f"{sampler.peak / 2**30:.2f} GiB peak; load average {load_before:.2f} before, "
+                    f"{sampler.peak / 2**30:.2f} GiB peak (driver process alone "
+                    f"{sampler.peak_driver / 2**30:.2f}); load average {load_before:.2f} before, "
                     f"{os.getloadavg()[0]:.2f} after",
                     flush=True,
                 )
