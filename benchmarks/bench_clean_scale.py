@@ -130,7 +130,7 @@ def main() -> None:
                 before = _rusage_cpu()
                 with TreeSampler() as sampler:
                     start = time.perf_counter()
-                    clean_paths(
+                    summaries = clean_paths(
                         inputs[m],
                         root / f"out_{kind}_{m}",
                         CleanOptions(progress=False, write_rrd=False, chunk_size=args.chunk_size),
@@ -140,6 +140,17 @@ def main() -> None:
                 # Reaped pool workers are counted by getrusage; live trees (Ray) by the sampler.
                 cpu = max(sampler.cpu_s - sampler.cpu_at_start, _rusage_cpu() - before)
                 rows.append((kind, m, wall, cpu, sampler.peak / 2**30))
+                # Wall seconds per stage, summed over the tasks (stage2 of a chunked task: the
+                # time its chunks took on the executor, seen from the process cleaning the task).
+                stages: dict[str, float] = {}
+                for summary in summaries:
+                    for stage, seconds in summary.stage_seconds.items():
+                        stages[stage] = stages.get(stage, 0.0) + seconds
+                print(
+                    f"{kind} M={m} stages [s]: "
+                    + ", ".join(f"{k} {v:.1f}" for k, v in stages.items()),
+                    flush=True,
+                )
                 print(
                     f"{kind} M={m}: {wall:.1f} s wall, {cpu:.1f} s CPU, "
                     f"{sampler.peak / 2**30:.2f} GiB peak (driver process alone "
