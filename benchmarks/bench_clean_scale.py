@@ -4,7 +4,9 @@ Writes single-loop synthetic sets (300 samples per demo, M/3 demos per task, one
 to a temporary directory, then cleans them through the library call behind ``bt clean`` with each
 executor. Reports per (M, executor): wall time, CPU time of the whole process tree, peak resident
 memory of the whole tree (sampled every 0.1 s with psutil: this process, worker processes and,
-with Ray, raylet, GCS and Ray workers), and the growth against the smallest M. Ray's overhead is
+with Ray, raylet, GCS and Ray workers; RSS summed over processes counts shared pages once per
+process, PSS shares them out, so their sum is the tree's real footprint), and the growth against
+the smallest M. Ray's overhead is
 the ratio of its wall time to the process executor's at the smallest M, measured in this run.
 
     python benchmarks/bench_clean_scale.py --sizes 100,1000,5000 --workers 2 --chunk-size 256
@@ -43,6 +45,7 @@ class TreeSampler:
     def __init__(self, period_s: float = 0.1) -> None:
         self.period_s = period_s
         self.peak = 0
+        self.peak_pss = 0
         self.peak_driver = 0
         self.cpu_at_start = 0.0
         self._cpu: dict[int, float] = {}
@@ -66,16 +69,19 @@ class TreeSampler:
 
     def _sample(self) -> None:
         me = psutil.Process()
-        rss = 0
+        rss = pss = 0
         for proc in [me, *me.children(recursive=True)]:
             try:
                 with proc.oneshot():
-                    rss += proc.memory_info().rss
+                    memory = proc.memory_full_info()
+                    rss += memory.rss
+                    pss += memory.pss  # shared pages (libraries, Ray's object store) counted once
                     times = proc.cpu_times()
                     self._cpu[proc.pid] = times.user + times.system
             except psutil.Error:
                 continue
         self.peak = max(self.peak, rss)
+        self.peak_pss = max(self.peak_pss, pss)
         self.peak_driver = max(self.peak_driver, me.memory_info().rss)
 
     def _run(self) -> None:
@@ -139,7 +145,7 @@ def main() -> None:
                     wall = time.perf_counter() - start
                 # Reaped pool workers are counted by getrusage; live trees (Ray) by the sampler.
                 cpu = max(sampler.cpu_s - sampler.cpu_at_start, _rusage_cpu() - before)
-                rows.append((kind, m, wall, cpu, sampler.peak / 2**30))
+                rows.append((kind, m, wall, cpu, sampler.peak / 2**30, sampler.peak_pss / 2**30))
                 # Wall seconds per stage, summed over the tasks (stage2 of a chunked task: the
                 # time its chunks took on the executor, seen from the process cleaning the task).
                 stages: dict[str, float] = {}
@@ -153,18 +159,22 @@ def main() -> None:
                 )
                 print(
                     f"{kind} M={m}: {wall:.1f} s wall, {cpu:.1f} s CPU, "
-                    f"{sampler.peak / 2**30:.2f} GiB peak (driver process alone "
+                    f"{sampler.peak / 2**30:.2f} GiB peak RSS, "
+                    f"{sampler.peak_pss / 2**30:.2f} GiB peak PSS (driver process alone "
                     f"{sampler.peak_driver / 2**30:.2f}); load average {load_before:.2f} before, "
                     f"{os.getloadavg()[0]:.2f} after",
                     flush=True,
                 )
     print()
-    print("| executor | M | wall [s] | CPU [s] | peak RSS [GiB] | wall / wall(M0) | M / M0 |")
-    print("|---|---|---|---|---|---|---|")
-    for kind, m, wall, cpu, peak in rows:
+    print(
+        "| executor | M | wall [s] | CPU [s] | peak RSS [GiB] | peak PSS [GiB] | wall / wall(M0) "
+        "| M / M0 |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for kind, m, wall, cpu, peak, pss in rows:
         base = next(r for r in rows if r[0] == kind and r[1] == sizes[0])
         print(
-            f"| {kind} | {m} | {wall:.1f} | {cpu:.1f} | {peak:.2f} | "
+            f"| {kind} | {m} | {wall:.1f} | {cpu:.1f} | {peak:.2f} | {pss:.2f} | "
             f"{wall / base[2]:.1f} | {m / sizes[0]:.0f} |"
         )
     walls = {(r[0], r[1]): r[2] for r in rows}
