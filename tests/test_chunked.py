@@ -109,10 +109,11 @@ def test_chunks_share_the_task_scales_and_one_holds_the_best(task) -> None:
         assert job.normaliser is normaliser
     own = task_scales(jobs[0].positions, jobs[0].references)
     assert own.scale != whole.scale  # so the test above could fail
-    holders = [job for job in jobs if job.best_index is not None]
+    holders = [(c, job.best_index) for c, job in enumerate(jobs) if job.best_index is not None]
     assert len(holders) == 1
-    start = sum(len(job.positions) for job in jobs[: jobs.index(holders[0])])
-    assert start + holders[0].best_index == stage1.best_index
+    chunk, local_best = holders[0]
+    assert chunk == [0, 0, 0, 1, 1, 2, 2][stage1.best_index]  # chunks hold demos 0-2, 3-4, 5-6
+    assert (0, 3, 5)[chunk] + local_best == stage1.best_index
     assert np.array_equal(np.concatenate([job.positions for job in jobs]), positions)
     assert len({job.config.seed for job in jobs}) == 3 and jobs[0].config.seed == CONFIG.seed
     assert "chunk 2/3 (demos 3-4)" in jobs[1].label
