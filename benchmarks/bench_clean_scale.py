@@ -115,22 +115,27 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--executors", default="processes,ray")
     parser.add_argument("--chunk-size", type=int, default=256)
+    parser.add_argument(
+        "--warm-up", type=int, default=None, help="M of the unmeasured warm-up (0: none)"
+    )
     args = parser.parse_args()
     sizes = [int(m) for m in args.sizes.split(",")]
     executors = args.executors.split(",")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        inputs = {m: write_sets(root, m) for m in sizes}
+        warm_up = sizes[0] if args.warm_up is None else args.warm_up
+        inputs = {m: write_sets(root, m) for m in {*sizes, *([warm_up] if warm_up else [])}}
         for kind in executors:
             config = ExecutorConfig(kind, args.workers)  # type: ignore[arg-type]
             # Warm-up (imports; Ray's start-up) on the smallest set, not measured.
-            clean_paths(
-                inputs[sizes[0]],
-                root / f"warm_{kind}",
-                CleanOptions(progress=False, chunk_size=args.chunk_size),
-                executor=config,
-            )
+            if warm_up:
+                clean_paths(
+                    inputs[warm_up],
+                    root / f"warm_{kind}",
+                    CleanOptions(progress=False, chunk_size=args.chunk_size),
+                    executor=config,
+                )
             for m in sizes:
                 load_before = os.getloadavg()[0]
                 before = _rusage_cpu()
