@@ -204,3 +204,17 @@ def test_a_chunked_run_is_identical_with_every_executor(
         not np.array_equal(a, outputs["local"][name])
         for name, a in _outputs(tmp_path / "k256").items()
     )
+
+
+def test_bt_clean_refuses_a_chunk_size_below_one_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from bt_pipeline.cli import main
+
+    source = write_recording(tmp_path / "in.hdf5", make_human_set("wiping", 4, seed=1).recording)
+    with pytest.raises(SystemExit) as stopped:
+        main(["clean", str(source), "--out", str(tmp_path / "out"), "--chunk-size", "0"])
+    assert stopped.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "bt: error: --chunk-size must be ≥ 1; got 0"
+    assert not (tmp_path / "out").exists()
