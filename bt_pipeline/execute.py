@@ -110,10 +110,12 @@ def run_jobs(
 
 
 class _LineProgress:
-    """Progress as one plain stderr line per finished job (logs, pipes: no terminal to redraw)."""
+    """Progress as plain stderr lines (logs, pipes: no terminal to redraw): one per finished job,
+    or per 5 % of the jobs when there are more than 20, and one at the end."""
 
     def __init__(self, total: int, desc: str) -> None:
         self.total, self.desc, self.done = total, desc, 0
+        self.step = max(1, total // 20)
 
     def __enter__(self) -> _LineProgress:
         return self
@@ -122,8 +124,9 @@ class _LineProgress:
         return None
 
     def update(self, n: int = 1) -> None:
-        self.done += n
-        print(f"{self.desc}: {self.done}/{self.total} jobs done", file=sys.stderr, flush=True)
+        before, self.done = self.done, self.done + n
+        if self.done == self.total or self.done // self.step > before // self.step:
+            print(f"{self.desc}: {self.done}/{self.total} jobs done", file=sys.stderr, flush=True)
 
 
 def _run_processes(

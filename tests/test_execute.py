@@ -118,3 +118,14 @@ def test_config_is_validated() -> None:
         ExecutorConfig("processes", ray_address="auto")
     with pytest.raises(ConfigError, match="retries"):
         ExecutorConfig("ray", retries=-1)
+
+
+def test_progress_is_plain_lines_when_stderr_is_not_a_terminal(capsys) -> None:
+    local = ExecutorConfig("local")
+    run_jobs(square, [(k, "") for k in range(3)], local, desc="few", progress=True)
+    items = [(k, "") for k in range(100)]
+    run_jobs(square, items, local, desc="many", progress=True)
+    run_jobs(square, items, local, desc="quiet")
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[:3] == [f"few: {k}/3 jobs done" for k in (1, 2, 3)]
+    assert lines[3:] == [f"many: {k}/100 jobs done" for k in range(5, 101, 5)]  # every 5 %
