@@ -15,11 +15,16 @@ share of hidden-θ/ρ demos estimated within 5° and 0.05.
 Truth comes from the files' own attrs (bt_pipeline.data.synth_truth), not from the cleaner.
 
     python benchmarks/bench_clean_human.py --seeds 2 --presets D1,D2 --styles human,single
+
+Chunking (issue 14): ``--chunk-sizes all,8 --presets D48`` cleans each set of 48 demos once as one
+Stage 2 batch and once in chunks of at most 8 demos, with the same seed, and adds each run's K and
+its wall time (median over the set's runs) to the rows, so the two rows of a set compare directly.
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 from collections import defaultdict
 
 import numpy as np
@@ -33,8 +38,10 @@ from bt_pipeline.data.synth_truth import shape_distance, timing_distance, truth_
 from bt_pipeline.data.tasks import TASKS
 
 
-def measure(task: str, n: int, seed: int, style: str) -> dict[str, list[float]]:
-    """Ratios and rates of one cleaned set."""
+def measure(
+    task: str, n: int, seed: int, style: str, chunk_size: int = 10**9
+) -> dict[str, list[float]]:
+    """Ratios and rates of one cleaned set (Stage 2 in chunks of at most `chunk_size` demos)."""
     if style == "human":
         synth = make_human_set(task, n, seed)
         hidden, expert, recording = synth.hidden, synth.expert_index, synth.recording
@@ -42,8 +49,10 @@ def measure(task: str, n: int, seed: int, style: str) -> dict[str, list[float]]:
         single = make_demo_set(task, n, seed)
         hidden, expert, recording = False, single.expert_index, single.recording
     demos = demos_from_recording(recording)
-    result = clean_demos(demos, CleanOptions(seed=seed, progress=False))
+    start = time.perf_counter()
+    result = clean_demos(demos, CleanOptions(seed=seed, progress=False, chunk_size=chunk_size))
     out: dict[str, list[float]] = defaultdict(list)
+    out["wall_s"].append(time.perf_counter() - start)
     out["selected"].append(float(result.best_index == expert))
     for i, record in enumerate(recording.demos.values()):
         stored = truth_of(record)
@@ -73,21 +82,27 @@ def main() -> None:
     parser.add_argument("--presets", default="D1,D2")
     parser.add_argument("--styles", default="human,single")
     parser.add_argument("--tasks", default=",".join(TASKS))
+    parser.add_argument("--chunk-sizes", default="all", help="K per run: all (one batch) or ints")
     args = parser.parse_args()
-    sizes = {"D1": 4, "D2": 20}
+    sizes = {"D1": 4, "D2": 20, "D48": 48}
+    chunks = [10**9 if k == "all" else int(k) for k in args.chunk_sizes.split(",")]
+    with_k = args.chunk_sizes != "all"
     print(
         "| style | task | set | naive shape (mean / worst) | naive timing (mean / worst) | "
         "expert shape (worst) | expert timing (worst) | best = expert | hidden θ within 5° | "
-        "hidden θ within 5° and ρ within 0.05 |"
+        "hidden θ within 5° and ρ within 0.05 |" + (" K | clean wall [s] |" if with_k else "")
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if with_k else ""))
     for style in args.styles.split(","):
         for task in args.tasks.split(","):
-            for preset in args.presets.split(","):
+            for preset, chunk_size in ((p, k) for p in args.presets.split(",") for k in chunks):
                 runs: dict[str, list[float]] = defaultdict(list)
                 for seed in range(args.seeds):
-                    for key, values in measure(task, sizes[preset], seed, style).items():
+                    measured = measure(task, sizes[preset], seed, style, chunk_size)
+                    for key, values in measured.items():
                         runs[key].extend(values)
+                k_label = "all" if chunk_size >= sizes[preset] else str(chunk_size)
+                extra = f" {k_label} | {np.median(runs['wall_s']):.1f} |" if with_k else ""
 
                 def pair(key: str, runs: dict[str, list[float]] = runs) -> str:
                     return f"{np.mean(runs[key]):.2f} / {np.max(runs[key]):.2f}"
@@ -99,7 +114,7 @@ def main() -> None:
                     f"| {style} | {task} | {preset} | {pair('naive_shape')} | "
                     f"{pair('naive_timing')} | {np.max(runs['expert_shape']):.2f} | "
                     f"{np.max(runs['expert_timing']):.2f} | {share('selected')} | "
-                    f"{share('hidden_theta_ok')} | {share('hidden_ok')} |",
+                    f"{share('hidden_theta_ok')} | {share('hidden_ok')} |{extra}",
                     flush=True,
                 )
 

@@ -4,10 +4,16 @@ Writes single-loop synthetic sets (300 samples per demo, M/3 demos per task, one
 to a temporary directory, then cleans them through the library call behind ``bt clean`` with each
 executor. Reports per (M, executor): wall time, CPU time of the whole process tree, peak resident
 memory of the whole tree (sampled every 0.1 s with psutil: this process, worker processes and,
-with Ray, raylet, GCS and Ray workers), and the growth against the smallest M. Ray's overhead is
+with Ray, raylet, GCS and Ray workers; RSS summed over processes counts shared pages once per
+process, PSS shares them out, so their sum is the tree's real footprint), and the growth against
+the smallest M. Ray's overhead is
 the ratio of its wall time to the process executor's at the smallest M, measured in this run.
 
-    python benchmarks/bench_clean_scale.py --sizes 100,1000,5000 --workers 2
+    python benchmarks/bench_clean_scale.py --sizes 100,1000,5000 --workers 2 --chunk-size 256
+
+Stage 2 runs in chunks of at most ``--chunk-size`` demos (``bt clean``'s default, 256), so a task of
+M/3 > K demos sends its chunks to the executor as jobs. Each row also prints the 1-minute load
+average before and after the run (the machine may be shared).
 
 The numbers in docs/scale.md come from this script; it is a benchmark, not a test.
 """
@@ -15,6 +21,7 @@ The numbers in docs/scale.md come from this script; it is a benchmark, not a tes
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import tempfile
 import threading
@@ -38,6 +45,8 @@ class TreeSampler:
     def __init__(self, period_s: float = 0.1) -> None:
         self.period_s = period_s
         self.peak = 0
+        self.peak_pss = 0
+        self.peak_driver = 0
         self.cpu_at_start = 0.0
         self._cpu: dict[int, float] = {}
         self._stop = threading.Event()
@@ -60,16 +69,20 @@ class TreeSampler:
 
     def _sample(self) -> None:
         me = psutil.Process()
-        rss = 0
+        rss = pss = 0
         for proc in [me, *me.children(recursive=True)]:
             try:
                 with proc.oneshot():
-                    rss += proc.memory_info().rss
+                    memory = proc.memory_full_info()
+                    rss += memory.rss
+                    pss += memory.pss  # shared pages (libraries, Ray's object store) counted once
                     times = proc.cpu_times()
                     self._cpu[proc.pid] = times.user + times.system
             except psutil.Error:
                 continue
         self.peak = max(self.peak, rss)
+        self.peak_pss = max(self.peak_pss, pss)
+        self.peak_driver = max(self.peak_driver, me.memory_info().rss)
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -101,48 +114,72 @@ def main() -> None:
     parser.add_argument("--sizes", default="100,1000,5000")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--executors", default="processes,ray")
+    parser.add_argument("--chunk-size", type=int, default=256)
+    parser.add_argument(
+        "--warm-up", type=int, default=None, help="M of the unmeasured warm-up (0: none)"
+    )
     args = parser.parse_args()
     sizes = [int(m) for m in args.sizes.split(",")]
     executors = args.executors.split(",")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        inputs = {m: write_sets(root, m) for m in sizes}
+        warm_up = sizes[0] if args.warm_up is None else args.warm_up
+        inputs = {m: write_sets(root, m) for m in {*sizes, *([warm_up] if warm_up else [])}}
         for kind in executors:
             config = ExecutorConfig(kind, args.workers)  # type: ignore[arg-type]
             # Warm-up (imports; Ray's start-up) on the smallest set, not measured.
-            clean_paths(
-                inputs[sizes[0]],
-                root / f"warm_{kind}",
-                CleanOptions(progress=False),
-                executor=config,
-            )
+            if warm_up:
+                clean_paths(
+                    inputs[warm_up],
+                    root / f"warm_{kind}",
+                    CleanOptions(progress=False, chunk_size=args.chunk_size),
+                    executor=config,
+                )
             for m in sizes:
+                load_before = os.getloadavg()[0]
                 before = _rusage_cpu()
                 with TreeSampler() as sampler:
                     start = time.perf_counter()
-                    clean_paths(
+                    summaries = clean_paths(
                         inputs[m],
                         root / f"out_{kind}_{m}",
-                        CleanOptions(progress=False, write_rrd=False),
+                        CleanOptions(progress=False, write_rrd=False, chunk_size=args.chunk_size),
                         executor=config,
                     )
                     wall = time.perf_counter() - start
                 # Reaped pool workers are counted by getrusage; live trees (Ray) by the sampler.
                 cpu = max(sampler.cpu_s - sampler.cpu_at_start, _rusage_cpu() - before)
-                rows.append((kind, m, wall, cpu, sampler.peak / 2**30))
+                rows.append((kind, m, wall, cpu, sampler.peak / 2**30, sampler.peak_pss / 2**30))
+                # Wall seconds per stage, summed over the tasks (stage2 of a chunked task: the
+                # time its chunks took on the executor, seen from the process cleaning the task).
+                stages: dict[str, float] = {}
+                for summary in summaries:
+                    for stage, seconds in summary.stage_seconds.items():
+                        stages[stage] = stages.get(stage, 0.0) + seconds
+                print(
+                    f"{kind} M={m} stages [s]: "
+                    + ", ".join(f"{k} {v:.1f}" for k, v in stages.items()),
+                    flush=True,
+                )
                 print(
                     f"{kind} M={m}: {wall:.1f} s wall, {cpu:.1f} s CPU, "
-                    f"{sampler.peak / 2**30:.2f} GiB peak",
+                    f"{sampler.peak / 2**30:.2f} GiB peak RSS, "
+                    f"{sampler.peak_pss / 2**30:.2f} GiB peak PSS (driver process alone "
+                    f"{sampler.peak_driver / 2**30:.2f}); load average {load_before:.2f} before, "
+                    f"{os.getloadavg()[0]:.2f} after",
                     flush=True,
                 )
     print()
-    print("| executor | M | wall [s] | CPU [s] | peak RSS [GiB] | wall / wall(M0) | M / M0 |")
-    print("|---|---|---|---|---|---|---|")
-    for kind, m, wall, cpu, peak in rows:
+    print(
+        "| executor | M | wall [s] | CPU [s] | peak RSS [GiB] | peak PSS [GiB] | wall / wall(M0) "
+        "| M / M0 |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for kind, m, wall, cpu, peak, pss in rows:
         base = next(r for r in rows if r[0] == kind and r[1] == sizes[0])
         print(
-            f"| {kind} | {m} | {wall:.1f} | {cpu:.1f} | {peak:.2f} | "
+            f"| {kind} | {m} | {wall:.1f} | {cpu:.1f} | {peak:.2f} | {pss:.2f} | "
             f"{wall / base[2]:.1f} | {m / sizes[0]:.0f} |"
         )
     walls = {(r[0], r[1]): r[2] for r in rows}

@@ -94,13 +94,11 @@ def run_jobs(
     """
     if not items:
         return []
-    bar = tqdm(
-        total=len(items),
-        desc=desc,
-        unit="job",
-        file=sys.stderr,
-        disable=None if progress else True,  # None: no bar when stderr is not a terminal
-    )
+    bar: tqdm | _LineProgress
+    if progress and not sys.stderr.isatty():
+        bar = _LineProgress(len(items), desc)
+    else:
+        bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, disable=not progress)
     with bar:
         if config.kind == "ray":
             return _run_ray(fn, items, config, bar, label)
@@ -113,11 +111,31 @@ def run_jobs(
         return results
 
 
+class _LineProgress:
+    """Progress as plain stderr lines (logs, pipes: no terminal to redraw): one per finished job,
+    or per 5 % of the jobs when there are more than 20, and one at the end."""
+
+    def __init__(self, total: int, desc: str) -> None:
+        self.total, self.desc, self.done = total, desc, 0
+        self.step = max(1, total // 20)
+
+    def __enter__(self) -> _LineProgress:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        return None
+
+    def update(self, n: int = 1) -> None:
+        before, self.done = self.done, self.done + n
+        if self.done == self.total or self.done // self.step > before // self.step:
+            print(f"{self.desc}: {self.done}/{self.total} jobs done", file=sys.stderr, flush=True)
+
+
 def _run_processes(
     fn: Callable[[T], R],
     items: Sequence[T],
     config: ExecutorConfig,
-    bar: tqdm,
+    bar: tqdm | _LineProgress,
     label: Callable[[T], str],
 ) -> list[R]:
     """A spawn pool; a pool broken by a dead worker is replaced and its unfinished jobs rerun."""
@@ -157,7 +175,7 @@ def _run_ray(
     fn: Callable[[T], R],
     items: Sequence[T],
     config: ExecutorConfig,
-    bar: tqdm,
+    bar: tqdm | _LineProgress,
     label: Callable[[T], str],
 ) -> list[R]:
     ray = _import_ray()

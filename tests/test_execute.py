@@ -150,3 +150,14 @@ def test_bt_clean_with_ray_listens_on_loopback_only(tmp_path, write_example_file
     assert len(seen) >= 3, f"saw too few of Ray's sockets to judge: {seen}"
     exposed = [s for s in seen if not is_loopback_address(s[1])]
     assert not exposed, f"sockets on non-loopback interfaces: {exposed}"
+
+
+def test_progress_is_plain_lines_when_stderr_is_not_a_terminal(capsys) -> None:
+    local = ExecutorConfig("local")
+    run_jobs(square, [(k, "") for k in range(3)], local, desc="few", progress=True)
+    items = [(k, "") for k in range(100)]
+    run_jobs(square, items, local, desc="many", progress=True)
+    run_jobs(square, items, local, desc="quiet")
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[:3] == [f"few: {k}/3 jobs done" for k in (1, 2, 3)]
+    assert lines[3:] == [f"many: {k}/100 jobs done" for k in range(5, 101, 5)]  # every 5 %

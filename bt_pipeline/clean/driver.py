@@ -10,6 +10,7 @@ kill -9 leaves the outputs of one whole run. Inputs are opened read-only and nev
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import sys
 import time
@@ -24,6 +25,7 @@ from tqdm import tqdm
 from bt_pipeline.clean.periodic import output_on_raw_times
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult
 from bt_pipeline.clean.skipping import clean_skipping
+from bt_pipeline.clean.stage2.chunked import chunk_sizes
 from bt_pipeline.clean.stage2.config import EpochStats
 from bt_pipeline.data.carry import carried_masks, carried_obs
 from bt_pipeline.data.demo import Demo, group_by_task
@@ -191,13 +193,16 @@ def _clean_task(
     """
     position, demos, options = task_demos
     settings = options.refine_config().resolve()
+    chunks = len(chunk_sizes(len(demos), options.chunk_size))
+    # Chunks refined elsewhere report through run_jobs' bar over the chunks instead.
+    epoch_bar = options.progress and (options.chunk_executor is None or chunks == 1)
     with tqdm(
-        total=settings.epochs,
-        desc=f"clean {demos[0].task}",
+        total=settings.epochs * chunks,
+        desc=f"clean {demos[0].task}" + (f" ({chunks} chunks)" if chunks > 1 else ""),
         unit="epoch",
         position=position,
         leave=True,
-        disable=None if options.progress else True,  # None: off when stderr is no TTY
+        disable=None if epoch_bar else True,  # None: off when stderr is no TTY
         file=sys.stderr,
     ) as bar:
 
@@ -206,6 +211,37 @@ def _clean_task(
             bar.set_postfix(loss=f"{stats.loss:.3f}", beta=f"{float(np.mean(stats.betas)):.2f}")
 
         return clean_skipping(demos, options, on_epoch)
+
+
+def _run_tasks(
+    jobs: list[tuple[int, list[Demo], CleanOptions]],
+    executor: ExecutorConfig,
+    options: CleanOptions,
+) -> list[tuple[TaskCleanResult | None, list[str]]]:
+    """Clean every task: a task of at most K demos is one job; a larger one's chunks are jobs.
+
+    A large task (more than ``options.chunk_size`` demos) is cleaned here, in this process, one
+    after another, its Stage 2 chunks going out as jobs of `executor` (a process pool cannot take
+    jobs from its own workers); the other tasks then run as one job each. Outcomes come back in
+    the order of `jobs`.
+    """
+    fan_out = executor.kind != "local"
+    large = [job for job in jobs if fan_out and len(job[1]) > options.chunk_size]
+    small = [job for job in jobs if not (fan_out and len(job[1]) > options.chunk_size)]
+    outcomes: dict[int, tuple[TaskCleanResult | None, list[str]]] = {}
+    for position, demos, task_options in large:
+        chunked = dataclasses.replace(task_options, chunk_executor=executor)
+        outcomes[position] = _clean_task((position, demos, chunked))
+    results = run_jobs(
+        _clean_task,
+        small,
+        executor,
+        desc="clean tasks",
+        progress=options.progress,
+        label=lambda job: str(job[1][0].task),
+    )
+    outcomes.update((job[0], outcome) for job, outcome in zip(small, results, strict=True))
+    return [outcomes[job[0]] for job in jobs]
 
 
 def clean_paths(
@@ -255,7 +291,7 @@ def clean_paths(
 
     jobs = [(k, group, options) for k, group in enumerate(groups.values())]
     executor = executor or ExecutorConfig("processes", options.workers)
-    outcomes = run_jobs(_clean_task, jobs, executor, label=lambda job: str(job[1][0].task))
+    outcomes = _run_tasks(jobs, executor, options)
     results = [result for result, _ in outcomes if result is not None]
     if not results:
         raise DemoError(

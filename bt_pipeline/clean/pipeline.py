@@ -34,12 +34,14 @@ from bt_pipeline.clean.periodic import (
 )
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
+from bt_pipeline.clean.stage2.chunked import DEFAULT_CHUNK_SIZE, refine_in_chunks
 from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, Variant
-from bt_pipeline.clean.stage2.refiner import refine_demos, refine_normaliser
+from bt_pipeline.clean.stage2.refiner import refine_normaliser
 from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
+from bt_pipeline.execute import ExecutorConfig
 from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
 from bt_pipeline.score.mi import mutual_information
 from bt_pipeline.score.utility import (
@@ -81,8 +83,15 @@ class CleanOptions:
     """Selection-stage scoring settings."""
     preference_range: PreferenceRange = field(default_factory=PreferenceRange)
     """Allowed θ/ρ when they are estimated (default θ within ±45°, ρ within 0.5-2)."""
+    chunk_size: int = DEFAULT_CHUNK_SIZE
+    """K, most demos refined by one network: Stage 2 of a larger task runs in chunks sharing the
+    task's Stage 1 and frozen normalisers (bt_pipeline.clean.stage2.chunked, docs/scale.md)."""
+    chunk_executor: ExecutorConfig | None = None
+    """Where a task's chunks run when it has several; None: one after another in this process."""
 
     def __post_init__(self) -> None:
+        if self.chunk_size < 1:
+            raise ConfigError(f"--chunk-size must be ≥ 1; got {self.chunk_size}")
         if self.workers < 1:
             raise ConfigError(f"--workers must be ≥ 1; got {self.workers}")
         if self.epochs is not None and self.epochs < 1:
@@ -300,15 +309,16 @@ def clean_demos(
 
     start = time.perf_counter()
     normaliser = refine_normaliser(scores.normaliser, stage1.shape_losses)
-    refined = refine_demos(
+    refined = refine_in_chunks(  # Stage 1 is shared by chunks of at most K demos (issue 14).
         positions,
-        stage1.aligned,
-        thetas_deg=stage1.thetas,
-        best_index=scores.best_index,
-        reward_fn=stage1.rewards,
+        stage1,
         normaliser=normaliser,
         config=options.refine_config(),
+        chunk_size=options.chunk_size,
+        executor=options.chunk_executor,
         on_epoch=on_epoch,
+        progress=options.progress,
+        label=str(demos[0].task),
     )
     if options.variant == "default":
         smoothed = smooth_residual(refined.refined, stage1.aligned, demos)

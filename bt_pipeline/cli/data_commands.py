@@ -107,6 +107,7 @@ def clean(
     workers: int = 1,
     executor: ExecutorName = "processes",
     ray_address: str | None = None,
+    chunk_size: int = 256,
     variant: Literal["default", "paper"] = "default",
     strict: bool = False,
     json: bool = False,
@@ -127,6 +128,9 @@ def clean(
         workers: Tasks cleaned in parallel (processes; with ray, the most in flight, 0: no limit).
         executor: Where tasks run: "local" (this process), "processes" or "ray" (docs/scale.md).
         ray_address: Ray cluster address (with --executor ray); unset starts a local Ray.
+        chunk_size: K, most demos refined by one network: a larger task's Stage 2 runs in chunks
+            of at most K demos sharing its Stage 1, each chunk a job of the executor (bounded
+            memory; docs/scale.md). Results depend on K, not on the executor.
         variant: "default" (bt's design) or "paper" (the paper's configuration, for comparison).
         strict: Stop at the first unreadable file or unusable demo instead of skipping it.
         json: Print one JSON summary on stdout instead of tables.
@@ -140,7 +144,13 @@ def clean(
 
     require_paths(paths)
     options = CleanOptions(
-        seed=seed, epochs=epochs, variant=variant, write_rrd=rrd, workers=workers, strict=strict
+        seed=seed,
+        epochs=epochs,
+        variant=variant,
+        write_rrd=rrd,
+        workers=workers,
+        strict=strict,
+        chunk_size=chunk_size,
     )
     summaries = clean_paths(
         paths,

@@ -208,6 +208,27 @@ def _is_real(value: object) -> bool:
 
 
 @dataclass(frozen=True)
+class TaskScales:
+    """Stage 2's task-wide standardisation, computed once over all of a task's raw demos.
+
+    Refining a task in chunks (:mod:`bt_pipeline.clean.stage2.chunked`) hands every chunk these
+    same frozen values, so a demo's network input and the scale of its MI term do not depend on
+    which other demos share its chunk.
+    """
+
+    centre: FloatArray
+    """Mean of all raw samples, shape (2,), in [m] (network input centring)."""
+    scale: float
+    """Standard deviation of all raw sample coordinates [m] (network input and output scale)."""
+    pull_rms: float
+    """RMS of x_i^aligned - x_i over all demos and samples [m] (the pull feature's unit)."""
+    mi_low: float
+    """Smallest I_KL of the raw demos [nats] (Eq. 7's min for the MI stand-in)."""
+    mi_span: float
+    """Largest minus smallest I_KL of the raw demos [nats] (Eq. 7's max - min)."""
+
+
+@dataclass(frozen=True)
 class EpochStats:
     """What one epoch of refinement did (passed to ``on_epoch``)."""
 
@@ -239,6 +260,11 @@ class RefineResult:
     variant: Variant
     """The variant that ran."""
     epochs: int
-    """K, epochs run (fewer than the maximum when the loss reached a plateau)."""
+    """K, epochs run (fewer than the maximum when the loss reached a plateau; a chunked run: the
+    most of any chunk, histories holding a stopped chunk's last values after it stopped)."""
     settings: RefineSettings
-    """Every setting used, variant defaults filled in."""
+    """Every setting used, variant defaults filled in (a chunked run: the first chunk's)."""
+    chunk_sizes: tuple[int, ...] = ()
+    """Demos per Stage 2 chunk, in input order (one network each); () for one batch."""
+    chunk_epochs: tuple[int, ...] = ()
+    """Epochs each chunk ran (early stopping ends chunks apart); () for one batch."""

@@ -25,7 +25,21 @@ class UtilityObjective:
         thetas: torch.Tensor,
         all_raw: torch.Tensor,
         refined: NDArray[np.bool_],
+        mi_range: tuple[float, float],
     ) -> None:
+        """The objective of one batch.
+
+        Args:
+            normaliser: Frozen raw-set (min, max) of L1..L4 (Eq. 7).
+            settings: Refinement settings.
+            x: Raw demos refined in this batch, shape (B, N, 2), in [m].
+            references: Their aligned references, shape (B, N, 2), in [m].
+            thetas: Their θ_i, shape (B,), in [deg].
+            all_raw: Every raw demo of the batch, refined or not, shape (M, N, 2), in [m].
+            refined: Which of `all_raw` are refined, shape (M,) (bool).
+            mi_range: (min, max - min) of I_KL over the task's raw demos [nats]
+                (:class:`~bt_pipeline.clean.stage2.config.TaskScales`).
+        """
         spans = [normaliser.affine(name) for name in REFINE_METRICS]
         self.lo = x.new_tensor([lo for lo, _ in spans])
         self.scale = x.new_tensor([scale for _, scale in spans])
@@ -34,8 +48,7 @@ class UtilityObjective:
         # I_KL is not KSG: normalise it by its own range over the raw set (§7 row 16).
         with torch.no_grad():
             mi_raw = tl.mi_kl(all_raw)
-        span = float(mi_raw.max() - mi_raw.min())
-        self.mi_lo = float(mi_raw.min())
+        self.mi_lo, span = mi_range
         self.mi_scale = 1.0 / span if span > normaliser.delta else 0.0
         self.mi_raw = (mi_raw[torch.from_numpy(refined)] - self.mi_lo) * self.mi_scale
         self.floor: torch.Tensor | None = None

@@ -32,6 +32,7 @@ import torch
 from numpy.typing import ArrayLike
 from torch import nn
 
+from bt_pipeline.clean.stage2 import losses as tl
 from bt_pipeline.clean.stage2.config import (
     REFINE_METRICS,
     EpochStats,
@@ -39,6 +40,7 @@ from bt_pipeline.clean.stage2.config import (
     RefineResult,
     RefineSettings,
     RewardFn,
+    TaskScales,
 )
 from bt_pipeline.clean.stage2.objective import Adam, UtilityObjective
 from bt_pipeline.data.records import FloatArray
@@ -101,11 +103,12 @@ def refine_demos(
     references: ArrayLike,
     *,
     thetas_deg: ArrayLike,
-    best_index: int,
+    best_index: int | None,
     reward_fn: RewardFn,
     normaliser: Normaliser,
     config: RefineConfig | None = None,
     on_epoch: Callable[[EpochStats], None] | None = None,
+    scales: TaskScales | None = None,
 ) -> RefineResult:
     """Refine the demos of one task with a shared LSTM trained on the normalised utility Ũ.
 
@@ -114,13 +117,16 @@ def refine_demos(
         references: Phase-aligned references x_i^aligned, shape (M, N, 2), in [m]:
             ``references[i, k]`` is the target of ``positions[i, k]`` (Stage 1).
         thetas_deg: Demonstrator rotations θ_i, shape (M,), in [deg] (L1 de-rotation; 0 for none).
-        best_index: Index of x_best (passed through unless the settings refine it).
+        best_index: Index of x_best (passed through unless the settings refine it); None when
+            the batch is a chunk of a task that does not hold the best demo.
         reward_fn: R̄ of each demo's positions in its own frame, (M, N, 2) -> (M,) in [0, 1].
         normaliser: Frozen raw-set (min, max) holding at least the columns
             :data:`REFINE_METRICS` (see :func:`refine_normaliser`). The loss normalises the MI
             stand-in I_KL by its own raw-set range, computed here.
         config: Settings; ``RefineConfig()`` (the default variant) when None.
         on_epoch: Called after every epoch with that epoch's statistics.
+        scales: Frozen task-wide standardisation (a chunk of a larger task); None computes it
+            from these demos (:func:`task_scales`).
 
     Returns:
         The refined demos and the history of β, loss and reward.
@@ -135,7 +141,7 @@ def refine_demos(
     for name in REFINE_METRICS:
         normaliser.index(name)  # ConfigError naming the missing column
     refine_mask = np.ones(m, dtype=bool)
-    if not settings.refine_best:
+    if best_index is not None and not settings.refine_best:
         refine_mask[best_index] = False
     betas = np.full(m, settings.beta0)
     previous_reward = _rewards(reward_fn, x)
@@ -147,12 +153,12 @@ def refine_demos(
 
     with _torch_session(settings.seed, settings.threads):
         dtype = torch.float32
-        centre = x.reshape(-1, 2).mean(axis=0)
-        scale = float(x.std()) or 1.0
+        scales = scales or task_scales(x, ref, threads=settings.threads)
+        scale = scales.scale
         x_t = torch.as_tensor(x[refine_mask], dtype=dtype)
         ref_t = torch.as_tensor(ref[refine_mask], dtype=dtype)
         theta_t = torch.as_tensor(thetas[refine_mask], dtype=dtype)
-        features = _features(x, ref, centre, scale, settings.condition_on_reference)
+        features = _features(x, ref, scales, settings.condition_on_reference)
         features_t = torch.as_tensor(features[refine_mask], dtype=dtype)
         model = _Refiner(features_t.shape[-1], settings)
         groups: list[tuple[list[torch.Tensor], float]] = [
@@ -162,7 +168,14 @@ def refine_demos(
             groups.append((list(model.skip.parameters()), settings.lr * settings.skip_lr_scale))
         optimiser = Adam(groups)
         objective = UtilityObjective(
-            normaliser, settings, x_t, ref_t, theta_t, torch.as_tensor(x, dtype=dtype), refine_mask
+            normaliser,
+            settings,
+            x_t,
+            ref_t,
+            theta_t,
+            torch.as_tensor(x, dtype=dtype),
+            refine_mask,
+            (scales.mi_low, scales.mi_span),
         )
         stall = 0
         best_loss = math.inf
@@ -223,18 +236,55 @@ def refine_normaliser(normaliser: Normaliser, shape_losses: ArrayLike) -> Normal
     )
 
 
+def task_scales(
+    positions: ArrayLike, references: ArrayLike, *, block: int = 256, threads: int = 1
+) -> TaskScales:
+    """Stage 2's standardisation over all of a task's raw demos, frozen for every chunk.
+
+    Args:
+        positions: Raw demos x_i, shape (M, N, 2), in [m].
+        references: Their aligned references x_i^aligned, shape (M, N, 2), in [m].
+        block: Demos per I_KL evaluation (bounds the memory it takes; values do not depend on it
+            beyond float32 rounding).
+        threads: Torch CPU threads for I_KL.
+
+    Returns:
+        The centre, scale and pull RMS of the network input and the raw I_KL range (Eq. 7).
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    pull = np.asarray(references, dtype=np.float64) - x
+    saved = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        with torch.no_grad():
+            mi = torch.cat(
+                [
+                    tl.mi_kl(torch.as_tensor(x[i : i + block], dtype=torch.float32))
+                    for i in range(0, x.shape[0], block)
+                ]
+            )
+    finally:
+        torch.set_num_threads(saved)
+    return TaskScales(
+        centre=x.reshape(-1, 2).mean(axis=0),
+        scale=float(x.std()) or 1.0,
+        # Unit RMS, so Adam's ~lr-sized first steps already move a sizeable part of the way.
+        pull_rms=max(float(np.sqrt(np.mean(pull**2))), 1e-12),
+        mi_low=float(mi.min()),
+        mi_span=float(mi.max() - mi.min()),
+    )
+
+
 def _features(
-    x: FloatArray, ref: FloatArray, centre: FloatArray, scale: float, with_reference: bool
+    x: FloatArray, ref: FloatArray, scales: TaskScales, with_reference: bool
 ) -> FloatArray:
     """Network input, shape (M, N, F): standardised x, optionally (ref - x), phase cos/sin."""
     m, n, _ = x.shape
     phase = 2.0 * np.pi * np.arange(n) / n
     cos_sin = np.broadcast_to(np.stack((np.cos(phase), np.sin(phase)), -1), (m, n, 2))
-    parts = [(x - centre) / scale]
+    parts = [(x - scales.centre) / scales.scale]
     if with_reference:
-        # Unit RMS, so Adam's ~lr-sized first steps already move a sizeable part of the way.
-        pull = ref - x
-        parts.append(pull / max(float(np.sqrt(np.mean(pull**2))), 1e-12))
+        parts.append((ref - x) / scales.pull_rms)
     parts.append(cos_sin)
     return np.concatenate(parts, axis=-1)
 
@@ -250,7 +300,7 @@ def _rewards(reward_fn: RewardFn, positions: FloatArray) -> FloatArray:
 
 
 def _validate(
-    positions: ArrayLike, references: ArrayLike, thetas_deg: ArrayLike, best_index: int
+    positions: ArrayLike, references: ArrayLike, thetas_deg: ArrayLike, best_index: int | None
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     x = np.array(positions, dtype=np.float64)
     ref = np.array(references, dtype=np.float64)
@@ -264,7 +314,9 @@ def _validate(
     for name, values in (("positions", x), ("references", ref), ("thetas_deg", thetas)):
         if not np.all(np.isfinite(values)):
             raise DemoError(f"{name} contain NaN or infinite values")
-    if isinstance(best_index, bool) or not 0 <= int(best_index) < x.shape[0]:
+    if best_index is not None and (
+        isinstance(best_index, bool) or not 0 <= int(best_index) < x.shape[0]
+    ):
         raise ConfigError(f"best_index must be in [0, {x.shape[0] - 1}]; got {best_index!r}")
     return x, ref, thetas
 
