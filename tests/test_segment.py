@@ -52,7 +52,8 @@ def test_lopsided_loop_is_fitted_to_its_true_side() -> None:
     from bt_pipeline.data.synth import lopsided
 
     phases = np.linspace(0.0, 2 * np.pi, 400, endpoint=False)
-    for task, side in (("wiping", 1.0), ("pick_and_place", -1.0)):
+    cases: tuple[tuple[Task, float], ...] = (("wiping", 1.0), ("pick_and_place", -1.0))
+    for task, side in cases:
         uv = canonical_shape(task, phases)
         rng = np.random.default_rng(3 if side > 0 else 4)
         bulged, _ = lopsided(uv, task, rng)
