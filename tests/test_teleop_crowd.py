@@ -216,8 +216,14 @@ def test_small_things_of_the_page(make_app, tabs, tmp_path) -> None:
     assert not c.play_button.disabled
     from bt_teleop.cleaning import CleanProgress
 
-    c.show_clean_progress(CleanProgress("wiping", "running", 0, 10, "reading"))
-    assert c.clean_progress.visible and c.clean_progress.value > 0.0  # never an empty bar
+    starting = CleanProgress("wiping", "running", 0, 10, "reading")
+
+    def shown() -> bool:
+        # The tab's own poll (no real job here) may hide the bar between the two lines.
+        c.show_clean_progress(starting)
+        return c.clean_progress.visible and c.clean_progress.value > 0.0  # never an empty bar
+
+    wait_until(shown, what="a non-empty clean progress bar")
     c.show_clean_progress(CleanProgress("wiping", "running", 5, 10, "epoch 5"))
     assert c.clean_progress.value == pytest.approx(50.0)
 
