@@ -41,7 +41,8 @@ def test_refused_tabs_are_told_then_closed_and_never_pile_up(make_app, tabs) -> 
     refused = [tabs(app) for _ in range(6)]
     wait_until(lambda: all(_closed(tab) for tab in refused), 20.0, "refused sockets to close")
     assert "server is full" in refused[0].text()
-    assert app.refused_open() == 0
+    # The tab sees its socket close a moment before the server has forgotten it (under load).
+    wait_until(lambda: app.refused_open() == 0, 20.0, "the server to release refused sockets")
     assert not _closed(kept) and len(app.sessions()) == 1
 
 
