@@ -127,12 +127,30 @@ def test_training_starts_at_the_identity(data: dict[str, Any]) -> None:
         seen.append(paths.copy())
         return np.full(len(paths), 0.5)
 
-    for variant in ("default", "paper"):
+    x, ref = data["positions"], data["references"]
+    # Call 0 scores the raw demos, call 1 the output of epoch 1 (before any step): the paper's
+    # free Δ is 0 there, the default's gain ½ (halfway to the reference; the best demo as is).
+    halfway = x + 0.5 * (ref - x)
+    halfway[0] = x[0]
+    for variant, start in (("paper", x), ("default", halfway)):
         seen.clear()
         run(data, reward_fn=recording, config=RefineConfig(variant=variant, hidden=8, epochs=2))
-        # Call 0 scores the raw demos, call 1 the output of epoch 1 (before any step).
-        np.testing.assert_array_equal(seen[1], data["positions"])
-        assert not np.array_equal(seen[2], data["positions"])
+        np.testing.assert_allclose(seen[1], start, atol=1e-6)
+        assert not np.allclose(seen[2], start, atol=1e-6)
+
+
+def test_the_default_never_moves_a_sample_away_from_both_raw_and_reference(
+    data: dict[str, Any], default_result: RefineResult
+) -> None:
+    x, ref, out = data["positions"], data["references"], default_result.refined
+    # x̂ = x + g (ref − x) with g ∈ (0, 1): on the segment from x to ref, strictly inside.
+    along = np.sum((out - x) * (ref - x), axis=2) / np.maximum(
+        np.sum((ref - x) ** 2, axis=2), 1e-30
+    )
+    across = np.linalg.norm(out - x - along[..., None] * (ref - x), axis=2)
+    assert np.all((along[1:] > 0.0) & (along[1:] < 1.0))
+    assert across.max() < 1e-6
+    assert 0.5 < along[1:].mean() < 1.0  # and it learnt to follow the reference
 
 
 def test_refinement_is_deterministic_for_a_seed(

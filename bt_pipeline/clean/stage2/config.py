@@ -40,6 +40,7 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "linear_skip": True,
         "skip_lr_scale": 5.0,
         "cosine_lr": True,
+        "gate": True,
     },
     "paper": {
         "epochs": 300,
@@ -55,6 +56,7 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "linear_skip": False,
         "skip_lr_scale": 1.0,
         "cosine_lr": False,
+        "gate": False,
     },
 }
 
@@ -82,6 +84,7 @@ class RefineSettings:
     linear_skip: bool
     skip_lr_scale: float
     cosine_lr: bool
+    gate: bool
     patience: int
     tolerance: float
     min_epochs: int
@@ -135,6 +138,11 @@ class RefineConfig:
     """Learning rate of the linear skip relative to `lr` (default 5)."""
     cosine_lr: bool | None = None
     """Anneal the learning rate to 0 over `epochs` on a cosine (default True; paper False)."""
+    gate: bool | None = None
+    """With `condition_on_reference`, the LSTM outputs a gain g ∈ (0, 1) per sample and
+    x̂ = x + g (x^aligned - x): every refined sample lies between the raw sample and its
+    reference, so refinement never moves a demo away from both (default True; paper False:
+    a free Δ)."""
     patience: int | None = None
     """Stop after this many epochs without a loss improvement > `tolerance`; 0 never stops
     early (default 10; paper 0)."""

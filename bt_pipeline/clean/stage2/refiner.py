@@ -3,9 +3,10 @@
 Data flow, one task, all refined demos in one batch per epoch::
 
     x_i, x_i^aligned ──► features: standardised x_i, pull x_i^aligned - x_i, cos/sin of 2πk/N
-        ──► shared 2-layer bidirectional LSTM ──► zero-initialised linear head ─┬─► Δ_i
-            pull ──► zero-initialised 2x2 linear map ───────────────────────────┘
-        ──► x̂_i = x_i + Δ_i  (x̂ = x before the first step: docs/algorithms.md §7 row 15)
+        ──► shared 2-layer bidirectional LSTM ──► zero-initialised linear head
+        ──► paper:   Δ_i = head                      (x̂ = x before the first step, §7 row 15)
+            default: Δ_i = σ(head) ⊙ (x_i^aligned - x_i), a gain per sample in (0, 1)
+        ──► x̂_i = x_i + Δ_i
         ──► L1..L4 and I_KL (bt_pipeline.clean.stage2.losses) ──► frozen raw-set min-max (Eq. 7)
         ──► Ũ_i = (1 - β_i) Ĩ_i + β_i Σ_j w_j (1 - L̃_j)  (Eq. 8) ──► loss -mean_i Ũ_i ──► Adam
         ──► R̄_i = reward_fn(x̂) (mean V_E, Eq. 11) ──► β_i ← clip(β_i + η tanh(γ ΔR̄_i), 0, 1)
@@ -14,8 +15,9 @@ Two variants share this loop. ``"paper"`` is the paper's configuration as writte
 the demo only, the MI stand-in I_KL is maximised in the loss, normalised scores are unbounded,
 β takes the full step with γ = 5, Adam at 1e-3 for 300 epochs, every demo refined.
 ``"default"`` keeps that structure and answers each trap measured on it (docs/algorithms.md §8):
-the network also sees the pull x_i^aligned - x_i, which a 2x2 linear map adds to Δ (trap 4,
-slow convergence: 30 epochs instead of 1000); L̃1-L̃3 earn nothing below the best raw demo's or
+the network also sees the pull x_i^aligned - x_i and outputs how far to follow it, a gain per
+sample (trap 4, slow convergence: 30 epochs instead of 1000; a free Δ moved a careful browser
+take 5 mm away from both its raw path and its reference, docs/refinement.md); L̃1-L̃3 earn nothing below the best raw demo's or
 the reference's own value (trap 3, tiny ranges); I_KL is only a floor at the demo's own raw
 value, checked every 5th epoch (trap 1, gamed MI); β moves at η_β = 0.1 (trap 2, swings); the
 best demo is passed through (trap 5); the learning rate is annealed on a cosine.
@@ -82,10 +84,12 @@ class _Refiner(nn.Module):
             batch_first=True,
             bidirectional=settings.bidirectional,
         )
-        self.head = nn.Linear(settings.hidden * (2 if settings.bidirectional else 1), 2)
+        self.gate = settings.gate and settings.condition_on_reference
+        outputs = 1 if self.gate else 2
+        self.head = nn.Linear(settings.hidden * (2 if settings.bidirectional else 1), outputs)
         # The pull x_i^aligned - x_i (features 2:4) also reaches Δ through a 2x2 linear map: a
         # gain of 1 is the reference itself, so L4's pull is learnt in a few steps (§8 trap 4).
-        use_skip = settings.linear_skip and settings.condition_on_reference
+        use_skip = settings.linear_skip and settings.condition_on_reference and not self.gate
         self.skip = nn.Linear(2, 2, bias=False) if use_skip else None
         nn.init.zeros_(self.head.weight)  # x̂ = x at initialisation (§7 row 15)
         nn.init.zeros_(self.head.bias)
@@ -94,8 +98,10 @@ class _Refiner(nn.Module):
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         hidden, _ = self.lstm(features)
-        delta = self.head(hidden)
-        return delta if self.skip is None else delta + self.skip(features[..., 2:4])
+        out = self.head(hidden)
+        if self.gate:  # Δ = g (x^aligned - x), g = σ(·) ∈ (0, 1): ½ at initialisation
+            return torch.sigmoid(out) * features[..., 2:4]
+        return out if self.skip is None else out + self.skip(features[..., 2:4])
 
 
 def refine_demos(
@@ -161,6 +167,8 @@ def refine_demos(
         features = _features(x, ref, scales, settings.condition_on_reference)
         features_t = torch.as_tensor(features[refine_mask], dtype=dtype)
         model = _Refiner(features_t.shape[-1], settings)
+        if model.gate:
+            scale = scales.pull_rms  # g × the pull feature, back in metres
         groups: list[tuple[list[torch.Tensor], float]] = [
             ([*model.lstm.parameters(), *model.head.parameters()], settings.lr)
         ]
