@@ -17,10 +17,11 @@ the demo only, the MI stand-in I_KL is maximised in the loss, normalised scores 
 ``"default"`` keeps that structure and answers each trap measured on it (docs/algorithms.md §8):
 the network also sees the pull x_i^aligned - x_i and outputs how far to follow it, a gain per
 sample (trap 4, slow convergence: 30 epochs instead of 1000; a free Δ moved a careful browser
-take 5 mm away from both its raw path and its reference, docs/refinement.md); L̃1-L̃3 earn nothing below the best raw demo's or
-the reference's own value (trap 3, tiny ranges); I_KL is only a floor at the demo's own raw
-value, checked every 5th epoch (trap 1, gamed MI); β moves at η_β = 0.1 (trap 2, swings); the
-best demo is passed through (trap 5); the learning rate is annealed on a cosine.
+take 5 mm away from both its raw path and its reference, docs/refinement.md); L̃1-L̃3 earn
+nothing below the best raw demo's or the reference's own value (trap 3, tiny ranges); I_KL is
+only a floor at the demo's own raw value, checked every 5th epoch (trap 1, gamed MI); β moves at
+η_β = 0.1 (trap 2, swings); the best demo is passed through (trap 5); the learning rate is
+annealed on a cosine.
 """
 
 from __future__ import annotations
