@@ -132,9 +132,12 @@ def test_training_starts_at_the_identity(data: dict[str, Any]) -> None:
     # free Δ is 0 there, the default's gain ½ (halfway to the reference; the best demo as is).
     halfway = x + 0.5 * (ref - x)
     halfway[0] = x[0]
-    for variant, start in (("paper", x), ("default", halfway)):
+    for config, start in (
+        (RefineConfig(variant="paper", hidden=8, epochs=2), x),
+        (RefineConfig(variant="default", hidden=8, epochs=2), halfway),
+    ):
         seen.clear()
-        run(data, reward_fn=recording, config=RefineConfig(variant=variant, hidden=8, epochs=2))
+        run(data, reward_fn=recording, config=config)
         np.testing.assert_allclose(seen[1], start, atol=1e-6)
         assert not np.allclose(seen[2], start, atol=1e-6)
 
