@@ -33,7 +33,8 @@ from bt_pipeline.data.records import FloatArray
 
 UNCERTAIN = 0.5
 """Confidence below which an estimated θ/ρ is reported as uncertain."""
-_PHASE_SMOOTH_S = 0.12  # Gaussian σ of the tracked phase [s]: removes jitter, keeps speed.
+_PHASE_SMOOTH_S = 0.06  # Gaussian σ of the tracked phase [s]: removes jitter, keeps speed.
+_RESIDUAL_SMOOTH_S = 0.12  # Gaussian σ of Stage 2's residual over the reference [s].
 _DRIFT_SMOOTH_S = 1.0  # Gaussian σ of the slow drift removed before the phase is read [s].
 _DRIFT_PASSES = 2  # Phase tracks; the drift is estimated between them.
 _RETIME_OVERSAMPLE = 4  # Points of the dense reference per reference sample.
@@ -132,7 +133,7 @@ def retime_reference(
     """x_i^aligned at the demo's own phase: the reference point the demo means at each sample.
 
     The closed reference ρ R(θ) x^g + c is tracked along the (span) demo sample by sample
-    (:func:`track_phase`); the phase is smoothed (σ = 0.12 s) and the reference read there, so
+    (:func:`track_phase`); the phase is smoothed (σ = 0.06 s) and the reference read there, so
     the result has the demo's loops, pauses and speed changes but not its noise. A slow drift of
     the hand off the reference (its offset smoothed over σ = 1 s) is removed and the phase read
     again, so drift does not shift the phase.
@@ -213,7 +214,7 @@ def smooth_residual(refined: FloatArray, aligned: FloatArray, demos: Sequence[De
     """x̂_i = x_i^aligned + G_σ(x̂_i − x_i^aligned): the refinement's slow corrections are kept,
     its sample-to-sample jitter (which lengthened stop-and-go app demos by 60 %) is not.
 
-    σ is the phase smoothing's 0.12 s in each demo's own samples.
+    σ = 0.12 s in each demo's own samples.
 
     Args:
         refined: Stage 2's output, shape (M, N, 2), in [m].
@@ -222,7 +223,7 @@ def smooth_residual(refined: FloatArray, aligned: FloatArray, demos: Sequence[De
     """
     out = np.array(refined, dtype=np.float64)
     for i, demo in enumerate(demos):
-        sigma = _PHASE_SMOOTH_S * (demo.n_samples - 1) / max(demo.duration_s, 1e-9)
+        sigma = _RESIDUAL_SMOOTH_S * (demo.n_samples - 1) / max(demo.duration_s, 1e-9)
         residual = gaussian_filter1d(out[i] - aligned[i], max(sigma, 0.5), axis=0, mode="nearest")
         out[i] = aligned[i] + residual
     return out

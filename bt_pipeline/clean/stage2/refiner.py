@@ -170,11 +170,13 @@ def refine_demos(
         model = _Refiner(features_t.shape[-1], settings)
         if model.gate:
             scale = scales.pull_rms  # g × the pull feature, back in metres
+        fast = settings.lr * settings.skip_lr_scale  # the pull's own path learns faster
         groups: list[tuple[list[torch.Tensor], float]] = [
-            ([*model.lstm.parameters(), *model.head.parameters()], settings.lr)
+            (list(model.lstm.parameters()), settings.lr),
+            (list(model.head.parameters()), fast if model.gate else settings.lr),
         ]
         if model.skip is not None:
-            groups.append((list(model.skip.parameters()), settings.lr * settings.skip_lr_scale))
+            groups.append((list(model.skip.parameters()), fast))
         optimiser = Adam(groups)
         objective = UtilityObjective(
             normaliser,
