@@ -135,7 +135,8 @@ class RefineConfig:
     """With `condition_on_reference`, also map x_i^aligned - x_i linearly to Δ beside the LSTM
     (default True; paper False: the LSTM alone)."""
     skip_lr_scale: float | None = None
-    """Learning rate of the linear skip relative to `lr` (default 5)."""
+    """Learning rate of the pull's own path (the gain head with `gate`, else the linear skip)
+    relative to `lr` (default 5)."""
     cosine_lr: bool | None = None
     """Anneal the learning rate to 0 over `epochs` on a cosine (default True; paper False)."""
     gate: bool | None = None
