@@ -21,6 +21,7 @@ is an optional dependency (``pip install 'bt[ray]'``); docs/scale.md says what e
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import multiprocessing
 import os
 import sys
@@ -165,13 +166,16 @@ def _iter_processes(
     """A spawn pool; a pool broken by a dead worker is replaced and its unfinished jobs rerun."""
     finished: set[int] = set()
     attempts = dict.fromkeys(range(len(items)), 0)
-    context = multiprocessing.get_context("spawn")
+    shared = config in _SHARED_POOLS
     while len(finished) < len(items):
         pending = [i for i in range(len(items)) if i not in finished]
-        pool = concurrent.futures.ProcessPoolExecutor(
-            max_workers=min(config.workers, len(pending)), mp_context=context
-        )
+        if shared:
+            pool = _SHARED_POOLS[config] or _new_pool(config.workers)
+            _SHARED_POOLS[config] = pool
+        else:
+            pool = _new_pool(min(config.workers, len(pending)))
         broken = False
+        futures: dict[concurrent.futures.Future[R], int] = {}
         try:
             futures = {pool.submit(fn, items[i]): i for i in pending}
             for future in concurrent.futures.as_completed(futures):
@@ -188,7 +192,13 @@ def _iter_processes(
                 del result
         finally:
             # On a job's error (or Ctrl-C), drop the queued jobs instead of waiting for them.
-            pool.shutdown(wait=True, cancel_futures=True)
+            if not shared or broken:
+                pool.shutdown(wait=True, cancel_futures=True)
+                if shared:
+                    _SHARED_POOLS[config] = None  # a fresh pool for the jobs left
+            else:
+                for future in futures:  # those not handed over (an error, or the caller stopped)
+                    future.cancel()
         if broken:
             for i in (i for i in pending if i not in finished):
                 attempts[i] += 1
@@ -197,6 +207,38 @@ def _iter_processes(
                         f"job {label(items[i]) or i}: its worker process died "
                         f"{attempts[i]} times (retries: {config.retries})"
                     )
+
+
+_SHARED_POOLS: dict[ExecutorConfig, concurrent.futures.ProcessPoolExecutor | None] = {}
+"""The pools of the :func:`reuse_workers` blocks open in this process (None: not started yet)."""
+
+
+@contextlib.contextmanager
+def reuse_workers(config: ExecutorConfig) -> Iterator[None]:
+    """Within this block, every :func:`run_jobs` / :func:`iter_jobs` call with `config` uses one
+    pool of worker processes, started on first use and shut down at the end of the block.
+
+    A spawn worker pays its start-up (a fresh interpreter importing numpy, scipy and torch:
+    seconds, measured in docs/scale.md) once per block instead of once per call: ``bt clean``
+    makes several rounds of jobs per large task. A dead worker still gets the pool replaced and
+    its jobs retried. Nothing changes for ``local`` and ``ray`` (Ray keeps its own workers).
+    """
+    if config.kind != "processes" or config.workers <= 1 or config in _SHARED_POOLS:
+        yield
+        return
+    _SHARED_POOLS[config] = None
+    try:
+        yield
+    finally:
+        pool = _SHARED_POOLS.pop(config)
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _new_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
+    return concurrent.futures.ProcessPoolExecutor(
+        max_workers=workers, mp_context=multiprocessing.get_context("spawn")
+    )
 
 
 def _iter_ray(

@@ -17,6 +17,7 @@ from bt_pipeline.execute import (
     ExecutorConfig,
     WorkerLostError,
     iter_jobs,
+    reuse_workers,
     run_jobs,
     start_local_ray,
 )
@@ -93,6 +94,30 @@ def test_a_dead_worker_is_retried_with_processes(tmp_path: Path) -> None:
     out = list(iter_jobs(square, items, ExecutorConfig("processes", workers=2, retries=1)))
     assert sorted(out) == [(k, k * k) for k in range(6)]  # each job handed over once
     assert marker.read_text() == "died once"  # the first attempt really died
+
+
+def pid_of(item: tuple[int, str]) -> int:
+    """A job: its worker's process id (after `square`'s chance to die)."""
+    square(item)
+    return os.getpid()
+
+
+def test_rounds_of_jobs_in_a_reuse_block_share_one_pool_and_still_retry(tmp_path: Path) -> None:
+    config = ExecutorConfig("processes", workers=2, retries=1)
+    marker = tmp_path / "died"
+    with reuse_workers(config):
+        first = set(run_jobs(pid_of, [(k, "") for k in range(4)], config))
+        second = set(run_jobs(pid_of, [(k, "") for k in range(4)], config))
+        assert second <= first and os.getpid() not in first  # the same workers, not this one
+        # A worker dies: its pool is replaced, the job rerun, and the next round uses the new one.
+        third = set(
+            run_jobs(pid_of, [(k, str(marker) if k == 1 else "") for k in range(3)], config)
+        )
+        fourth = set(run_jobs(pid_of, [(k, "") for k in range(3)], config))
+    assert marker.read_text() == "died once"
+    assert third - first and not fourth & first  # the rerun and the next round: a new pool
+    outside = set(run_jobs(pid_of, [(k, "") for k in range(2)], config))
+    assert not outside & (first | third | fourth)  # after the block: a pool of its own
 
 
 def test_local_jobs_run_one_at_a_time_as_their_results_are_taken() -> None:

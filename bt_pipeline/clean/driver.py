@@ -39,7 +39,7 @@ from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_a
 from bt_pipeline.data.skipping import read_usable
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
-from bt_pipeline.execute import ExecutorConfig, iter_jobs
+from bt_pipeline.execute import ExecutorConfig, iter_jobs, reuse_workers
 
 log = logging.getLogger("bt")
 
@@ -224,26 +224,28 @@ def _iter_tasks(
     """Clean every task; yield ``(position, outcome)`` as each task finishes.
 
     A task of at most K demos is one job. A large task (more than ``options.chunk_size`` demos)
-    is cleaned here, in this process, one after another, its Stage 2 chunks going out as jobs
-    of `executor` (a process pool cannot take jobs from its own workers); the other tasks then
-    run as one job each, and come back as they finish. Nothing is held here after a yield.
+    is cleaned here, in this process, one after another, its per-demo steps and Stage 2 chunks
+    going out as jobs of `executor` (bt_pipeline.clean.fan_out; a process pool cannot take jobs
+    from its own workers); the other tasks then run as one job each, and come back as they
+    finish. Every round shares one pool of workers. Nothing is held here after a yield.
     """
     fan_out = executor.kind != "local"
     large = [job for job in jobs if fan_out and len(job[1]) > options.chunk_size]
     small = [job for job in jobs if not (fan_out and len(job[1]) > options.chunk_size)]
-    for position, demos, task_options in large:
-        chunked = dataclasses.replace(task_options, chunk_executor=executor)
-        yield position, _clean_task((position, demos, chunked))
-    for k, outcome in iter_jobs(
-        _clean_task,
-        small,
-        executor,
-        desc="clean tasks",
-        progress=options.progress,
-        label=lambda job: str(job[1][0].task),
-    ):
-        yield small[k][0], outcome
-        del outcome
+    with reuse_workers(executor):  # one pool for every round of jobs (spawn costs seconds)
+        for position, demos, task_options in large:
+            chunked = dataclasses.replace(task_options, chunk_executor=executor)
+            yield position, _clean_task((position, demos, chunked))
+        for k, outcome in iter_jobs(
+            _clean_task,
+            small,
+            executor,
+            desc="clean tasks",
+            progress=options.progress,
+            label=lambda job: str(job[1][0].task),
+        ):
+            yield small[k][0], outcome
+            del outcome
 
 
 def clean_paths(
