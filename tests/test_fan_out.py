@@ -4,6 +4,7 @@ results, bit for bit, in input order (issue 14)."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -31,7 +32,7 @@ def same(a: Any, b: Any) -> bool:
     return a == b
 
 
-def tagged(items: list[int], shared: str) -> list[str]:
+def tagged(items: Sequence[int], shared: str) -> list[str]:
     """A step: each item tagged with the shared value and the size of the chunk it ran in."""
     return [f"{shared}{item}/{len(items)}" for item in items]
 
