@@ -71,7 +71,7 @@ class WorkerLostError(BtError):
     """A job's worker died more often than the retries allow."""
 
 
-def run_jobs(
+def iter_jobs(
     fn: Callable[[T], R],
     items: Sequence[T],
     config: ExecutorConfig,
@@ -79,8 +79,14 @@ def run_jobs(
     desc: str = "jobs",
     progress: bool = False,
     label: Callable[[T], str] = lambda item: "",
-) -> list[R]:
-    """Apply `fn` to every item with the configured executor; results in the order of `items`.
+) -> Iterator[tuple[int, R]]:
+    """Apply `fn` to every item with the configured executor; yield ``(index, result)`` as each
+    job finishes.
+
+    Nothing is kept here once a result is yielded, so a caller that writes each result out and
+    drops it holds one result at a time (``bt clean`` with many tasks). Order: the items' with
+    ``local`` (each job runs only when the previous result has been taken), completion order
+    otherwise.
 
     Args:
         fn: A picklable (module-level) function of one item.
@@ -93,28 +99,6 @@ def run_jobs(
     Raises:
         BtError: A job raised it (not retried); the message names the job when `label` does.
         WorkerLostError: A job's worker died more than ``config.retries`` times.
-    """
-    results: dict[int, R] = dict(
-        iter_jobs(fn, items, config, desc=desc, progress=progress, label=label)
-    )
-    return [results[i] for i in range(len(items))]
-
-
-def iter_jobs(
-    fn: Callable[[T], R],
-    items: Sequence[T],
-    config: ExecutorConfig,
-    *,
-    desc: str = "jobs",
-    progress: bool = False,
-    label: Callable[[T], str] = lambda item: "",
-) -> Iterator[tuple[int, R]]:
-    """Like :func:`run_jobs`, but yield ``(index, result)`` as each job finishes.
-
-    Nothing is kept here once a result is yielded, so a caller that writes each result out and
-    drops it holds one result at a time (``bt clean`` with many tasks). Order: the items' with
-    ``local`` (each job runs only when the previous result has been consumed), completion order
-    otherwise. Arguments and errors as :func:`run_jobs`.
     """
     if not items:
         return
@@ -134,6 +118,15 @@ def iter_jobs(
                 bar.update(1)
                 yield i, result
                 del result  # not held while the next job runs
+
+
+def run_jobs(
+    fn: Callable[[T], R], items: Sequence[T], config: ExecutorConfig, **options: Any
+) -> list[R]:
+    """:func:`iter_jobs`' results as one list, in the order of `items` (same keyword options:
+    ``desc``, ``progress``, ``label``; same errors)."""
+    results: dict[int, R] = dict(iter_jobs(fn, items, config, **options))
+    return [results[i] for i in range(len(items))]
 
 
 class _LineProgress:
