@@ -8,8 +8,10 @@ Data flow for one task (pure core, :func:`clean_demos`)::
         └─ metrics before / after (true KSG, L1-L4, Ũ)
 
 I/O at the edges (:mod:`bt_pipeline.clean.driver`): read recordings, group by task, clean each task
-(in parallel with ``workers``), then write ``<task>.cleaned.hdf5`` and ``<task>.rrd`` only once
-every task has succeeded, so an error leaves no partial output.
+(in parallel with ``workers``), stage ``<task>.cleaned.hdf5`` and ``<task>.rrd`` as each task
+finishes and publish them only once every task has succeeded, so an error leaves no partial
+output. With ``chunk_executor`` set, a task of more than K demos sends its per-demo steps and
+Stage 2 chunks out as jobs (:mod:`bt_pipeline.clean.fan_out`), with identical results.
 """
 
 from __future__ import annotations
