@@ -47,6 +47,7 @@ class TreeSampler:
         self.peak = 0
         self.peak_pss = 0
         self.peak_driver = 0
+        self.driver_start = psutil.Process().memory_info().rss
         self.cpu_at_start = 0.0
         self._cpu: dict[int, float] = {}
         self._stop = threading.Event()
@@ -166,7 +167,8 @@ def main() -> None:
                     f"{kind} M={m}: {wall:.1f} s wall, {cpu:.1f} s CPU, "
                     f"{sampler.peak / 2**30:.2f} GiB peak RSS, "
                     f"{sampler.peak_pss / 2**30:.2f} GiB peak PSS (driver process alone "
-                    f"{sampler.peak_driver / 2**30:.2f}); load average {load_before:.2f} before, "
+                    f"{sampler.peak_driver / 2**30:.2f}, {sampler.driver_start / 2**30:.2f} at the "
+                    f"start); load average {load_before:.2f} before, "
                     f"{os.getloadavg()[0]:.2f} after",
                     flush=True,
                 )

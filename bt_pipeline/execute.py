@@ -6,6 +6,7 @@ picklable function applied to one picklable item; its result comes back to this 
 alone writes outputs (atomically), so every executor gives the same files for the same seeds.
 
     items ──run_jobs(fn, items, ExecutorConfig)──▶ results, in the order of the items
+    items ──iter_jobs(...)──▶ (index, result) as each job finishes, nothing kept after the yield
       local:     fn(item) in this process, one after another
       processes: a spawn-context ProcessPoolExecutor of ``workers`` processes
       ray:       one Ray task per item (``ray.init(address)``, or a private local Ray without
@@ -20,10 +21,11 @@ is an optional dependency (``pip install 'bt[ray]'``); docs/scale.md says what e
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import multiprocessing
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar, get_args
@@ -69,7 +71,7 @@ class WorkerLostError(BtError):
     """A job's worker died more often than the retries allow."""
 
 
-def run_jobs(
+def iter_jobs(
     fn: Callable[[T], R],
     items: Sequence[T],
     config: ExecutorConfig,
@@ -77,8 +79,14 @@ def run_jobs(
     desc: str = "jobs",
     progress: bool = False,
     label: Callable[[T], str] = lambda item: "",
-) -> list[R]:
-    """Apply `fn` to every item with the configured executor; results in the order of `items`.
+) -> Iterator[tuple[int, R]]:
+    """Apply `fn` to every item with the configured executor; yield ``(index, result)`` as each
+    job finishes.
+
+    Nothing is kept here once a result is yielded, so a caller that writes each result out and
+    drops it holds one result at a time (``bt clean`` with many tasks). Order: the items' with
+    ``local`` (each job runs only when the previous result has been taken), completion order
+    otherwise.
 
     Args:
         fn: A picklable (module-level) function of one item.
@@ -93,7 +101,7 @@ def run_jobs(
         WorkerLostError: A job's worker died more than ``config.retries`` times.
     """
     if not items:
-        return []
+        return
     bar: tqdm | _LineProgress
     if progress and not sys.stderr.isatty():
         bar = _LineProgress(len(items), desc)
@@ -101,14 +109,24 @@ def run_jobs(
         bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, disable=not progress)
     with bar:
         if config.kind == "ray":
-            return _run_ray(fn, items, config, bar, label)
-        if config.kind == "processes" and config.workers > 1 and len(items) > 1:
-            return _run_processes(fn, items, config, bar, label)
-        results = []
-        for item in items:
-            results.append(fn(item))
-            bar.update(1)
-        return results
+            yield from _iter_ray(fn, items, config, bar, label)
+        elif config.kind == "processes" and config.workers > 1 and len(items) > 1:
+            yield from _iter_processes(fn, items, config, bar, label)
+        else:
+            for i, item in enumerate(items):
+                result = fn(item)
+                bar.update(1)
+                yield i, result
+                del result  # not held while the next job runs
+
+
+def run_jobs(
+    fn: Callable[[T], R], items: Sequence[T], config: ExecutorConfig, **options: Any
+) -> list[R]:
+    """:func:`iter_jobs`' results as one list, in the order of `items` (same keyword options:
+    ``desc``, ``progress``, ``label``; same errors)."""
+    results: dict[int, R] = dict(iter_jobs(fn, items, config, **options))
+    return [results[i] for i in range(len(items))]
 
 
 class _LineProgress:
@@ -131,53 +149,98 @@ class _LineProgress:
             print(f"{self.desc}: {self.done}/{self.total} jobs done", file=sys.stderr, flush=True)
 
 
-def _run_processes(
+def _iter_processes(
     fn: Callable[[T], R],
     items: Sequence[T],
     config: ExecutorConfig,
     bar: tqdm | _LineProgress,
     label: Callable[[T], str],
-) -> list[R]:
+) -> Iterator[tuple[int, R]]:
     """A spawn pool; a pool broken by a dead worker is replaced and its unfinished jobs rerun."""
-    results: dict[int, R] = {}
+    finished: set[int] = set()
     attempts = dict.fromkeys(range(len(items)), 0)
-    context = multiprocessing.get_context("spawn")
-    while len(results) < len(items):
-        pending = [i for i in range(len(items)) if i not in results]
-        pool = concurrent.futures.ProcessPoolExecutor(
-            max_workers=min(config.workers, len(pending)), mp_context=context
-        )
+    shared = config in _SHARED_POOLS
+    while len(finished) < len(items):
+        pending = [i for i in range(len(items)) if i not in finished]
+        if shared:
+            pool = _SHARED_POOLS[config] or _new_pool(config.workers)
+            _SHARED_POOLS[config] = pool
+        else:
+            pool = _new_pool(min(config.workers, len(pending)))
         broken = False
+        futures: dict[concurrent.futures.Future[R], int] = {}
         try:
             futures = {pool.submit(fn, items[i]): i for i in pending}
             for future in concurrent.futures.as_completed(futures):
-                i = futures[future]
+                i = futures.pop(future)  # the future (and its result) is not kept here
                 try:
-                    results[i] = future.result()
-                    bar.update(1)
+                    result = future.result()
                 except BrokenProcessPool:
                     broken = True
+                    continue
+                del future
+                finished.add(i)
+                bar.update(1)
+                yield i, result
+                del result
         finally:
             # On a job's error (or Ctrl-C), drop the queued jobs instead of waiting for them.
-            pool.shutdown(wait=True, cancel_futures=True)
+            if not shared or broken:
+                pool.shutdown(wait=True, cancel_futures=True)
+                if shared:
+                    _SHARED_POOLS[config] = None  # a fresh pool for the jobs left
+            else:
+                for future in futures:  # those not handed over (an error, or the caller stopped)
+                    future.cancel()
         if broken:
-            for i in (i for i in pending if i not in results):
+            for i in (i for i in pending if i not in finished):
                 attempts[i] += 1
                 if attempts[i] > config.retries:
                     raise WorkerLostError(
                         f"job {label(items[i]) or i}: its worker process died "
                         f"{attempts[i]} times (retries: {config.retries})"
                     )
-    return [results[i] for i in range(len(items))]
 
 
-def _run_ray(
+_SHARED_POOLS: dict[ExecutorConfig, concurrent.futures.ProcessPoolExecutor | None] = {}
+"""The pools of the :func:`reuse_workers` blocks open in this process (None: not started yet)."""
+
+
+@contextlib.contextmanager
+def reuse_workers(config: ExecutorConfig) -> Iterator[None]:
+    """Within this block, every :func:`run_jobs` / :func:`iter_jobs` call with `config` uses one
+    pool of worker processes, started on first use and shut down at the end of the block.
+
+    A spawn worker pays its start-up (a fresh interpreter importing numpy, scipy and torch:
+    seconds, measured in docs/scale.md) once per block instead of once per call: ``bt clean``
+    makes several rounds of jobs per large task. A dead worker still gets the pool replaced and
+    its jobs retried. Nothing changes for ``local`` and ``ray`` (Ray keeps its own workers).
+    """
+    if config.kind != "processes" or config.workers <= 1 or config in _SHARED_POOLS:
+        yield
+        return
+    _SHARED_POOLS[config] = None
+    try:
+        yield
+    finally:
+        pool = _SHARED_POOLS.pop(config)
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _new_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
+    return concurrent.futures.ProcessPoolExecutor(
+        max_workers=workers, mp_context=multiprocessing.get_context("spawn")
+    )
+
+
+def _iter_ray(
     fn: Callable[[T], R],
     items: Sequence[T],
     config: ExecutorConfig,
     bar: tqdm | _LineProgress,
     label: Callable[[T], str],
-) -> list[R]:
+) -> Iterator[tuple[int, R]]:
     ray = _import_ray()
     if not ray.is_initialized():
         if config.ray_address is None:
@@ -189,7 +252,6 @@ def _run_ray(
     remote = ray.remote(max_retries=config.retries, retry_exceptions=False)(fn)
     limit = config.workers if config.workers > 0 else len(items)
     refs: dict[Any, int] = {}
-    results: dict[int, R] = {}
     queue = list(range(len(items)))
     while queue or refs:
         while queue and len(refs) < limit:
@@ -199,7 +261,7 @@ def _run_ray(
         for ref in done:
             i = refs.pop(ref)
             try:
-                results[i] = ray.get(ref)
+                result = ray.get(ref)
             except ray.exceptions.RayTaskError as error:
                 cause = error.cause if hasattr(error, "cause") else None
                 if isinstance(cause, BtError):
@@ -211,7 +273,8 @@ def _run_ray(
                     f"{config.retries} times ({type(error).__name__})"
                 ) from None
             bar.update(1)
-    return [results[i] for i in range(len(items))]
+            yield i, result
+            del result
 
 
 _RAY_QUIET = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}

@@ -167,3 +167,45 @@ def test_tasks_are_cleaned_in_parallel_workers(tmp_path) -> None:
         b = read_recording(serial_summary.output)
         for name in a.demos:
             assert np.allclose(a.demos[name].ee_pos, b.demos[name].ee_pos)  # deterministic
+
+
+def test_each_task_is_staged_as_it_finishes_and_its_result_dropped(tmp_path, monkeypatch) -> None:
+    """The `bt clean` process holds one task's result at a time, not the run's (issue 14).
+
+    When the second task starts, the first one's output is already in the staging folder (not yet
+    published) and nothing references its result any more.
+    """
+    import gc
+    import weakref
+
+    from bt_pipeline.clean import driver
+
+    tasks = ("wiping", "weaving", "pick_and_place")
+    for task in tasks:
+        write_recording(tmp_path / "in" / f"{task}.hdf5", make_demo_set(task, 3, seed=2).recording)
+    out = tmp_path / "out"
+    seen: list[tuple[set[str], set[str], list[bool]]] = []  # staged, published, results alive
+    results: list[weakref.ref] = []
+    real = driver.clean_skipping
+
+    def watched(demos, options, on_epoch=None):
+        gc.collect()
+        staged = {p.name for p in out.glob(".bt-staging-*/*.hdf5")}
+        published = {p.name for p in out.glob("*.hdf5")}
+        seen.append((staged, published, [ref() is not None for ref in results]))
+        result, notes = real(demos, options, on_epoch)
+        results.append(weakref.ref(result))
+        return result, notes
+
+    monkeypatch.setattr(driver, "clean_skipping", watched)
+    summaries = clean_paths([tmp_path / "in"], out, FAST)
+
+    names = [f"{s.task}.cleaned.hdf5" for s in summaries]
+    assert len(seen) == 3
+    for k, (staged, published, alive) in enumerate(seen):
+        assert staged == set(names[:k])  # every finished task written, the next not begun
+        assert published == set()  # published only as a set, at the end
+        assert alive == [False] * k  # no finished task's result is still held
+    assert {p.name for p in out.glob("*.hdf5")} == set(names)
+    assert not list(out.glob(".bt-staging-*"))
+    assert all(s.output.parent == out for s in summaries)

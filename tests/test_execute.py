@@ -13,7 +13,14 @@ from pathlib import Path
 import pytest
 
 from bt_pipeline.exceptions import ConfigError, DemoError
-from bt_pipeline.execute import ExecutorConfig, WorkerLostError, run_jobs, start_local_ray
+from bt_pipeline.execute import (
+    ExecutorConfig,
+    WorkerLostError,
+    iter_jobs,
+    reuse_workers,
+    run_jobs,
+    start_local_ray,
+)
 from bt_pipeline.testing.sockets import is_loopback_address, listening
 
 
@@ -30,6 +37,16 @@ def square(item: tuple[int, str]) -> int:
 
 def always_dies(item: int) -> int:
     os._exit(4)
+
+
+def after(item: tuple[int, str]) -> int:
+    """A job: item[0], once item[1] (a file the consumer writes) exists; -1 if it never does."""
+    value, marker = item
+    for _ in range(3000):  # a guard against a hang only: the consumer writes it at once
+        if not marker or Path(marker).exists():
+            return value
+        time.sleep(0.1)
+    return -1
 
 
 def bad_input(item: int) -> int:
@@ -74,9 +91,57 @@ def test_ray_results_match_processes(ray_local: None) -> None:
 def test_a_dead_worker_is_retried_with_processes(tmp_path: Path) -> None:
     marker = tmp_path / "job3.died"
     items = [(k, str(marker) if k == 3 else "") for k in range(6)]
-    out = run_jobs(square, items, ExecutorConfig("processes", workers=2, retries=1))
-    assert out == [k * k for k in range(6)]
+    out = list(iter_jobs(square, items, ExecutorConfig("processes", workers=2, retries=1)))
+    assert sorted(out) == [(k, k * k) for k in range(6)]  # each job handed over once
     assert marker.read_text() == "died once"  # the first attempt really died
+
+
+def pid_of(item: tuple[int, str]) -> int:
+    """A job: its worker's process id (after `square`'s chance to die)."""
+    square(item)
+    return os.getpid()
+
+
+def test_rounds_of_jobs_in_a_reuse_block_share_one_pool_and_still_retry(tmp_path: Path) -> None:
+    config = ExecutorConfig("processes", workers=2, retries=1)
+    marker = tmp_path / "died"
+    with reuse_workers(config):
+        first = set(run_jobs(pid_of, [(k, "") for k in range(4)], config))
+        second = set(run_jobs(pid_of, [(k, "") for k in range(4)], config))
+        assert second <= first and os.getpid() not in first  # the same workers, not this one
+        # A worker dies: its pool is replaced, the job rerun, and the next round uses the new one.
+        third = set(
+            run_jobs(pid_of, [(k, str(marker) if k == 1 else "") for k in range(3)], config)
+        )
+        fourth = set(run_jobs(pid_of, [(k, "") for k in range(3)], config))
+    assert marker.read_text() == "died once"
+    assert third - first and not fourth & first  # the rerun and the next round: a new pool
+    outside = set(run_jobs(pid_of, [(k, "") for k in range(2)], config))
+    assert not outside & (first | third | fourth)  # after the block: a pool of its own
+
+
+def test_local_jobs_run_one_at_a_time_as_their_results_are_taken() -> None:
+    events: list[str] = []
+
+    def job(k: int) -> int:
+        events.append(f"run {k}")
+        return k
+
+    for k, result in iter_jobs(job, [0, 1, 2], ExecutorConfig("local")):
+        events.append(f"took {result} as {k}")
+    assert events == ["run 0", "took 0 as 0", "run 1", "took 1 as 1", "run 2", "took 2 as 2"]
+
+
+def test_pool_results_are_handed_over_as_each_job_finishes(tmp_path: Path) -> None:
+    """Job 1 finishes only once the caller has received job 0's result: a pool that kept its
+    results until every job was done would hand job 1 back as -1."""
+    marker = tmp_path / "took-job-0"
+    items = [(0, ""), (1, str(marker))]
+    taken = []
+    for k, result in iter_jobs(after, items, ExecutorConfig("processes", workers=2)):
+        taken.append((k, result))
+        marker.touch()
+    assert taken == [(0, 0), (1, 1)]
 
 
 def test_a_dead_worker_is_retried_with_ray(ray_local: None, tmp_path: Path) -> None:

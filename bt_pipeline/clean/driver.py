@@ -3,18 +3,21 @@
 Skip, don't stop: an excluded file (moderation sidecar), a flagged demo (``DemoRecord.flags``)
 and, unless ``--strict``, an unreadable file or a demo the cleaner cannot use (no motion, not
 periodic, degenerate) are skipped with a one-line note naming them, and the task is cleaned
-without them. Outputs are written only after every task has been cleaned, into a staging folder
-published as one set (:class:`~bt_pipeline.data.output_set.OutputSet`), so an error, Ctrl-C or
-kill -9 leaves the outputs of one whole run. Inputs are opened read-only and never modified.
+without them. Each task's outputs are written as soon as the task is cleaned, into a staging
+folder published as one set once every task has succeeded
+(:class:`~bt_pipeline.data.output_set.OutputSet`), so an error, Ctrl-C or kill -9 leaves the
+outputs of one whole run, and this process holds one task's result at a time, not the run's.
+Inputs are opened read-only and never modified.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,7 +39,7 @@ from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_a
 from bt_pipeline.data.skipping import read_usable
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
-from bt_pipeline.execute import ExecutorConfig, run_jobs
+from bt_pipeline.execute import ExecutorConfig, iter_jobs, reuse_workers
 
 log = logging.getLogger("bt")
 
@@ -213,35 +216,36 @@ def _clean_task(
         return clean_skipping(demos, options, on_epoch)
 
 
-def _run_tasks(
+def _iter_tasks(
     jobs: list[tuple[int, list[Demo], CleanOptions]],
     executor: ExecutorConfig,
     options: CleanOptions,
-) -> list[tuple[TaskCleanResult | None, list[str]]]:
-    """Clean every task: a task of at most K demos is one job; a larger one's chunks are jobs.
+) -> Iterator[tuple[int, tuple[TaskCleanResult | None, list[str]]]]:
+    """Clean every task; yield ``(position, outcome)`` as each task finishes.
 
-    A large task (more than ``options.chunk_size`` demos) is cleaned here, in this process, one
-    after another, its Stage 2 chunks going out as jobs of `executor` (a process pool cannot take
-    jobs from its own workers); the other tasks then run as one job each. Outcomes come back in
-    the order of `jobs`.
+    A task of at most K demos is one job. A large task (more than ``options.chunk_size`` demos)
+    is cleaned here, in this process, one after another, its per-demo steps and Stage 2 chunks
+    going out as jobs of `executor` (bt_pipeline.clean.fan_out; a process pool cannot take jobs
+    from its own workers); the other tasks then run as one job each, and come back as they
+    finish. Every round shares one pool of workers. Nothing is held here after a yield.
     """
     fan_out = executor.kind != "local"
     large = [job for job in jobs if fan_out and len(job[1]) > options.chunk_size]
     small = [job for job in jobs if not (fan_out and len(job[1]) > options.chunk_size)]
-    outcomes: dict[int, tuple[TaskCleanResult | None, list[str]]] = {}
-    for position, demos, task_options in large:
-        chunked = dataclasses.replace(task_options, chunk_executor=executor)
-        outcomes[position] = _clean_task((position, demos, chunked))
-    results = run_jobs(
-        _clean_task,
-        small,
-        executor,
-        desc="clean tasks",
-        progress=options.progress,
-        label=lambda job: str(job[1][0].task),
-    )
-    outcomes.update((job[0], outcome) for job, outcome in zip(small, results, strict=True))
-    return [outcomes[job[0]] for job in jobs]
+    with reuse_workers(executor):  # one pool for every round of jobs (spawn costs seconds)
+        for position, demos, task_options in large:
+            chunked = dataclasses.replace(task_options, chunk_executor=executor)
+            yield position, _clean_task((position, demos, chunked))
+        for k, outcome in iter_jobs(
+            _clean_task,
+            small,
+            executor,
+            desc="clean tasks",
+            progress=options.progress,
+            label=lambda job: str(job[1][0].task),
+        ):
+            yield small[k][0], outcome
+            del outcome
 
 
 def clean_paths(
@@ -254,7 +258,10 @@ def clean_paths(
     """Clean every task found under `paths` and write the outputs into `out_dir`.
 
     Tasks run as jobs of `executor` (default: ``options.workers`` local processes); outputs are
-    written here, in this process, so every executor writes the same files for a seed.
+    written here, in this process, so every executor writes the same files for a seed. Each
+    task's outputs are written into the run's staging folder as soon as the task is cleaned and
+    its result is then dropped (this process holds one task's result at a time, not M demos'
+    worth); the set is published only once every task has succeeded.
 
     Args:
         paths: Recording files, directories or glob patterns.
@@ -291,80 +298,117 @@ def clean_paths(
 
     jobs = [(k, group, options) for k, group in enumerate(groups.values())]
     executor = executor or ExecutorConfig("processes", options.workers)
-    outcomes = _run_tasks(jobs, executor, options)
-    results = [result for result, _ in outcomes if result is not None]
-    if not results:
-        raise DemoError(
-            f"no task could be cleaned: {'; '.join(n for _, ns in outcomes for n in ns)}"
+    # Outputs are staged as each task finishes and published as one set at the end: an error,
+    # Ctrl-C or kill -9 before the commit leaves `out_dir` as it was (OutputSet).
+    created = not out_dir.exists()
+    try:
+        summaries, skip_notes = _clean_and_stage(
+            jobs, executor, options, out_dir, records, sources, [str(t) for t in groups]
         )
+    except BaseException:
+        if created:  # a folder this failed run made, now empty again, is removed too
+            with contextlib.suppress(OSError):
+                out_dir.rmdir()
+        raise
+    ordered = [summaries[k] for k in sorted(summaries)]
     # Excluded files belong to no known task: their notes go with the first task cleaned.
-    task_notes = {
-        group[0].task: notes for (_, group, _), (_, notes) in zip(jobs, outcomes, strict=True)
-    }
+    task_notes = {group[0].task: skip_notes[k] for k, group, _ in jobs}
     for note in reversed(usable.notes):  # prepended: they keep their order, before the rest
         tasks = [d.task for d, _ in usable.flagged if note.startswith(f"skipped {d.label}:")]
-        task = tasks[0] if tasks else results[0].task
+        task = tasks[0] if tasks else ordered[0].task
         task_notes[task] = [note, *task_notes.get(task, [])]
+    return [
+        dataclasses.replace(
+            summary,
+            output=out_dir / summary.output.name,
+            rrd=None if summary.rrd is None else out_dir / summary.rrd.name,
+            seconds=summary.seconds + read_seconds / len(ordered),
+            stage_seconds={"read": read_seconds / len(ordered), **summary.stage_seconds},
+            notes=(*task_notes.get(summary.task, ()), *summary.notes),
+        )
+        for summary in ordered
+    ]
 
-    # Every task is cleaned: only now write the outputs, staged and published as one set.
+
+def _clean_and_stage(
+    jobs: list[tuple[int, list[Demo], CleanOptions]],
+    executor: ExecutorConfig,
+    options: CleanOptions,
+    out_dir: Path,
+    records: dict[tuple[str, str], DemoRecord],
+    sources: dict[str, Recording],
+    tasks: list[str],
+) -> tuple[dict[int, TaskCleanSummary], dict[int, list[str]]]:
+    """Clean every task, staging each one's outputs as it finishes; publish them as one set.
+
+    Returns:
+        Each cleaned task's summary and each task's skip notes, by the task's position in `jobs`.
+    """
+    summaries: dict[int, TaskCleanSummary] = {}
+    skip_notes: dict[int, list[str]] = {}
     with OutputSet(out_dir) as outputs:
         for line in outputs.recovered:
             log.info("%s", line)
-        write_seconds = {}
-        for result in results:
-            write_start = time.perf_counter()
-            write_recording(
-                outputs.path(f"{result.task}.cleaned.hdf5"),
-                cleaned_recording(result, records, sources, options),
-                overwrite=True,
-            )
-            if options.write_rrd:
-                from bt_pipeline.viz.rerun_clean import save_clean_rrd
-
-                # Rerun keeps one layout per app id: every file carries a tab for each task of
-                # the run, so opening several of them together shows all tasks.
-                save_clean_rrd(
-                    result,
-                    outputs.path(f"{result.task}.rrd"),
-                    blueprint_tasks=[r.task for r in results],
-                )
-            write_seconds[result.task] = time.perf_counter() - write_start
+        for position, (result, notes) in _iter_tasks(jobs, executor, options):
+            skip_notes[position] = notes
+            if result is not None:
+                summaries[position] = _write_task(result, outputs, records, sources, options, tasks)
+            del result  # written: not held while the other tasks run
+        if not summaries:
+            notes = [n for k in sorted(skip_notes) for n in skip_notes[k]]
+            raise DemoError(f"no task could be cleaned: {'; '.join(notes)}")
         outputs.commit()
-    summaries = []
-    for result in results:
-        output = out_dir / f"{result.task}.cleaned.hdf5"
-        rrd = out_dir / f"{result.task}.rrd" if options.write_rrd else None
-        best = result.demos[result.best_index]
-        stage_seconds = {"read": read_seconds / len(results), **result.seconds}
-        stage_seconds["write"] = write_seconds[result.task]
-        summaries.append(
-            TaskCleanSummary(
-                task=result.task,
-                best_file=best.file,
-                best_demo=best.name,
-                output=output,
-                rrd=rrd,
-                seconds=sum(stage_seconds.values()),
-                stage_seconds=stage_seconds,
-                demos=tuple(
-                    DemoCleanSummary(
-                        file=demo.file,
-                        demo=demo.name,
-                        output_demo=name,
-                        demonstrator=demo.demonstrator,
-                        utility_raw=result.raw[i].utility,
-                        utility_cleaned=result.cleaned[i].utility,
-                        shape_loss_raw=result.raw[i].shape,
-                        shape_loss_cleaned=result.cleaned[i].shape,
-                        beta_final=float(result.refine.betas[i]),
-                    )
-                    for i, (demo, name) in enumerate(
-                        zip(result.demos, output_names(result.demos), strict=True)
-                    )
-                ),
-                notes=(*task_notes.get(result.task, ()), *result.notes),
+    return summaries, skip_notes
+
+
+def _write_task(
+    result: TaskCleanResult,
+    outputs: OutputSet,
+    records: dict[tuple[str, str], DemoRecord],
+    sources: dict[str, Recording],
+    options: CleanOptions,
+    tasks: list[str],
+) -> TaskCleanSummary:
+    """Stage one task's outputs in `outputs`; return its summary (paths are the staged ones,
+    read time and the file's notes not yet added)."""
+    write_start = time.perf_counter()
+    output = outputs.path(f"{result.task}.cleaned.hdf5")
+    write_recording(output, cleaned_recording(result, records, sources, options), overwrite=True)
+    rrd = None
+    if options.write_rrd:
+        from bt_pipeline.viz.rerun_clean import save_clean_rrd
+
+        # Rerun keeps one layout per app id: every file carries a tab for each task of the
+        # run, so opening several of them together shows all tasks.
+        rrd = outputs.path(f"{result.task}.rrd")
+        save_clean_rrd(result, rrd, blueprint_tasks=tasks)
+    stage_seconds = {**result.seconds, "write": time.perf_counter() - write_start}
+    for note in result.notes:
+        log.info("%s: %s", result.task, note)
+    best = result.demos[result.best_index]
+    return TaskCleanSummary(
+        task=result.task,
+        best_file=best.file,
+        best_demo=best.name,
+        output=output,
+        rrd=rrd,
+        seconds=sum(stage_seconds.values()),
+        stage_seconds=stage_seconds,
+        demos=tuple(
+            DemoCleanSummary(
+                file=demo.file,
+                demo=demo.name,
+                output_demo=name,
+                demonstrator=demo.demonstrator,
+                utility_raw=result.raw[i].utility,
+                utility_cleaned=result.cleaned[i].utility,
+                shape_loss_raw=result.raw[i].shape,
+                shape_loss_cleaned=result.cleaned[i].shape,
+                beta_final=float(result.refine.betas[i]),
             )
-        )
-        for note in result.notes:
-            log.info("%s: %s", result.task, note)
-    return summaries
+            for i, (demo, name) in enumerate(
+                zip(result.demos, output_names(result.demos), strict=True)
+            )
+        ),
+        notes=result.notes,
+    )

@@ -8,8 +8,10 @@ Data flow for one task (pure core, :func:`clean_demos`)::
         └─ metrics before / after (true KSG, L1-L4, Ũ)
 
 I/O at the edges (:mod:`bt_pipeline.clean.driver`): read recordings, group by task, clean each task
-(in parallel with ``workers``), then write ``<task>.cleaned.hdf5`` and ``<task>.rrd`` only once
-every task has succeeded, so an error leaves no partial output.
+(in parallel with ``workers``), stage ``<task>.cleaned.hdf5`` and ``<task>.rrd`` as each task
+finishes and publish them only once every task has succeeded, so an error leaves no partial
+output. With ``chunk_executor`` set, a task of more than K demos sends its per-demo steps and
+Stage 2 chunks out as jobs (:mod:`bt_pipeline.clean.fan_out`), with identical results.
 """
 
 from __future__ import annotations
@@ -21,14 +23,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bt_pipeline.clean.fan_out import metrics_step, per_demo, retime_step, segment_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.periodic import (
     UNCERTAIN,
     PreferenceEstimate,
     phase_loop,
     pool_preferences,
-    retime_reference,
-    segment_all,
     smooth_residual,
     span_demo,
 )
@@ -42,8 +43,6 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.execute import ExecutorConfig
-from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
-from bt_pipeline.score.mi import mutual_information
 from bt_pipeline.score.utility import (
     Normaliser,
     ScoreConfig,
@@ -180,26 +179,6 @@ def check_usable(demos: Sequence[Demo]) -> None:
             )
 
 
-def demo_metrics(
-    positions: FloatArray,
-    reference: FloatArray,
-    theta_deg: float,
-    k: int,
-    alphas: tuple[float, float, float],
-) -> tuple[float, float, float, float, float]:
-    """Raw (MI, L1, L2, L3, L4) of one demo in task coordinates, shape (N, 2)."""
-    times = np.linspace(0.0, 1.0, positions.shape[0])
-    actions = np.zeros_like(positions)
-    actions[:-1] = np.diff(positions, axis=0) / np.diff(times)[:, None]
-    return (
-        mutual_information(positions, actions, k=k),
-        symmetry_loss(positions, theta_deg),
-        closure_loss(positions),
-        smoothness_loss(positions, alphas),
-        float(np.mean(np.linalg.norm(positions - reference, axis=1))),  # Eq. (9), aligned.
-    )
-
-
 def _with_utility(
     values: FloatArray, normaliser: Normaliser, weights: Sequence[float], betas: FloatArray
 ) -> tuple[DemoMetrics, ...]:
@@ -246,7 +225,18 @@ def clean_demos(
 
     seconds: dict[str, float] = {}
     start = time.perf_counter()
-    segments = segment_all(demos, options.preference_range)
+    fan_out = options.chunk_executor if len(demos) > options.chunk_size else None
+    k_max, task_label = options.chunk_size, str(demos[0].task)
+    segments = tuple(
+        per_demo(
+            segment_step,
+            demos,
+            options.preference_range,
+            executor=fan_out,
+            chunk_size=k_max,
+            label=f"segment {task_label}",
+        )
+    )
     preferences = pool_preferences(demos, segments)
     demos = [
         span_demo(demo, segment, demos[0].n_samples, preference)
@@ -293,10 +283,14 @@ def clean_demos(
         for s in segments
     ]
     aligned = np.stack(
-        [
-            retime_reference(stage1.global_shape, p.theta_deg, p.rho, stage1.centre + o, demo)
-            for demo, p, o in zip(demos, preferences, offsets, strict=True)
-        ]
+        per_demo(
+            retime_step,
+            list(zip(demos, preferences, offsets, strict=True)),
+            (stage1.global_shape, stage1.centre),
+            executor=fan_out,
+            chunk_size=k_max,
+            label=f"align {task_label}",
+        )
     )
     positions = np.stack([demo.positions for demo in demos])
     stage1 = dataclasses.replace(
@@ -328,19 +322,19 @@ def clean_demos(
     seconds["stage2"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    k, alphas = options.score.k, options.score.alphas
-    raw_values = np.array(
+    metrics = per_demo(
+        metrics_step,
         [
-            demo_metrics(positions[i], stage1.aligned[i], stage1.thetas[i], k, alphas)
+            (positions[i], refined.refined[i], stage1.aligned[i], float(stage1.thetas[i]))
             for i in range(len(demos))
-        ]
+        ],
+        (options.score.k, options.score.alphas),
+        executor=fan_out,
+        chunk_size=k_max,
+        label=f"metrics {task_label}",
     )
-    cleaned_values = np.array(
-        [
-            demo_metrics(refined.refined[i], stage1.aligned[i], stage1.thetas[i], k, alphas)
-            for i in range(len(demos))
-        ]
-    )
+    raw_values = np.array([raw for raw, _ in metrics])
+    cleaned_values = np.array([cleaned for _, cleaned in metrics])
     weights = refined.settings.weights
     raw = _with_utility(raw_values, normaliser, weights, refined.betas)
     cleaned = _with_utility(cleaned_values, normaliser, weights, refined.betas)

@@ -81,9 +81,10 @@ def json_attr(attrs: h5py.AttributeManager, key: str, label: str) -> dict[str, A
 def read_extra_attrs(attrs: h5py.AttributeManager, reserved: frozenset[str]) -> dict[str, Any]:
     """Attrs outside format v1, as Python scalars, strings, lists of strings or arrays."""
     extra: dict[str, Any] = {}
-    for key, value in attrs.items():
-        if key in reserved:
+    for key in attrs:  # names first: reading a value costs far more, and reserved ones are read
+        if key in reserved:  # by their typed readers already
             continue
+        value = attrs[key]
         if isinstance(value, np.ndarray) and value.dtype.kind in "OSU":
             extra[key] = [decode(v) for v in value.ravel().tolist()]
         elif isinstance(value, bytes):
