@@ -120,8 +120,13 @@ class _Field(nn.Module):
         return self.rate(y)
 
     def rate(self, y: torch.Tensor) -> torch.Tensor:
-        """d(z, φ)/dt at y (B, 3)."""
-        rate = self.net(self.data.features(y[:, :2], y[:, 2])) * self.ratio + self.offset
+        """d(z, φ)/dt at y (B, 3).
+
+        The phase enters the net detached: dφ/dt = ω is constant, so no parameter's gradient
+        passes through φ, and autograd need not carry the cos/sin branch back (the parameter
+        gradients are bit for bit the same; tests/test_learners.py).
+        """
+        rate = self.net(self.data.features(y[:, :2], y[:, 2].detach())) * self.ratio + self.offset
         return torch.cat([rate, torch.full_like(y[:, 2:], self.data.omega)], dim=1)
 
 
