@@ -78,6 +78,11 @@ def test_report_has_tables_the_paper_side_by_side_and_a_verdict(tiny_run) -> Non
     assert f"| wiping | {PAPER_ILEED_D1_GAIN['wiping']:+.3f} |" in report
     assert "## Where cleaned beats noisy, and where it does not" in report
     assert "Of 2 (set, task, learner) cells" in report
+    # the reasons, with this run's numbers (the tiny learners win no cell)
+    assert "**Why cleaned does not win in 2 of 2 cells**" in report
+    assert "*The bound of cleaning.* In 2 of these 2 cells" in report
+    assert "mm from the mean-preference loop" in report
+    assert "*Every learner stays below the best demonstrator.*" in report
     assert "R̄ truth" in report and "with the truth" in report
     assert "Welch t, seeds" in report  # two seeds: the test runs over per-seed means
     assert "## Oracle rows" in report and "mean-preference loop" in report
