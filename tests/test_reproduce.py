@@ -101,10 +101,9 @@ def test_results_json_has_the_oracle_rows(tiny_run) -> None:
 
 def _rows(run) -> list[dict]:
     """results.json rows without their timings (wall times differ from run to run)."""
-    return [
-        {k: v for k, v in row.items() if k != "train_seconds"}
-        for row in results_json(run)["results"]
-    ]
+    rows = results_json(run)["results"]
+    assert isinstance(rows, list)
+    return [{k: v for k, v in row.items() if k != "train_seconds"} for row in rows]
 
 
 def test_results_do_not_depend_on_the_job_split_or_their_order() -> None:

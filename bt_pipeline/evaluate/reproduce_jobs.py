@@ -313,7 +313,9 @@ def run_reproduce(
     """
     start = time.perf_counter()
     executor = executor or ExecutorConfig("processes", config.workers)
-    keys = [(s, n, t) for n in config.sets for t in config.tasks for s in range(config.seeds)]
+    keys: list[tuple[int, SetName, Task]] = [
+        (s, n, t) for n in config.sets for t in config.tasks for s in range(config.seeds)
+    ]
     prepared = run_jobs(
         prepare_set,
         [(*key, config) for key in keys],

@@ -22,20 +22,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from bt_pipeline.data.tasks import Task
-from bt_pipeline.evaluate.cells import Cell, verdict
-from bt_pipeline.evaluate.learners import LearnerName
-from bt_pipeline.evaluate.reproduce_jobs import ReproduceRun, SetName
+from bt_pipeline.evaluate.cells import verdict
+from bt_pipeline.evaluate.reproduce_jobs import ReproduceRun
 
-Key = tuple[SetName, Task, LearnerName]
+Key = tuple[str, str, str]
+"""(set, task, learner)."""
 ILEED_LEAD = 0.2
 """ILEED singles out a demonstrator when its σ leads every other's by at least this much."""
 
 
-def why_lines(
-    run: ReproduceRun, table: dict[tuple[SetName, Task, LearnerName, str], Cell], lost: list[Key]
-) -> list[str]:
-    """Bullets explaining, with numbers, the cells in `lost` (cleaned not higher than noisy)."""
+def why_lines(run: ReproduceRun, table: dict, lost: list[Key]) -> list[str]:
+    """Bullets explaining, with numbers, the cells in `lost` (cleaned not higher than noisy);
+    `table` maps (set, task, learner, dataset) to its :class:`Cell`."""
     if not lost:
         return []
     lines = [

@@ -83,8 +83,11 @@ def clip_grad_norm(params: Sequence[torch.Tensor], max_norm: float) -> torch.Ten
     grads = [p.grad for p in params if p.grad is not None]
     if not grads:
         return torch.tensor(0.0)
-    total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads, 2.0)), 2.0)
-    torch._foreach_mul_(grads, torch.clamp(float(max_norm) / (total + 1e-6), max=1.0))
+    # torch's own foreach kernels, as clip_grad_norm_ calls them (not in torch's typed exports)
+    norms = torch._foreach_norm(grads, 2.0)  # pyright: ignore[reportPrivateImportUsage]
+    total = torch.linalg.vector_norm(torch.stack(norms), 2.0)
+    coefficient = torch.clamp(float(max_norm) / (total + 1e-6), max=1.0)
+    torch._foreach_mul_(grads, coefficient)  # pyright: ignore[reportPrivateImportUsage]
     return total
 
 
