@@ -18,7 +18,10 @@ truth rows) from per-job CPU costs instead of running it: for seed 0 of every (s
 preparation job (generate, clean, yardstick) and its 12 learner jobs (4 learners × noisy, cleaned,
 truth), and one competence check per learner, are run in this process and timed by CPU time.
 Seeds 1 and 2 are taken to cost what seed 0 costs, and every competence check of a learner what
-its one measured check costs. The projected wall time schedules those costs on the workers exactly
+its one measured check costs. On a busy machine ``--estimate-tasks weaving
+--estimate-noisy-only`` measures less (one task per set, the noisy dataset only) and projects the
+rest from it: a learner job's cost is set by the learner's steps and batch, not by the data.
+The projected wall time schedules those costs on the workers exactly
 as ``run_reproduce`` does (stage 1 in order, stage 2 longest first by ``job_cost``, each job to
 the first free worker), plus the start-up of the two stages' worker pools (measured: a spawned
 process importing the job module). CPU time is what a loaded machine inflates least, so this is
@@ -110,18 +113,25 @@ def startup_seconds() -> float:
     return time.perf_counter() - start
 
 
-def estimate_full(workers: int) -> dict[str, float]:
-    """CPU cost and projected wall time of the full run (3 seeds, oracle) from one seed [s]."""
+def estimate_full(workers: int, tasks: tuple[str, ...], all_datasets: bool) -> dict[str, float]:
+    """CPU cost and projected wall time of the full run (3 seeds, oracle) from one seed [s].
+
+    Only `tasks` are measured (a task not measured costs what the measured ones of its set cost
+    on average, learner by learner); without `all_datasets` only the noisy dataset is trained and
+    the cleaned and truth jobs are taken to cost the same (same learner, steps and batch; the
+    demos differ only in their positions).
+    """
     config = ReproduceConfig.preset(False, oracle=True)
     prepare: list[float] = []
-    stage2: list[tuple[float, float]] = []  # (job_cost, measured CPU)
+    measured: dict[tuple[str, str, str, str], float] = {}  # (set, task, dataset, learner): CPU
     for set_name in config.sets:
-        for task in config.tasks:
+        for task in (t for t in config.tasks if t in tasks):
             cpu0 = cpu_seconds()
             p = prepare_set((0, set_name, task, config))
             prepare.append(cpu_seconds() - cpu0)
-            costs = []
             for dataset, (positions, demonstrators) in p.data.items():
+                if dataset != "noisy" and not all_datasets:
+                    continue
                 for learner in config.learners:
                     job = LearnerJob(
                         task,
@@ -135,13 +145,29 @@ def estimate_full(workers: int) -> dict[str, float]:
                     )
                     cpu0 = cpu_seconds()
                     run_learner(job)
-                    costs.append(cpu_seconds() - cpu0)
-                    stage2.append((job_cost(learner, config, positions.shape[0]), costs[-1]))
+                    measured[(set_name, task, dataset, learner)] = cpu_seconds() - cpu0
             print(
-                f"  {set_name} {task}: prepare {prepare[-1]:.0f} s CPU, 12 learner jobs "
-                f"{sum(costs):.0f} s CPU ({', '.join(f'{c:.0f}' for c in costs)})",
+                f"  {set_name} {task}: prepare {prepare[-1]:.0f} s CPU; learner jobs [s CPU]: "
+                + ", ".join(
+                    f"{d} {lr} {c:.0f}"
+                    for (s, t, d, lr), c in measured.items()
+                    if (s, t) == (set_name, task)
+                ),
                 flush=True,
             )
+    prepare = [statistics.mean(prepare)] * (len(config.sets) * len(config.tasks))
+    stage2: list[tuple[float, float]] = []  # (job_cost, projected CPU)
+    for set_name in config.sets:
+        for task in config.tasks:
+            for dataset in ("noisy", "cleaned", "truth"):
+                for learner in config.learners:
+                    same = [
+                        c for (s, t, d, lr), c in measured.items()
+                        if s == set_name and lr == learner and (t == task or task not in tasks)
+                        and (d == dataset or not all_datasets)
+                    ]  # fmt: skip
+                    demos = 4 if set_name == "D1" else 20
+                    stage2.append((job_cost(learner, config, demos), statistics.mean(same)))
     competence: dict[str, float] = {}
     for learner in config.learners:
         cpu0 = cpu_seconds()
@@ -183,6 +209,14 @@ def main() -> None:
     parser.add_argument(
         "--estimate-full", action="store_true", help="project the full run from per-job CPU costs"
     )
+    parser.add_argument(
+        "--estimate-tasks", default="wiping,weaving,pick_and_place", help="tasks to measure"
+    )
+    parser.add_argument(
+        "--estimate-noisy-only",
+        action="store_true",
+        help="train only the noisy dataset; cleaned and truth jobs cost the same",
+    )
     args = parser.parse_args()
     runs = [r.strip() for r in args.runs.split(",") if r.strip()]
     before = baseline_seconds()
@@ -213,7 +247,8 @@ def main() -> None:
     )
     if args.estimate_full:
         print("\nEstimating the full run (3 seeds) from per-job CPU costs:")
-        est = estimate_full(args.workers)
+        tasks = tuple(t.strip() for t in args.estimate_tasks.split(",") if t.strip())
+        est = estimate_full(args.workers, tasks, not args.estimate_noisy_only)
         print(
             f"full run: preparation {est['prepare']:.0f} s CPU + learner jobs "
             f"{est['learners']:.0f} s CPU + competence checks {est['competence']:.0f} s CPU = "
