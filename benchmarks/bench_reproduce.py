@@ -125,7 +125,9 @@ def estimate_full(workers: int, tasks: tuple[str, ...], all_datasets: bool) -> d
     prepare: list[float] = []
     measured: dict[tuple[str, str, str, str], float] = {}  # (set, task, dataset, learner): CPU
     for set_name in config.sets:
-        for task in (t for t in config.tasks if t in tasks):
+        for task in config.tasks:
+            if task not in tasks:
+                continue
             cpu0 = cpu_seconds()
             p = prepare_set((0, set_name, task, config))
             prepare.append(cpu_seconds() - cpu0)
