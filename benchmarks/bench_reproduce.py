@@ -46,6 +46,7 @@ from bt_pipeline.data.synth import make_d1
 from bt_pipeline.evaluate.learners import LEARNERS, learner_config, train_learner
 from bt_pipeline.evaluate.reproduce import write_outputs
 from bt_pipeline.evaluate.reproduce_jobs import (
+    COMPETENCE_COST,
     LearnerJob,
     ReproduceConfig,
     job_cost,
@@ -178,7 +179,7 @@ def estimate_full(workers: int, tasks: tuple[str, ...], all_datasets: bool) -> d
         print(f"  competence check weaving {learner}: {competence[learner]:.0f} s CPU", flush=True)
     stage2 = stage2 * config.seeds
     stage2 += [
-        (job_cost(learner, config) * 1.2, competence[learner])
+        (job_cost(learner, config) * COMPETENCE_COST, competence[learner])
         for _ in range(2 * len(config.tasks))
         for learner in config.learners
     ]
