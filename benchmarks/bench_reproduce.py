@@ -11,17 +11,28 @@ median of 3) is timed before and after and every run is also given in baseline u
     python benchmarks/bench_reproduce.py --runs quick     # quick only
     python benchmarks/bench_reproduce.py --workers 2      # both cores
     python benchmarks/bench_reproduce.py --runs quick --estimate-full --workers 2
+    python benchmarks/bench_reproduce.py --runs quick --repeats 3 --workers 2   # median of 3
 
-``--estimate-full`` projects the full run (3 seeds) from per-job CPU costs instead of running it:
-one full-preset evaluation job of D1 and of D2 per task and one competence check per learner are
-run in this process and timed by CPU time, then scaled by the number of jobs of the full run and
-divided by the workers. CPU time is what a loaded machine inflates least, so this is the way to
-estimate the full run on a shared machine.
+``--estimate-full`` projects the full run (``bt reproduce --oracle``: 3 seeds, 50 rollouts, the
+truth rows) from per-job CPU costs instead of running it: for seed 0 of every (set, task) the
+preparation job (generate, clean, yardstick) and its 12 learner jobs (4 learners × noisy, cleaned,
+truth), and one competence check per learner, are run in this process and timed by CPU time.
+Seeds 1 and 2 are taken to cost what seed 0 costs, and every competence check of a learner what
+its one measured check costs. On a busy machine ``--estimate-tasks weaving
+--estimate-noisy-only`` measures less (one task per set, the noisy dataset only) and projects the
+rest from it: a learner job's cost is set by the learner's steps and batch, not by the data.
+The projected wall time schedules those costs on the workers exactly
+as ``run_reproduce`` does (stage 1 in order, stage 2 longest first by ``job_cost``, each job to
+the first free worker), plus the start-up of the two stages' worker pools (measured: a spawned
+process importing the job module). CPU time is what a loaded machine inflates least, so this is
+the way to estimate the full run on a shared machine.
 """
 
 from __future__ import annotations
 
 import argparse
+import heapq
+import multiprocessing
 import resource
 import statistics
 import tempfile
@@ -35,9 +46,13 @@ from bt_pipeline.data.synth import make_d1
 from bt_pipeline.evaluate.learners import LEARNERS, learner_config, train_learner
 from bt_pipeline.evaluate.reproduce import write_outputs
 from bt_pipeline.evaluate.reproduce_jobs import (
+    COMPETENCE_COST,
+    LearnerJob,
     ReproduceConfig,
+    job_cost,
+    prepare_set,
     run_competence,
-    run_job,
+    run_learner,
     run_reproduce,
 )
 
@@ -78,30 +93,113 @@ def measure(quick: bool, workers: int, out: Path | None) -> dict[str, float]:
     return row
 
 
-def estimate_full(workers: int) -> dict[str, float]:
-    """CPU cost of the full run (3 seeds) projected from one job of each kind [s]."""
-    config = ReproduceConfig.preset(False)
-    evaluation = 0.0
-    for task in config.tasks:
-        for set_name in config.sets:
+def makespan(costs: list[float], workers: int) -> float:
+    """Wall time of jobs with these costs [s] handed in order to the first free of `workers`."""
+    free = [0.0] * workers
+    for cost in costs:
+        heapq.heappush(free, heapq.heappop(free) + cost)
+    return max(free)
+
+
+def _import_jobs() -> None:
+    import bt_pipeline.evaluate.reproduce_jobs  # noqa: F401  # what a worker imports
+
+
+def startup_seconds() -> float:
+    """Wall time to spawn a process that imports the job module and exits [s]."""
+    start = time.perf_counter()
+    process = multiprocessing.get_context("spawn").Process(target=_import_jobs)
+    process.start()
+    process.join()
+    return time.perf_counter() - start
+
+
+def estimate_full(workers: int, tasks: tuple[str, ...], all_datasets: bool) -> dict[str, float]:
+    """CPU cost and projected wall time of the full run (3 seeds, oracle) from one seed [s].
+
+    Only `tasks` are measured (a task not measured costs what the measured ones of its set cost
+    on average, learner by learner); without `all_datasets` only the noisy dataset is trained and
+    the cleaned and truth jobs are taken to cost the same (same learner, steps and batch; the
+    demos differ only in their positions).
+    """
+    config = ReproduceConfig.preset(False, oracle=True)
+    prepare: list[float] = []
+    measured: dict[tuple[str, str, str, str], float] = {}  # (set, task, dataset, learner): CPU
+    for set_name in config.sets:
+        for task in config.tasks:
+            if task not in tasks:
+                continue
             cpu0 = cpu_seconds()
-            run_job((0, set_name, task, config))  # type: ignore[arg-type]  # a valid job
-            cost = cpu_seconds() - cpu0
-            print(f"  full evaluation job {set_name} {task}: {cost:.0f} s CPU", flush=True)
-            evaluation += cost * config.seeds
-    competence = 0.0
+            p = prepare_set((0, set_name, task, config))
+            prepare.append(cpu_seconds() - cpu0)
+            for dataset, (positions, demonstrators) in p.data.items():
+                if dataset != "noisy" and not all_datasets:
+                    continue
+                for learner in config.learners:
+                    job = LearnerJob(
+                        task,
+                        learner,
+                        dataset,
+                        positions,
+                        demonstrators,
+                        config.eval_config(0),
+                        p.yardstick,
+                        p.x0,
+                    )
+                    cpu0 = cpu_seconds()
+                    run_learner(job)
+                    measured[(set_name, task, dataset, learner)] = cpu_seconds() - cpu0
+            print(
+                f"  {set_name} {task}: prepare {prepare[-1]:.0f} s CPU; learner jobs [s CPU]: "
+                + ", ".join(
+                    f"{d} {lr} {c:.0f}"
+                    for (s, t, d, lr), c in measured.items()
+                    if (s, t) == (set_name, task)
+                ),
+                flush=True,
+            )
+    prepare = [statistics.mean(prepare)] * (len(config.sets) * len(config.tasks))
+    stage2: list[tuple[float, float]] = []  # (job_cost, projected CPU)
+    for set_name in config.sets:
+        for task in config.tasks:
+            for dataset in ("noisy", "cleaned", "truth"):
+                for learner in config.learners:
+                    same = [
+                        c for (s, t, d, lr), c in measured.items()
+                        if s == set_name and lr == learner and (t == task or task not in tasks)
+                        and (d == dataset or not all_datasets)
+                    ]  # fmt: skip
+                    demos = 4 if set_name == "D1" else 20
+                    stage2.append((job_cost(learner, config, demos), statistics.mean(same)))
+    competence: dict[str, float] = {}
     for learner in config.learners:
         cpu0 = cpu_seconds()
         run_competence(("one", "weaving", learner, config))
-        cost = cpu_seconds() - cpu0
-        print(f"  competence check weaving {learner}: {cost:.0f} s CPU", flush=True)
-        competence += cost * 2 * len(config.tasks)  # one and four demonstrators, every task
-    total = evaluation + competence
+        competence[learner] = cpu_seconds() - cpu0
+        print(f"  competence check weaving {learner}: {competence[learner]:.0f} s CPU", flush=True)
+    stage2 = stage2 * config.seeds
+    stage2 += [
+        (job_cost(learner, config) * COMPETENCE_COST, competence[learner])
+        for _ in range(2 * len(config.tasks))
+        for learner in config.learners
+    ]
+    stage2.sort(key=lambda pair: -pair[0])  # the order run_reproduce submits them in
+    startup = startup_seconds()
+    cpu_prepare = sum(prepare) * config.seeds
+    cpu_stage2 = sum(cost for _, cost in stage2)
+    wall = (
+        makespan(prepare * config.seeds, workers)
+        + makespan([cost for _, cost in stage2], workers)
+        + 2 * startup
+    )
     return {
-        "evaluation": evaluation,
-        "competence": competence,
-        "cpu": total,
-        "wall": total / workers,
+        "prepare": cpu_prepare,
+        "learners": cpu_stage2 - sum(competence.values()) * 2 * len(config.tasks),
+        "competence": sum(competence.values()) * 2 * len(config.tasks),
+        "cpu": cpu_prepare + cpu_stage2,
+        "startup": startup,
+        "wall": wall,
+        "ideal": (cpu_prepare + cpu_stage2) / workers,
     }
 
 
@@ -110,13 +208,30 @@ def main() -> None:
     parser.add_argument("--runs", default="quick,full", help="comma-separated: quick, full")
     parser.add_argument("--workers", type=int, default=1, help="jobs in parallel (processes)")
     parser.add_argument("--out", type=Path, default=None, help="keep each run's report here")
+    parser.add_argument("--repeats", type=int, default=1, help="runs of each kind (median shown)")
     parser.add_argument(
         "--estimate-full", action="store_true", help="project the full run from per-job CPU costs"
+    )
+    parser.add_argument(
+        "--estimate-tasks", default="wiping,weaving,pick_and_place", help="tasks to measure"
+    )
+    parser.add_argument(
+        "--estimate-noisy-only",
+        action="store_true",
+        help="train only the noisy dataset; cleaned and truth jobs cost the same",
     )
     args = parser.parse_args()
     runs = [r.strip() for r in args.runs.split(",") if r.strip()]
     before = baseline_seconds()
-    rows = {run: measure(run == "quick", args.workers, args.out) for run in runs}
+    rows: dict[str, dict[str, float]] = {}
+    for run in runs:
+        repeats = [measure(run == "quick", args.workers, args.out) for _ in range(args.repeats)]
+        for k, row in enumerate(repeats):
+            rows[f"{run} #{k + 1}" if args.repeats > 1 else run] = row
+        if args.repeats > 1:
+            rows[f"{run} median"] = {
+                key: statistics.median(r[key] for r in repeats) for key in repeats[0]
+            }
     base = statistics.mean([before, baseline_seconds()])
     header = ["run", "wall [s]", "wall / baseline", "CPU [s]", "clean [s]", "evaluate [s]"]
     header += [f"{learner} train [s]" for learner in LEARNERS]
@@ -129,17 +244,20 @@ def main() -> None:
         cells += [f"{row[learner]:.0f}" for learner in LEARNERS]
         print("| " + " | ".join(cells) + " |")
     print(
-        "\nclean and evaluate: summed over the evaluation jobs (per-job wall time; with "
-        "workers > 1 they overlap). Learner columns: optimiser-loop time summed over the "
-        "evaluation jobs' trainings (competence checks not included)."
+        "\nclean: summed over the preparation jobs; evaluate: summed over the learner jobs "
+        "(per-job wall time; with workers > 1 they overlap). Learner columns: optimiser-loop "
+        "time summed over the learner jobs' trainings (competence checks not included)."
     )
     if args.estimate_full:
         print("\nEstimating the full run (3 seeds) from per-job CPU costs:")
-        est = estimate_full(args.workers)
+        tasks = tuple(t.strip() for t in args.estimate_tasks.split(",") if t.strip())
+        est = estimate_full(args.workers, tasks, not args.estimate_noisy_only)
         print(
-            f"full run: evaluation jobs {est['evaluation']:.0f} s CPU + competence checks "
-            f"{est['competence']:.0f} s CPU = {est['cpu']:.0f} s CPU; on an idle machine with "
-            f"{args.workers} worker(s) about {est['wall'] / 60:.1f} min wall"
+            f"full run: preparation {est['prepare']:.0f} s CPU + learner jobs "
+            f"{est['learners']:.0f} s CPU + competence checks {est['competence']:.0f} s CPU = "
+            f"{est['cpu']:.0f} s CPU; worker start-up {est['startup']:.1f} s per stage.\n"
+            f"On an idle machine with {args.workers} worker(s): about {est['wall'] / 60:.1f} min "
+            f"wall as scheduled (CPU / workers: {est['ideal'] / 60:.1f} min)"
         )
 
 

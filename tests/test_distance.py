@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bt_pipeline.data.shapes import canonical_loop
-from bt_pipeline.evaluate.distance import chamfer_distance, distance_to_truth
+from bt_pipeline.evaluate.distance import PointSet, chamfer_distance, distance_to_truth
 from bt_pipeline.exceptions import ConfigError
 
 
@@ -58,3 +58,19 @@ def test_bad_inputs_are_rejected() -> None:
         distance_to_truth(np.full((4, 2), np.nan), loop)
     with pytest.raises(ConfigError, match="n >= 1"):
         distance_to_truth(np.zeros((0, 2)), loop)
+
+
+def test_point_sets_give_chamfer_distance_bit_for_bit_and_the_gaps() -> None:
+    rng = np.random.default_rng(3)
+    curve = rng.normal(size=(120, 2))
+    sets = [PointSet.of(rng.normal(size=(n, 2))) for n in (40, 300)]
+    drawn = PointSet.of(curve)
+    for other in sets:
+        assert drawn.chamfer(other) == chamfer_distance(curve, other.points)
+        assert other.chamfer(drawn) == chamfer_distance(other.points, curve)
+        brute = np.min(np.linalg.norm(other.points[:, None] - curve[None], axis=2), axis=1)
+        np.testing.assert_allclose(drawn.gaps(other.points), brute, rtol=1e-12)
+    with pytest.raises(ConfigError, match="a rollout"):
+        PointSet.of(np.full((5, 2), np.nan), "a rollout")
+    with pytest.raises(ConfigError, match="same dimension"):
+        drawn.chamfer(PointSet.of(np.zeros((4, 3))))

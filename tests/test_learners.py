@@ -282,3 +282,58 @@ def test_a_still_demo_among_moving_ones_keeps_the_phase_bounded() -> None:
     assert np.all(np.isfinite(fit.phases)) and spans.max() < N / 8 + 1
     trained = train_learner("bc", demos, config=tiny("bc"))
     assert np.all(np.isfinite(trained.policy.rollout(demos[:, 0], 20)))
+
+
+def test_rk4_grid_is_torchdiffeqs_rk4_bit_for_bit_states_and_gradients() -> None:
+    """NODE training's own RK4 loop against torchdiffeq's, and the detached phase against the
+    phase carried through autograd: equal states and parameter gradients, not merely close."""
+    from torchdiffeq import odeint
+
+    from bt_pipeline.evaluate.learners.common import make_mlp, phase_features
+    from bt_pipeline.evaluate.learners.node import _Field, rk4_grid
+
+    demos = task_loops("weaving", n_demos=3)
+    torch.manual_seed(0)
+    data = prepare_demos(demos, learner_config("node"))
+    net = make_mlp(data.n_features, 2, 16, 2)
+    field = _Field(net, data)
+    y0 = torch.cat([data.z[:32] + 0.05 * torch.randn(32, 2), data.phase[:32, None]], dim=1)
+    times = torch.arange(9, dtype=torch.float32) * (4 * data.dt)
+
+    def attached(t: torch.Tensor, y: torch.Tensor) -> torch.Tensor:  # the phase not detached
+        del t
+        rate = net(phase_features(y[:, :2], y[:, 2], "phase")) * field.ratio + field.offset
+        return torch.cat([rate, torch.full_like(y[:, 2:], data.omega)], dim=1)
+
+    def states_and_grads(states: object) -> list[torch.Tensor]:
+        assert isinstance(states, torch.Tensor)
+        net.zero_grad()
+        torch.mean((states[1:, :, :2] - 0.1) ** 2).backward()
+        grads = [p.grad for p in net.parameters()]
+        return [states.detach().clone(), *(g.clone() for g in grads if g is not None)]
+
+    ours = states_and_grads(rk4_grid(field.rate, y0, times))
+    theirs = states_and_grads(odeint(attached, y0, times, method="rk4"))
+    assert len(ours) == len(theirs) == 1 + 2 * 3
+    for a, b in zip(ours, theirs, strict=True):
+        assert torch.equal(a, b)
+    assert ours[1].abs().sum() > 0.0  # gradients flowed
+
+
+def test_clip_grad_norm_is_torchs_bit_for_bit() -> None:
+    from bt_pipeline.evaluate.learners.training import clip_grad_norm
+
+    torch.manual_seed(1)
+    for scale in (1e-3, 1.0, 50.0):  # below, near and above the clipping norm
+        ours = [nn.Parameter(torch.randn(5, 3)), nn.Parameter(torch.randn(7))]
+        theirs = [nn.Parameter(p.detach().clone()) for p in ours]
+        for a, b in zip(ours, theirs, strict=True):
+            a.grad = scale * torch.randn_like(a)
+            b.grad = a.grad.clone()
+        norm = clip_grad_norm(ours, 1.0)
+        assert torch.equal(norm, nn.utils.clip_grad_norm_(theirs, 1.0))
+        clipped = [p.grad for p in ours]
+        for a, b in zip(clipped, (p.grad for p in theirs), strict=True):
+            assert a is not None and b is not None and torch.equal(a, b)
+        total = float(np.sqrt(sum(float(torch.sum(g**2)) for g in clipped if g is not None)))
+        assert total <= 1.0 + 1e-5 and (scale < 0.1) == (float(norm) < 1.0)

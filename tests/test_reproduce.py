@@ -14,10 +14,19 @@ from bt_pipeline.cli import main
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth import make_d1
 from bt_pipeline.data.tasks import TASKS
+from bt_pipeline.evaluate.protocol import evaluate_demos
 from bt_pipeline.evaluate.reproduce import reproduce
-from bt_pipeline.evaluate.reproduce_jobs import PAPER_ILEED_D1_GAIN, ReproduceConfig, truth_demos
-from bt_pipeline.evaluate.reproduce_report import Cell, verdict, verdict_test
+from bt_pipeline.evaluate.reproduce_jobs import (
+    PAPER_ILEED_D1_GAIN,
+    ReproduceConfig,
+    job_cost,
+    prepare_set,
+    run_reproduce,
+    truth_demos,
+)
+from bt_pipeline.evaluate.reproduce_report import Cell, results_json, verdict, verdict_test
 from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.execute import ExecutorConfig
 
 TINY = ReproduceConfig(
     tasks=("wiping",),
@@ -69,6 +78,11 @@ def test_report_has_tables_the_paper_side_by_side_and_a_verdict(tiny_run) -> Non
     assert f"| wiping | {PAPER_ILEED_D1_GAIN['wiping']:+.3f} |" in report
     assert "## Where cleaned beats noisy, and where it does not" in report
     assert "Of 2 (set, task, learner) cells" in report
+    # the reasons, with this run's numbers (the tiny learners win no cell)
+    assert "**Why cleaned does not win in 2 of 2 cells**" in report
+    assert "*The bound of cleaning.* In 2 of these 2 cells" in report
+    assert "mm from the mean-preference loop" in report
+    assert "*Every learner stays below the best demonstrator.*" in report
     assert "R̄ truth" in report and "with the truth" in report
     assert "Welch t, seeds" in report  # two seeds: the test runs over per-seed means
     assert "## Oracle rows" in report and "mean-preference loop" in report
@@ -83,6 +97,44 @@ def test_results_json_has_the_oracle_rows(tiny_run) -> None:
     }
     for row in rows:
         assert 0.0 <= row["coverage"] <= 1.0 and row["shape_error"] > 0.0
+
+
+def _rows(run) -> list[dict]:
+    """results.json rows without their timings (wall times differ from run to run)."""
+    rows = results_json(run)["results"]
+    assert isinstance(rows, list)
+    return [{k: v for k, v in row.items() if k != "train_seconds"} for row in rows]
+
+
+def test_results_do_not_depend_on_the_job_split_or_their_order() -> None:
+    """Stage-2 jobs (one per dataset × learner, run longest first: the Neural ODE's before BC's)
+    give the same rows, bit for bit, as one whole-task ``evaluate_demos`` call (the learners in
+    the config's order, BC first). The process pool runs the same jobs (tests/test_execute.py)."""
+    config = ReproduceConfig(
+        tasks=("wiping",), sets=("D1",), learners=("bc", "node"), rollouts=3, steps=6,
+        clean_epochs=2, oracle=True, competence=False,
+    )  # fmt: skip
+    split = run_reproduce(config, progress=False, executor=ExecutorConfig("local"))
+    prepared = prepare_set((0, "D1", "wiping", config))
+    noisy = demos_from_recording(make_d1("wiping", 0).recording)
+    cleaned, truth = (
+        [d.with_positions(p) for d, p in zip(noisy, prepared.data[name][0], strict=True)]
+        for name in ("cleaned", "truth")
+    )
+    loops = {d.demonstrator: t for d, t in zip(noisy, make_d1("wiping", 0).demos, strict=True)}
+    whole = evaluate_demos(
+        noisy, cleaned, config.eval_config(0), truth=truth,
+        true_loops=[t.truth for t in loops.values()],
+    )  # fmt: skip
+    expected = [
+        {"set": "D1", "seed": 0, **r.to_json(), "reward_ceiling": whole.yardstick.ceiling}
+        for r in whole.results
+    ]
+    for row in expected:
+        del row["train_seconds"]
+    assert len(expected) == 2 * 3
+    assert job_cost("node", config) > job_cost("bc", config)  # NODE's jobs ran first
+    assert _rows(split) == expected
 
 
 def _cell(mean: float, std: float, count: int = 50, seeds: tuple[float, ...] = ()) -> Cell:

@@ -8,6 +8,8 @@ and timing are random.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import KDTree  # cKDTree underneath (scipy >= 1.6), typed
@@ -41,13 +43,48 @@ def chamfer_distance(a: ArrayLike, b: ArrayLike) -> float:
     Raises:
         ConfigError: An input is not a non-empty finite (n, d) array, or the d differ.
     """
-    pa = _as_points(a, "a")
-    pb = _as_points(b, "b")
-    if pa.shape[1] != pb.shape[1]:
-        raise ConfigError(f"a and b must have the same dimension; got {pa.shape} and {pb.shape}")
-    d_ab, _ = KDTree(pb).query(pa)
-    d_ba, _ = KDTree(pa).query(pb)
-    return 0.5 * (float(np.mean(d_ab)) + float(np.mean(d_ba)))
+    return PointSet.of(a, "a").chamfer(PointSet.of(b, "b"))
+
+
+@dataclass(frozen=True, eq=False)
+class PointSet:
+    """A curve as a point set with its k-d tree, built once: for many distances to one curve
+    (:func:`chamfer_distance` builds both trees on every call)."""
+
+    points: FloatArray
+    """Points, shape (n, d) [m]."""
+    tree: KDTree
+    """k-d tree of `points`."""
+
+    @classmethod
+    def of(cls, points: ArrayLike, what: str = "points") -> PointSet:
+        """Validate `points` (n, d) and build the tree.
+
+        Raises:
+            ConfigError: Not a non-empty finite (n, d) array (the message names `what`).
+        """
+        p = _as_points(points, what)
+        return cls(p, KDTree(p))
+
+    def chamfer(self, other: PointSet) -> float:
+        """:func:`chamfer_distance` from this set (a) to `other` (b) [m]; the same value.
+
+        Raises:
+            ConfigError: The dimensions differ.
+        """
+        pa, pb = self.points, other.points
+        if pa.shape[1] != pb.shape[1]:
+            raise ConfigError(
+                f"a and b must have the same dimension; got {pa.shape} and {pb.shape}"
+            )
+        d_ab, _ = other.tree.query(pa)
+        d_ba, _ = self.tree.query(pb)
+        return 0.5 * (float(np.mean(d_ab)) + float(np.mean(d_ba)))
+
+    def gaps(self, points: FloatArray) -> FloatArray:
+        """Distance of each of `points` (m, d) to its nearest point of this set [m], shape (m,)."""
+        d, _ = self.tree.query(points)
+        return np.asarray(d, dtype=np.float64)
 
 
 def distance_to_truth(positions: ArrayLike, truth: ArrayLike) -> float:
@@ -71,4 +108,4 @@ def distance_to_truth(positions: ArrayLike, truth: ArrayLike) -> float:
     return chamfer_distance(positions, truth)
 
 
-__all__ = ["chamfer_distance", "distance_to_truth"]
+__all__ = ["PointSet", "chamfer_distance", "distance_to_truth"]

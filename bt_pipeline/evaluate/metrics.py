@@ -16,14 +16,13 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.spatial import KDTree
 
 from bt_pipeline.clean.stage1.alignment import shape_loss
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
 from bt_pipeline.clean.stage2.refiner import refine_normaliser
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.evaluate.distance import chamfer_distance
+from bt_pipeline.evaluate.distance import PointSet
 from bt_pipeline.exceptions import DemoError
 from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
 from bt_pipeline.score.mi import mutual_information
@@ -103,16 +102,20 @@ def rollout_metrics(
     times = np.linspace(0.0, 1.0, n)
     frames = {i: _resampled(stage1.aligned[i], n) for i in yardstick.representatives}
     references = [_resampled(np.vstack([r, r[:1]]), n) for r in yardstick.references]  # closed
+    # every k-d tree once (a reference's per call, a rollout's per rollout), not per distance
+    frame_sets = {i: PointSet.of(f) for i, f in frames.items()}
+    reference_sets = [PointSet.of(r) for r in yardstick.references]
     columns: dict[str, list[float]] = {
         k: [] for k in ("direct", "nearest", "l4", "chamfer", "coverage", "utility", "index")
     }
     for rollout in rollouts:
+        drawn = PointSet.of(rollout, "a rollout")
         # The independent loop this rollout draws: phase-free, so timing cannot pick it.
-        distances = [chamfer_distance(rollout, ref) for ref in yardstick.references]
+        distances = [drawn.chamfer(ref) for ref in reference_sets]
         r = int(np.argmin(distances))
         l4 = shape_loss(rollout, references[r])  # Eq. (9), best shift and direction
         # The demonstrator frame for the "nearest" reading of V_E (an alternative column only).
-        frame_gaps = {i: chamfer_distance(rollout, ref) for i, ref in frames.items()}
+        frame_gaps = {i: drawn.chamfer(ref) for i, ref in frame_sets.items()}
         j = min(frame_gaps, key=lambda i: frame_gaps[i])
         actions = np.zeros_like(rollout)
         actions[:-1] = np.diff(rollout, axis=0) / np.diff(times)[:, None]
@@ -133,7 +136,7 @@ def rollout_metrics(
         columns["nearest"].append(value_map.mean_reward(stage1.to_best_frame(j, rollout)))
         columns["l4"].append(l4)
         columns["chamfer"].append(distances[r])
-        gaps, _ = KDTree(rollout).query(yardstick.references[r])
+        gaps = drawn.gaps(yardstick.references[r])
         columns["coverage"].append(float(np.mean(gaps <= COVERAGE_TOLERANCE_M)))
         columns["utility"].append(float(utility[0]))
         columns["index"].append(r)

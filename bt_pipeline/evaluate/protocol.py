@@ -219,15 +219,9 @@ def evaluate_task(
         DemoError: Empty sets, mixed tasks, or sets of different N.
     """
     config = config or EvalConfig()
-    task, n = check_pair(noisy, cleaned)
+    task, _n = check_pair(noisy, cleaned)
     yardstick = yardstick or build_yardstick(noisy, seed=config.seed)
-    noise_m = config.init_noise * yardstick.size
-    x0 = initial_states(noisy, config.rollouts, noise_m, config.seed, config.starts == "raw")
-    overrides: dict[str, object] = {"seed": config.seed, "state": config.state}
-    if not config.corrective:
-        overrides["dart_fraction"] = 0.0
-    if config.steps is not None:
-        overrides["steps"] = config.steps
+    x0 = rollout_starts(noisy, config, yardstick)
     if truth is not None:
         check_pair(noisy, truth)
     datasets: list[tuple[Dataset, Sequence[Demo]]] = [("noisy", noisy), ("cleaned", cleaned)]
@@ -238,31 +232,71 @@ def evaluate_task(
         positions = np.stack([d.positions for d in demos])
         demonstrators = [d.demonstrator for d in demos]
         for learner in config.learners:
-            trained = train_learner(
-                learner,
-                positions,
-                demonstrators,
-                learner_config(learner, quick=config.quick, **overrides),
-            )
-            rollouts = trained.policy.rollout(x0, n_samples=n)
-            finite = bool(np.all(np.isfinite(rollouts))) and trained.skipped_steps == 0
-            history = trained.loss_history[np.isfinite(trained.loss_history)]
-            tail = history[-max(1, len(history) // 20) :] if history.size else np.array([np.nan])
-            result = LearnerEval(
-                task=task,
-                learner=learner,
-                dataset=dataset,
-                rollouts=rollouts,
-                metrics=rollout_metrics(rollouts, yardstick, config.reward_frame),
-                train_seconds=trained.seconds,
-                expertise=dict(trained.expertise),
-                finite=finite,
-                final_loss=float(np.mean(tail)),
+            result = evaluate_learner(
+                task, learner, dataset, positions, demonstrators, config, yardstick, x0
             )
             results.append(result)
             if on_trained is not None:
                 on_trained(result)
     return results
+
+
+def rollout_starts(noisy: Sequence[Demo], config: EvalConfig, yardstick: Yardstick) -> FloatArray:
+    """The initial states every learner of a task is rolled out from, shape (R, 2) [m]: perturbed
+    raw-demo states (:attr:`EvalConfig.starts`), the same for every dataset."""
+    noise_m = config.init_noise * yardstick.size
+    return initial_states(noisy, config.rollouts, noise_m, config.seed, config.starts == "raw")
+
+
+def evaluate_learner(
+    task: Task,
+    learner: LearnerName,
+    dataset: Dataset,
+    positions: FloatArray,
+    demonstrators: Sequence[str],
+    config: EvalConfig,
+    yardstick: Yardstick,
+    x0: FloatArray,
+) -> LearnerEval:
+    """Train one learner on one dataset of a task, roll it out from `x0` and measure it.
+
+    One (dataset, learner) of :func:`evaluate_task`, which calls it in a loop; ``bt reproduce``
+    runs each as a job of its own. The result depends only on its arguments (training is seeded by
+    ``config.seed``), not on which other learners ran before it or in which process.
+
+    Args:
+        task: The task.
+        learner: Which learner.
+        dataset: What `positions` are (noisy, cleaned or truth).
+        positions: Training demos, shape (M, N, 2), in task coordinates [m].
+        demonstrators: Who drew each demo (M names; ILEED's expertise groups).
+        config: Protocol settings.
+        yardstick: The noisy set's yardstick.
+        x0: Initial states, shape (R, 2) [m] (:func:`rollout_starts`).
+    """
+    overrides: dict[str, object] = {"seed": config.seed, "state": config.state}
+    if not config.corrective:
+        overrides["dart_fraction"] = 0.0
+    if config.steps is not None:
+        overrides["steps"] = config.steps
+    trained = train_learner(
+        learner, positions, demonstrators, learner_config(learner, quick=config.quick, **overrides)
+    )
+    rollouts = trained.policy.rollout(x0, n_samples=positions.shape[1])
+    finite = bool(np.all(np.isfinite(rollouts))) and trained.skipped_steps == 0
+    history = trained.loss_history[np.isfinite(trained.loss_history)]
+    tail = history[-max(1, len(history) // 20) :] if history.size else np.array([np.nan])
+    return LearnerEval(
+        task=task,
+        learner=learner,
+        dataset=dataset,
+        rollouts=rollouts,
+        metrics=rollout_metrics(rollouts, yardstick, config.reward_frame),
+        train_seconds=trained.seconds,
+        expertise=dict(trained.expertise),
+        finite=finite,
+        final_loss=float(np.mean(tail)),
+    )
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,10 +1,14 @@
 """``bt reproduce``: the paper's Sec. IV end to end on synthetic D1 and D2, for every task.
 
-Data flow, one job per (seed, set, task), jobs in parallel with ``workers``::
+Data flow, in two stages of jobs run in parallel with ``workers``
+(:mod:`~bt_pipeline.evaluate.reproduce_jobs`)::
 
+    stage 1, one job per (seed, set, task):
     make_d1 / make_d2 (bt_pipeline.data.synth) ──demos_from_recording──▶ noisy demos
         ──clean_demos (default variant)──▶ cleaned demos (+ distance of both to the true shapes)
-        ──evaluate_demos (4 learners × noisy/cleaned, R rollouts each)──▶ TaskEvaluation
+        ──▶ yardstick (V_E, true loops) and rollout starts
+    stage 2, one job per (seed, set, task, dataset, learner) and per competence check, longest
+    first: train, R rollouts, metrics ──▶ LearnerEval ──(per seed, set, task)──▶ TaskEvaluation
     all jobs ──▶ DIR/rewards.png (Fig. 11), DIR/<set>.<task>.rollouts.png (Figs. 8-10, seed 0),
                  DIR/results.json (every row), DIR/report.md (tables, paper side by side, verdict)
 

@@ -1,8 +1,9 @@
-"""The jobs of ``bt reproduce``: each (seed, set, task) generates, cleans and evaluates.
+"""The jobs of ``bt reproduce``: generate and clean each (seed, set, task), then train and
+measure each learner on each of its datasets, and the competence checks.
 
-One job per (seed, set, task), run in parallel with ``workers``; the data flow and the outputs
-are in :mod:`bt_pipeline.evaluate.reproduce`. Results depend only on the config and seeds, not on
-``workers``.
+Two stages of jobs, each run in parallel with ``workers`` (:func:`run_reproduce`); the data flow
+and the outputs are in :mod:`bt_pipeline.evaluate.reproduce`. Results depend only on the config
+and seeds, not on ``workers``, the executor or the order the jobs run in.
 """
 
 from __future__ import annotations
@@ -17,18 +18,23 @@ import numpy as np
 
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import Demo, demos_from_recording
+from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.synth import make_d1, make_d2
 from bt_pipeline.data.tasks import TASKS, Task
 from bt_pipeline.evaluate.distance import distance_to_truth
-from bt_pipeline.evaluate.learners import LEARNERS, LearnerName
+from bt_pipeline.evaluate.learners import LEARNERS, LearnerName, learner_config
+from bt_pipeline.evaluate.metrics import Yardstick, build_yardstick
 from bt_pipeline.evaluate.oracle import CompetenceRow, competence_check
 from bt_pipeline.evaluate.protocol import (
     DATASETS,
     Dataset,
     EvalConfig,
+    LearnerEval,
     TaskEvaluation,
-    evaluate_demos,
+    check_pair,
+    evaluate_learner,
+    rollout_starts,
 )
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.execute import ExecutorConfig, run_jobs
@@ -115,17 +121,44 @@ class JobResult:
     truth_cleaned: float
     """The same for the cleaned demos [m]."""
     clean_seconds: float
-    """Synthesis and cleaning wall time [s]."""
+    """Synthesis, cleaning and yardstick wall time [s]."""
     eval_seconds: float
-    """Evaluation wall time (training, rollouts, metrics) [s]."""
+    """Evaluation wall time (training, rollouts, metrics), summed over its learner jobs [s]."""
 
     @property
     def task(self) -> Task:
         return self.evaluation.task
 
 
-def run_job(job: tuple[int, SetName, Task, ReproduceConfig]) -> JobResult:
-    """Generate, clean and evaluate one (seed, set, task) (runs in a worker when workers > 1)."""
+@dataclass(frozen=True, eq=False)
+class PreparedSet:
+    """One (seed, set, task) generated and cleaned, with what its learners are measured by."""
+
+    seed: int
+    set_name: SetName
+    task: Task
+    data: dict[Dataset, tuple[FloatArray, tuple[str, ...]]]
+    """Training positions (M, N, 2) [m] and demonstrators of each dataset (noisy, cleaned, and
+    truth with the oracle)."""
+    yardstick: Yardstick
+    """The noisy set's yardstick (independent references: the true loops)."""
+    x0: FloatArray
+    """Rollout starts, shape (R, 2) [m], shared by every learner and dataset."""
+    plane: TaskPlane
+    """The noisy set's task plane."""
+    duration_s: float
+    """Mean duration of the noisy demos [s]."""
+    truth_raw: float
+    """Mean phase-free distance of the noisy demos to their true shapes [m]."""
+    truth_cleaned: float
+    """The same for the cleaned demos [m]."""
+    seconds: float
+    """Wall time of this preparation [s]."""
+
+
+def prepare_set(job: tuple[int, SetName, Task, ReproduceConfig]) -> PreparedSet:
+    """Generate and clean one (seed, set, task) and build its yardstick and rollout starts (a job
+    of the first stage; runs in a worker when workers > 1)."""
     seed, set_name, task, config = job
     start = time.perf_counter()
     synth = (make_d1 if set_name == "D1" else make_d2)(task, seed)
@@ -140,22 +173,62 @@ def run_job(job: tuple[int, SetName, Task, ReproduceConfig]) -> JobResult:
     truth_cleaned = np.mean(
         [distance_to_truth(d.positions, t) for d, t in zip(cleaned, truths, strict=True)]
     )
-    clean_seconds = time.perf_counter() - start
-    start = time.perf_counter()
-    truth = truth_demos(demos, truths) if config.oracle else None
+    datasets: dict[Dataset, Sequence[Demo]] = {"noisy": demos, "cleaned": cleaned}
+    if config.oracle:
+        datasets["truth"] = truth_demos(demos, truths)
+    for other in datasets.values():
+        check_pair(demos, other)
+    eval_config = config.eval_config(seed)
     loops = {d.record.demonstrator: d.truth for d in synth.demos}  # one per demonstrator
-    evaluation = evaluate_demos(
-        demos, cleaned, config.eval_config(seed), truth=truth, true_loops=list(loops.values())
-    )
-    return JobResult(
+    yardstick = build_yardstick(demos, seed=eval_config.seed, true_loops=list(loops.values()))
+    return PreparedSet(
         seed=seed,
         set_name=set_name,
-        evaluation=evaluation,
+        task=task,
+        data={
+            name: (np.stack([d.positions for d in ds]), tuple(d.demonstrator for d in ds))
+            for name, ds in datasets.items()
+        },
+        yardstick=yardstick,
+        x0=rollout_starts(demos, eval_config, yardstick),
+        plane=demos[0].plane,
+        duration_s=float(np.mean([d.duration_s for d in demos])),
         truth_raw=float(truth_raw),
         truth_cleaned=float(truth_cleaned),
-        clean_seconds=clean_seconds,
-        eval_seconds=time.perf_counter() - start,
+        seconds=time.perf_counter() - start,
     )
+
+
+@dataclass(frozen=True, eq=False)
+class LearnerJob:
+    """One learner on one dataset of one prepared (seed, set, task): a job of the second stage."""
+
+    task: Task
+    learner: LearnerName
+    dataset: Dataset
+    positions: FloatArray
+    """Training demos, shape (M, N, 2) [m]."""
+    demonstrators: tuple[str, ...]
+    config: EvalConfig
+    yardstick: Yardstick
+    x0: FloatArray
+
+
+def run_learner(job: LearnerJob) -> tuple[LearnerEval, float]:
+    """Train, roll out and measure one learner (runs in a worker when workers > 1); returns its
+    evaluation and wall time [s]."""
+    start = time.perf_counter()
+    result = evaluate_learner(
+        job.task,
+        job.learner,
+        job.dataset,
+        job.positions,
+        job.demonstrators,
+        job.config,
+        job.yardstick,
+        job.x0,
+    )
+    return result, time.perf_counter() - start
 
 
 def truth_demos(demos: Sequence[Demo], truths: Sequence[FloatArray]) -> list[Demo]:
@@ -202,41 +275,121 @@ def run_competence(job: CompetenceJob) -> CompetenceRow:
     )
 
 
-def _run_any(job: tuple) -> JobResult | CompetenceRow:
-    return run_competence(job) if isinstance(job[0], str) else run_job(job)
+STEP_COST: dict[LearnerName, float] = {"bc": 1.0, "traj_bc": 1.1, "ileed": 1.4, "node": 14.0}
+"""CPU cost of one optimiser step of each learner, relative to BC's. Measured on the full presets
+(``benchmarks/bench_reproduce.py --estimate-full``: BC 9-10 s, Traj-BC 8-12 s, ILEED 8-10 s,
+NODE 22-25 s of CPU per learner job of 1500, 1500, 1200 and 300 steps); it orders the jobs, it
+does not change them."""
+COMPETENCE_COST = 0.7
+"""A competence check's cost as a share of the same learner's job (measured: 6-15 s of CPU)."""
+
+
+def job_cost(learner: LearnerName, config: ReproduceConfig, demos: int = 4) -> float:
+    """Estimated CPU cost of training and measuring `learner` on `demos` demos (arbitrary units):
+    optimiser steps × :data:`STEP_COST`, plus the per-demo phase estimation and the metrics."""
+    steps = config.steps or learner_config(learner, quick=config.quick).steps
+    return steps * STEP_COST[learner] + 20.0 * demos + 2.0 * config.rollouts
+
+
+def _run_stage2(job: LearnerJob | CompetenceJob) -> tuple[LearnerEval, float] | CompetenceRow:
+    return run_learner(job) if isinstance(job, LearnerJob) else run_competence(job)
+
+
+def _label(job: LearnerJob | CompetenceJob) -> str:
+    if isinstance(job, LearnerJob):
+        return f"{job.task} {job.learner} {job.dataset} seed {job.config.seed}"
+    return f"competence {job[0]} {job[1]} {job[2]}"
 
 
 def run_reproduce(
     config: ReproduceConfig, progress: bool = True, executor: ExecutorConfig | None = None
 ) -> ReproduceRun:
-    """Run every (seed, set, task) job of `config` and its competence checks (progress bar on
-    stderr)."""
+    """Run every (seed, set, task) of `config` and its competence checks (progress bars on
+    stderr), in two stages of jobs:
+
+    1. one job per (seed, set, task): generate, clean, build the yardstick and the rollout starts
+       (:func:`prepare_set`);
+    2. one job per (seed, set, task, dataset, learner) (:func:`run_learner`) and per competence
+       check, submitted longest first (:func:`job_cost`) so that the workers finish together.
+
+    Every job is seeded by its own config, so the results do not depend on the executor, the
+    number of workers or the order the jobs run in.
+    """
     start = time.perf_counter()
-    jobs: list[tuple] = [
-        (seed, set_name, task, config)
-        for set_name in config.sets
-        for task in config.tasks
-        for seed in range(config.seeds)
-    ]
-    if config.competence:
-        jobs += [
-            (check, task, learner, config)
-            for check in ("one", "four")
-            for task in config.tasks
-            for learner in config.learners
-        ]
     executor = executor or ExecutorConfig("processes", config.workers)
-    results = run_jobs(
-        _run_any,
-        jobs,
+    keys: list[tuple[int, SetName, Task]] = [
+        (s, n, t) for n in config.sets for t in config.tasks for s in range(config.seeds)
+    ]
+    prepared = run_jobs(
+        prepare_set,
+        [(*key, config) for key in keys],
         executor,
-        desc="reproduce",
+        desc="reproduce: clean",
         progress=progress,
-        label=lambda job: " ".join(str(x) for x in job[:3]),
+        label=lambda job: f"{job[1]} {job[2]} seed {job[0]}",
     )
+    jobs: list[LearnerJob | CompetenceJob] = []
+    costs: list[float] = []
+    for p in prepared:
+        eval_config = config.eval_config(p.seed)
+        for dataset, (positions, demonstrators) in p.data.items():
+            for learner in config.learners:
+                job = LearnerJob(
+                    p.task,
+                    learner,
+                    dataset,
+                    positions,
+                    demonstrators,
+                    eval_config,
+                    p.yardstick,
+                    p.x0,
+                )
+                jobs.append(job)
+                costs.append(job_cost(learner, config, positions.shape[0]))
+    if config.competence:
+        for check in ("one", "four"):
+            for task in config.tasks:
+                for learner in config.learners:
+                    jobs.append((check, task, learner, config))
+                    costs.append(job_cost(learner, config) * COMPETENCE_COST)
+    order = sorted(range(len(jobs)), key=lambda i: -costs[i])  # longest first
+    done = run_jobs(
+        _run_stage2,
+        [jobs[i] for i in order],
+        executor,
+        desc="reproduce: train",
+        progress=progress,
+        label=_label,
+    )
+    results: list = [None] * len(jobs)
+    for i, result in zip(order, done, strict=True):
+        results[i] = result
+    per_set = (len(DATASETS) + int(config.oracle)) * len(config.learners)
     return ReproduceRun(
         config=config,
-        jobs=tuple(r for r in results if isinstance(r, JobResult)),
+        jobs=tuple(
+            _assemble(p, results[k * per_set : (k + 1) * per_set]) for k, p in enumerate(prepared)
+        ),
         seconds=time.perf_counter() - start,
-        competence=tuple(r for r in results if isinstance(r, CompetenceRow)),
+        competence=tuple(results[len(prepared) * per_set :]),
+    )
+
+
+def _assemble(prepared: PreparedSet, evals: Sequence[tuple[LearnerEval, float]]) -> JobResult:
+    """The :class:`JobResult` of one prepared set from its learner jobs' results, in the order the
+    jobs were made (dataset, then learner)."""
+    return JobResult(
+        seed=prepared.seed,
+        set_name=prepared.set_name,
+        evaluation=TaskEvaluation(
+            task=prepared.task,
+            yardstick=prepared.yardstick,
+            results=tuple(e for e, _ in evals),
+            plane=prepared.plane,
+            duration_s=prepared.duration_s,
+        ),
+        truth_raw=prepared.truth_raw,
+        truth_cleaned=prepared.truth_cleaned,
+        clean_seconds=prepared.seconds,
+        eval_seconds=sum(seconds for _, seconds in evals),
     )

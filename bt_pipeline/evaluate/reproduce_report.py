@@ -15,6 +15,7 @@ from bt_pipeline.evaluate.cells import (
 from bt_pipeline.evaluate.learners import LearnerName
 from bt_pipeline.evaluate.protocol import DATASETS
 from bt_pipeline.evaluate.reproduce_jobs import PAPER_ILEED_D1_GAIN, ReproduceRun, SetName
+from bt_pipeline.evaluate.reproduce_why import why_lines
 from bt_pipeline.viz.plots import RewardBar
 
 
@@ -278,6 +279,7 @@ def _verdict_section(run: ReproduceRun, table: dict) -> list[str]:
     lines += [
         f"- Phase-free shape distance lower on cleaned demos in {shape_better} of {len(keys)} "
         f"cells; L4 lower in {l4_better}; R̄ nearest frame higher in {nearest_better}.",
+        *why_lines(run, table, [key for key in keys if verdicts[key] != "cleaned"]),
         "",
     ]
     return lines

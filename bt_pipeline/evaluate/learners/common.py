@@ -147,7 +147,8 @@ class MLP(nn.Module):
     so an untrained field is small.
 
     The forward pass calls ``F.linear`` on the layers' weights directly rather than the layer
-    modules: on these tiny nets the per-module call overhead is a large part of a step.
+    modules, through a tuple of (weight, bias) pairs made once: on these tiny nets the per-module
+    call and attribute look-up overhead is a large part of a step.
     """
 
     def __init__(self, n_in: int, n_out: int, hidden: int, depth: int) -> None:
@@ -159,15 +160,27 @@ class MLP(nn.Module):
             assert isinstance(layer, nn.Linear)
             nn.init.orthogonal_(layer.weight, gain=0.1 if i == depth else tanh_gain)
             nn.init.zeros_(layer.bias)
+        self._linear = self._pairs()
+
+    def _pairs(self) -> tuple[tuple[torch.Tensor, torch.Tensor], ...]:
+        pairs = []
+        for layer in self.layers:
+            assert isinstance(layer, nn.Linear)
+            pairs.append((layer.weight, layer.bias))
+        return tuple(pairs)
+
+    def _apply(self, fn, recurse: bool = True):  # nn.Module's signature
+        """``.to()``, ``.double()`` etc. may replace the parameters: refresh the cached pairs."""
+        out = super()._apply(fn, recurse)
+        self._linear = self._pairs()
+        return out
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Outputs, shape (B, n_out), of inputs (B, n_in)."""
-        *hidden, last = self.layers
-        for layer in hidden:
-            assert isinstance(layer, nn.Linear)
-            x = torch.tanh(functional.linear(x, layer.weight, layer.bias))
-        assert isinstance(last, nn.Linear)
-        return functional.linear(x, last.weight, last.bias)
+        *hidden, (weight, bias) = self._linear
+        for w, b in hidden:
+            x = torch.tanh(functional.linear(x, w, b))
+        return functional.linear(x, weight, bias)
 
 
 def make_mlp(n_in: int, n_out: int, hidden: int, depth: int) -> MLP:

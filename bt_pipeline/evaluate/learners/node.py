@@ -27,6 +27,7 @@ Training integrates the field with ``torchdiffeq.odeint`` and matches the demos'
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, Literal
 
@@ -45,6 +46,8 @@ from bt_pipeline.evaluate.learners.common import (
 from bt_pipeline.evaluate.learners.policy import make_policy
 from bt_pipeline.evaluate.learners.training import fit, sample_rows, torch_session
 from bt_pipeline.exceptions import ConfigError
+
+_ONE_THIRD = 1 / 3  # torchdiffeq's constants (rk_common.py), for bit-identical steps
 
 Solver = Literal["rk4", "midpoint", "euler"]
 """torchdiffeq fixed-grid methods a NODE may be trained with."""
@@ -114,8 +117,42 @@ class _Field(nn.Module):
 
     def forward(self, t: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         del t  # time enters through φ
-        rate = self.net(self.data.features(y[:, :2], y[:, 2])) * self.ratio + self.offset
+        return self.rate(y)
+
+    def rate(self, y: torch.Tensor) -> torch.Tensor:
+        """d(z, φ)/dt at y (B, 3).
+
+        The phase enters the net detached: dφ/dt = ω is constant, so no parameter's gradient
+        passes through φ, and autograd need not carry the cos/sin branch back (the parameter
+        gradients are bit for bit the same; tests/test_learners.py).
+        """
+        rate = self.net(self.data.features(y[:, :2], y[:, 2].detach())) * self.ratio + self.offset
         return torch.cat([rate, torch.full_like(y[:, 2:], self.data.omega)], dim=1)
+
+
+def rk4_grid(
+    rate: Callable[[torch.Tensor], torch.Tensor], y0: torch.Tensor, times: torch.Tensor
+) -> torch.Tensor:
+    """The states (T, B, D) of the autonomous ODE dy/dt = rate(y) at `times` (T,) from y0 (B, D):
+    one RK4 step (3/8 rule) per interval of the grid.
+
+    The same tensor operations, in the same order, as ``torchdiffeq.odeint(..., method="rk4")``
+    on a grid without interpolation (``rk4_alt_step_func``), so the states and their gradients
+    are bit for bit torchdiffeq's (tests/test_learners.py checks it), without its per-call input
+    checks, solver object and per-evaluation wrappers: a training calls it once per step, with up
+    to 16 solver steps.
+    """
+    solution = torch.empty(len(times), *y0.shape, dtype=y0.dtype, device=y0.device)
+    solution[0] = y0
+    y = y0
+    for j, dt in enumerate(times[1:] - times[:-1], start=1):
+        k1 = rate(y)
+        k2 = rate(y + dt * k1 * _ONE_THIRD)
+        k3 = rate(y + dt * (k2 - k1 * _ONE_THIRD))
+        k4 = rate(y + dt * (k1 - k2 + k3))
+        y = y + (k1 + 3 * (k2 + k3) + k4) * dt * 0.125
+        solution[j] = y
+    return solution
 
 
 def train_node(demos: ArrayLike, config: NODEConfig | None = None) -> TrainedLearner:
@@ -153,8 +190,11 @@ def train_node(demos: ArrayLike, config: NODEConfig | None = None) -> TrainedLea
             decay = torch.exp(-data.gain * times[1:])[None, :, None]
             targets = data.z[rows[:, None] + offsets] + delta_z[:, None] * decay  # (B, L, 2)
             y0 = torch.cat([z0, data.phase[rows, None]], dim=1)
-            states = odeint(field, y0, times, method=config.solver)
-            assert isinstance(states, torch.Tensor)  # a tensor y0 gives a tensor
+            if config.solver == "rk4":
+                states = rk4_grid(field.rate, y0, times)
+            else:
+                states = odeint(field, y0, times, method=config.solver)
+                assert isinstance(states, torch.Tensor)  # a tensor y0 gives a tensor
             return torch.mean((states[1:, :, :2].transpose(0, 1) - targets) ** 2)
 
         result = fit([{"params": list(net.parameters())}], loss_fn, config)
