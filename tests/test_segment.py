@@ -62,6 +62,23 @@ def test_lopsided_loop_is_fitted_to_its_true_side() -> None:
         assert abs(fit.rho - 1.1) < 0.05 and abs(fit.theta_deg - 12.0) < 5.0, (task, fit)
 
 
+def test_lopsided_arch_is_fitted_centred_where_the_app_draws_the_guide() -> None:
+    """Pick-and-place arches drawn bigger on one side, whose best similarity is a shifted
+    compromise (these three failed before the centred candidates): the guide centred on the
+    task plane's origin, where the app draws it, lets the fit follow the true side."""
+    from bt_pipeline.data.shapes import canonical_shape
+    from bt_pipeline.data.synth import lopsided
+
+    phases = np.linspace(0.0, 2 * np.pi, 400, endpoint=False)
+    for seed in (7, 11, 16):
+        rng = np.random.default_rng(seed)
+        bulged, _ = lopsided(canonical_shape("pick_and_place", phases), "pick_and_place", rng)
+        theta, rho = rng.uniform(-30, 30), rng.uniform(0.75, 1.35)
+        drawn = similarity_transform(bulged, theta, rho) + rng.normal(0.0, 0.001, (400, 2))
+        fit = fit_guide(drawn, "pick_and_place")
+        assert abs(fit.rho - rho) < 0.05 and abs(fit.theta_deg - theta) < 5.0, (seed, fit)
+
+
 def test_drift_does_not_bias_the_estimate() -> None:
     """Three loops drifting 3 cm sideways: θ/ρ still within 5° and 0.05, the drift measured."""
     from bt_pipeline.data.shapes import canonical_shape
@@ -103,3 +120,29 @@ def test_human_set_stores_its_truth_and_hides_preferences() -> None:
         steps = np.diff(record.timestamps)
         assert steps.min() > 0 and steps.max() / steps.min() > 1.5  # uneven sample times
         assert record.timestamps[0] > 0.0  # not based at 0
+
+
+def test_pooling_follows_the_estimates_that_agree() -> None:
+    """A demonstrator's five hidden demos: two fits agree on the truth, three misshapen ones
+    scatter to larger ρ (a median would land among those); pooling takes the agreeing ones.
+    Another demonstrator's single demo keeps its own fit."""
+    from bt_pipeline.clean.guide_fit import GuideFit
+    from bt_pipeline.clean.periodic import pool_preferences
+    from bt_pipeline.clean.segment import Segment
+    from bt_pipeline.data.demo import Demo
+
+    def demo(name: str, who: str) -> Demo:
+        positions = canonical_loop("wiping", 64)
+        return Demo(positions, "wiping", "", name, who, None, None, default_plane("wiping"))
+
+    def segment(theta: float, rho: float) -> Segment:
+        fit = GuideFit(theta, rho, np.zeros(2), 0.001, 0.24 * rho)
+        return Segment(0.0, 1.0, 1.0, fit)
+
+    fits = [(10.0, 1.00), (10.5, 1.01), (12.0, 1.09), (8.0, 1.16), (14.0, 1.23), (-5.0, 0.8)]
+    demos = [demo(f"demo_{k}", "ann" if k < 5 else "bob") for k in range(6)]
+    estimates = pool_preferences(demos, [segment(*f) for f in fits])
+    for estimate in estimates[:5]:
+        assert 10.0 <= estimate.theta_deg <= 10.5 and 1.0 <= estimate.rho <= 1.01, estimate
+        assert estimate.estimated
+    assert (estimates[5].theta_deg, estimates[5].rho) == (-5.0, 0.8)

@@ -16,8 +16,9 @@ The fit is a trimmed iterative-closest-point similarity fit:
    shapes' twins (wiping and weaving look the same turned by 180°) are outside the range, so
    the smallest rotation is the one kept.
 4. A lopsided loop (one side drawn bigger; 90 % of the points lie on average more than 0.5 % of the
-   size off the fit) is fitted by consensus over half-loop refits, the
-   smaller of two equally good modes winning (:func:`_consensus`).
+   size off the fit) is fitted by consensus over half-loop refits, also with the guide
+   centred on the task plane's origin (where the app draws it), the smaller of two equally good
+   modes winning (:func:`_consensus`).
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
 """
@@ -212,8 +213,11 @@ def _consensus(
     mean of its 40 % smallest distances. The fits within max(2 x, + 0.5 mm) of the lowest
     cost are the loop's modes, and the one with the smallest ρ wins: a misshapen side is taken
     to bulge out, not to be pinched in (both are exact similarities of half the guide, so one
-    demo alone cannot tell them apart; pooling a demonstrator's demos helps). On a loop without
-    such a defect every fit lands on the same mode and nothing changes.
+    demo alone cannot tell them apart; pooling a demonstrator's demos helps). On an arch a bulged
+    side is nearly a similarity of the whole guide, shifted, so every fit with a free
+    translation settles on that compromise; the same fits with the guide centred on the plane's
+    origin (t = 0, where the app draws the guide) are candidates too. On a loop without such a
+    defect every fit lands on the same mode and nothing changes.
     """
     size = float(np.max(np.ptp(guide, axis=0)))
     keep = max(3, int(_CONSENSUS_KEEP * points.shape[0]))
@@ -221,10 +225,11 @@ def _consensus(
         return fit  # 90 % of the loop lies close to the fit: no side is misshapen.
     base = _trimmed_cost(points, tree, fit, keep)
     local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
+    halves = [points[side * local[:, axis] > 0.0] for axis in range(2) for side in (-1.0, 1.0)]
     found: list[tuple[float, GuideFit]] = []
-    for axis in range(2):
-        for side in (-1.0, 1.0):
-            half = points[side * local[:, axis] > 0.0]
+    for centred in (False, True):
+        starts = [(fit.theta_deg, fit.rho, np.zeros(2))] if centred else []
+        for half in halves:
             if half.shape[0] < 12:
                 continue
             th, r, t, residual = _icp(
@@ -233,19 +238,32 @@ def _consensus(
                 tree,
                 fit.theta_deg,
                 fit.rho,
-                np.array(fit.translation),
+                np.zeros(2) if centred else np.array(fit.translation),
                 max(3, int(_HALF_TRIM * half.shape[0])),
                 max_iterations,
                 theta_fixed,
                 rho_fixed,
                 allowed,
+                centred,
             )
-            if not math.isfinite(residual):
-                continue
+            if math.isfinite(residual):
+                starts.append((th, r, t))
+        for th, r, t in starts:
             # From the half's fit, the least-trimmed fit to all points (40 %): it settles on
             # whichever part of the loop follows the guide closely.
             th, r, t, residual = _icp(
-                points, guide, tree, th, r, t, keep, max_iterations, theta_fixed, rho_fixed, allowed
+                points,
+                guide,
+                tree,
+                th,
+                r,
+                t,
+                keep,
+                max_iterations,
+                theta_fixed,
+                rho_fixed,
+                allowed,
+                centred,
             )
             if math.isfinite(residual):
                 candidate = GuideFit(th, r, t, residual, r * size)
@@ -268,8 +286,12 @@ def _icp(
     theta_fixed: float | None,
     rho_fixed: float | None,
     allowed: PreferenceRange,
+    centred: bool = False,
 ) -> tuple[float, float, FloatArray, float]:
-    """At most `iterations` trimmed ICP steps from (θ, ρ, t); returns the fit and its residual."""
+    """At most `iterations` trimmed ICP steps from (θ, ρ, t); returns the fit and its residual.
+
+    With `centred`, t is held at 0 (the guide's centre on the task plane's origin).
+    """
     residual = math.inf
     for _ in range(iterations):
         local = transform(points - t, -th, 1.0, np.zeros(2)) / r  # R(−θ)(p − t)/ρ
@@ -282,7 +304,7 @@ def _icp(
         normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
         normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-15
         th_new, r_new, t_new = _solve(
-            points[order], guide[g], normal, th, r, theta_fixed, rho_fixed, allowed
+            points[order], guide[g], normal, th, r, theta_fixed, rho_fixed, allowed, centred
         )
         moved = abs(th_new - th) / 90.0 + abs(r_new - r) + float(np.linalg.norm(t_new - t))
         th, r, t = th_new, r_new, t_new
@@ -300,12 +322,13 @@ def _solve(
     theta_fixed: float | None,
     rho_fixed: float | None,
     allowed: PreferenceRange,
+    centred: bool = False,
 ) -> tuple[float, float, FloatArray]:
     """θ, ρ, t of p ≈ ρ R(θ) q + t, point-to-tangent least squares, clipped or held fixed.
 
     Each pair's residual is measured along the guide's normal at q (mapped by the current θ), so
     points may slide along the guide (fast convergence on smooth loops), plus a small
-    point-to-point term (weight 0.05) that keeps the problem well posed.
+    point-to-point term (weight 0.05) that keeps the problem well posed. With `centred`, t = 0.
     """
     c, s = math.cos(math.radians(theta)), math.sin(math.radians(theta))
     n = normal @ np.array([[c, s], [-s, c]])  # Normals in the demo's frame.
@@ -328,7 +351,7 @@ def _solve(
             ]
         )
         rhs = np.concatenate([np.sum(n * p, axis=1), w * p[:, 0], w * p[:, 1]])
-        a, b, _, _ = np.linalg.lstsq(rows, rhs, rcond=None)[0]
+        a, b = np.linalg.lstsq(rows[:, :2] if centred else rows, rhs, rcond=None)[0][:2]
         th = theta_fixed if theta_fixed is not None else math.degrees(math.atan2(b, a))
         th = float(np.clip(th, -allowed.theta_max_deg, allowed.theta_max_deg))
         if rho_fixed is None:
@@ -338,6 +361,8 @@ def _solve(
             r = float(rho_fixed)
     else:
         th, r = float(theta_fixed), float(rho_fixed)
+    if centred:
+        return th, r, np.zeros(2)
     # Translation for the (clipped) rotation and scale: the same weighted least squares in t.
     mapped = transform(q, th, r, np.zeros(2))
     d = p - mapped

@@ -9,8 +9,9 @@ Data flow (used by :func:`bt_pipeline.clean.pipeline.clean_demos`)::
         at the demo's own phase: its loops, pauses and speed changes kept
     cleaned span (N samples) ──interpolated at the raw sample times inside the span──▶ output
 
-Pooling (docs/refinement.md): a demonstrator's θ and ρ are the medians of the guide fits of
-their demos, each fit weighted by its quality q = 1 / (1 + (residual / 2 % of size)²). The
+Pooling (docs/refinement.md): a demonstrator's θ and ρ are the weighted medians of the densest
+cluster of the guide fits of their demos (fits within 2.5° and 0.025 of the fit with the most
+such support), each fit weighted by its quality q = 1 / (1 + (residual / 2 % of size)²). The
 confidence is q̄ / (1 + (spread_θ / 5°)² + (spread_ρ / 0.05)²), with the spreads the median
 absolute deviations of the demonstrator's estimates (0 for one demo); below 0.5 an estimate is
 reported as uncertain.
@@ -37,6 +38,8 @@ _PHASE_SMOOTH_S = 0.06  # Gaussian σ of the tracked phase [s]: removes jitter, 
 _RESIDUAL_SMOOTH_S = 0.12  # Gaussian σ of Stage 2's residual over the reference [s].
 _DRIFT_SMOOTH_S = 1.0  # Gaussian σ of the slow drift removed before the phase is read [s].
 _DRIFT_PASSES = 2  # Phase tracks; the drift is estimated between them.
+_POOL_THETA_DEG = 2.5  # Estimates this close in θ [deg] and
+_POOL_RHO = 0.025  # in ρ agree when a demonstrator's demos are pooled.
 _RETIME_OVERSAMPLE = 4  # Points of the dense reference per reference sample.
 
 
@@ -86,8 +89,16 @@ def pool_preferences(
         thetas = np.array([segments[i].guide.theta_deg for i in idx])
         rhos = np.array([segments[i].guide.rho for i in idx])
         weights = quality[idx]
-        theta = _weighted_median(thetas, weights)
-        rho = _weighted_median(rhos, weights)
+        # The densest cluster of the demonstrator's estimates (a misshapen demo's fit scatters;
+        # the good ones agree): its weighted medians.
+        near = (np.abs(thetas[:, None] - thetas[None, :]) <= _POOL_THETA_DEG) & (
+            np.abs(rhos[:, None] - rhos[None, :]) <= _POOL_RHO
+        )
+        support = near @ weights
+        centre = min(np.flatnonzero(support >= support.max() - 1e-9), key=lambda k: rhos[k])
+        members = near[centre]
+        theta = _weighted_median(thetas[members], weights[members])
+        rho = _weighted_median(rhos[members], weights[members])
         spread_t = float(np.median(np.abs(thetas - theta))) if len(idx) > 1 else 0.0
         spread_r = float(np.median(np.abs(rhos - rho))) if len(idx) > 1 else 0.0
         confidence = float(weights.mean()) / (1.0 + (spread_t / 5.0) ** 2 + (spread_r / 0.05) ** 2)
