@@ -52,6 +52,7 @@ from bt_pipeline.exceptions import DemoError
 
 _CLOCK_HZ = 50.0  # Analysis clock [Hz].
 _SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
+_EDGE_TRIM_S = 0.04  # Span ends that meet an approach or a retreat move in by this [s].
 _FIT_SMOOTH_S = 0.03  # Gaussian σ of the path θ/ρ are fitted to [s].
 _REST_M = 0.010  # A hand within this of its rest pose still rests [m].
 _MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
@@ -185,6 +186,18 @@ def segment_demo(
         tail += 1
     if tail > head:
         phase, span, a, b = phase[head : tail + 1], span[head : tail + 1], a + head, a + tail
+    # The span was found on the path smoothed with σ = 0.08 s, which blurs where the hand joins
+    # and leaves the loop: it reaches into the approach and the retreat (median 0.09 s at each
+    # end on benchmarks/bench_segment.py). An end that is not the recording's own moves in by
+    # _EDGE_TRIM_S (0.04 s: the median error halves; a full σ cost the naive demos' ratios).
+    trim = round(_EDGE_TRIM_S * _CLOCK_HZ)
+    if b - a > 4 * trim:
+        if first + a > 0:
+            a += trim
+            phase, span = phase[trim:], span[trim:]
+        if first + b < smooth.shape[0] - 1:
+            b -= trim
+            phase, span = phase[:-trim], span[:-trim]
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     # θ/ρ from the kept span with its drift removed: approach, retreat and drift no longer bias
     # them (the same bounded fit, started from the first one).
