@@ -44,7 +44,9 @@ def estimate_period(positions: ArrayLike, name: str = "demo") -> float:
     n = x.shape[0]
     window = np.hanning(n)[:, None]
     n_fft = _PAD_FACTOR * n
-    power = np.sum(np.abs(np.fft.rfft((x - x.mean(axis=0)) * window, n_fft, axis=0)) ** 2, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # huge values: the DemoError below
+        spectrum = np.fft.rfft((x - x.mean(axis=0)) * window, n_fft, axis=0)
+        power = np.sum(np.abs(spectrum) ** 2, axis=1)
     magnitude = np.sqrt(power)
     if not np.all(np.isfinite(magnitude)) or float(np.max(magnitude)) <= 0.0:
         raise DemoError(
