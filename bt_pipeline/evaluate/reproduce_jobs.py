@@ -37,7 +37,7 @@ from bt_pipeline.evaluate.protocol import (
     rollout_starts,
 )
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.execute import ExecutorConfig, run_jobs
+from bt_pipeline.execute import ExecutorConfig, reuse_workers, run_jobs
 
 log = logging.getLogger("bt")
 
@@ -320,47 +320,48 @@ def run_reproduce(
     keys: list[tuple[int, SetName, Task]] = [
         (s, n, t) for n in config.sets for t in config.tasks for s in range(config.seeds)
     ]
-    prepared = run_jobs(
-        prepare_set,
-        [(*key, config) for key in keys],
-        executor,
-        desc="reproduce: clean",
-        progress=progress,
-        label=lambda job: f"{job[1]} {job[2]} seed {job[0]}",
-    )
-    jobs: list[LearnerJob | CompetenceJob] = []
-    costs: list[float] = []
-    for p in prepared:
-        eval_config = config.eval_config(p.seed)
-        for dataset, (positions, demonstrators) in p.data.items():
-            for learner in config.learners:
-                job = LearnerJob(
-                    p.task,
-                    learner,
-                    dataset,
-                    positions,
-                    demonstrators,
-                    eval_config,
-                    p.yardstick,
-                    p.x0,
-                )
-                jobs.append(job)
-                costs.append(job_cost(learner, config, positions.shape[0]))
-    if config.competence:
-        for check in ("one", "four"):
-            for task in config.tasks:
+    with reuse_workers(executor):  # one pool of workers for both stages
+        prepared = run_jobs(
+            prepare_set,
+            [(*key, config) for key in keys],
+            executor,
+            desc="reproduce: clean",
+            progress=progress,
+            label=lambda job: f"{job[1]} {job[2]} seed {job[0]}",
+        )
+        jobs: list[LearnerJob | CompetenceJob] = []
+        costs: list[float] = []
+        for p in prepared:
+            eval_config = config.eval_config(p.seed)
+            for dataset, (positions, demonstrators) in p.data.items():
                 for learner in config.learners:
-                    jobs.append((check, task, learner, config))
-                    costs.append(job_cost(learner, config) * COMPETENCE_COST)
-    order = sorted(range(len(jobs)), key=lambda i: -costs[i])  # longest first
-    done = run_jobs(
-        _run_stage2,
-        [jobs[i] for i in order],
-        executor,
-        desc="reproduce: train",
-        progress=progress,
-        label=_label,
-    )
+                    job = LearnerJob(
+                        p.task,
+                        learner,
+                        dataset,
+                        positions,
+                        demonstrators,
+                        eval_config,
+                        p.yardstick,
+                        p.x0,
+                    )
+                    jobs.append(job)
+                    costs.append(job_cost(learner, config, positions.shape[0]))
+        if config.competence:
+            for check in ("one", "four"):
+                for task in config.tasks:
+                    for learner in config.learners:
+                        jobs.append((check, task, learner, config))
+                        costs.append(job_cost(learner, config) * COMPETENCE_COST)
+        order = sorted(range(len(jobs)), key=lambda i: -costs[i])  # longest first
+        done = run_jobs(
+            _run_stage2,
+            [jobs[i] for i in order],
+            executor,
+            desc="reproduce: train",
+            progress=progress,
+            label=_label,
+        )
     results: list = [None] * len(jobs)
     for i, result in zip(order, done, strict=True):
         results[i] = result
