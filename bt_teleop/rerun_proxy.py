@@ -7,7 +7,11 @@ starts, each in a process group of its own (stopping the app stops them and noth
     rerun --serve-web --bind <host> --port <grpc> --web-viewer-port <web>    the web viewer page
     rerun --serve-grpc --bind <host> --port <free> --server-memory-limit <limit>   one per tab
 
-and waits until each gRPC port answers. Every tab streams to its *own* proxy
+and waits until each gRPC port answers. On Linux each child also dies with the app, even when
+the app is killed with SIGKILL and cannot stop it: it is started with ``PR_SET_PDEATHSIG``
+(SIGTERM when its parent thread ends), from one long-lived spawner thread, since the signal
+fires when the *thread* that started the child ends, and tabs open on short-lived threads.
+Every tab streams to its *own* proxy
 (``rerun+http://<host>:<port>/proxy``), and its link opens the web viewer on that proxy alone:
 a proxy sends every recording it holds to every viewer, and the web viewer makes the last
 recording that arrives the active one, so one shared proxy opened another tab's recording and
@@ -16,6 +20,9 @@ made each viewer replay every tab's backlog (docs/teleop.md, "Live Rerun latency
 
 from __future__ import annotations
 
+import concurrent.futures
+import ctypes
+import ctypes.util
 import importlib.util
 import logging
 import os
@@ -23,9 +30,12 @@ import shutil
 import signal
 import socket
 import subprocess
+import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import IO
 
 from bt_pipeline.exceptions import ConfigError
 
@@ -34,6 +44,41 @@ __all__ = ["RerunProxy", "free_port", "rerun_binary"]
 LOGGER = logging.getLogger("bt.teleop")
 START_TIMEOUT_S = 30.0
 """Longest wait for the proxy's gRPC port to answer [s]."""
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+_SPAWNER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-rerun-spawner")
+"""Starts every child: its one thread lives as long as the app (module doc)."""
+
+
+def _die_with_parent_hook() -> Callable[[], None] | None:
+    """A ``preexec_fn`` that makes the child get SIGTERM when the spawning thread ends (Linux;
+    None elsewhere). libc is loaded here, in the parent: the hook itself only calls prctl."""
+    if not sys.platform.startswith("linux"):
+        return None
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    parent = os.getpid()
+
+    def hook() -> None:
+        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before prctl: nobody will stop us
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    return hook
+
+
+def _spawn(command: list[str], log: IO[bytes]) -> subprocess.Popen[bytes]:
+    """Popen `command` from the spawner thread (stdout and stderr to `log`)."""
+
+    def start() -> subprocess.Popen[bytes]:
+        return subprocess.Popen(  # preexec_fn only calls prctl (above)
+            command,
+            stdin=subprocess.DEVNULL,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,  # its own process group: close() stops it and its children
+            preexec_fn=_die_with_parent_hook(),
+        )
+
+    return _SPAWNER.submit(start).result()
 
 
 def rerun_binary() -> Path:
@@ -118,13 +163,7 @@ class RerunProxy:
             memory_limit,
             *(["--newest-first"] if newest_first else []),
         ]
-        self.process = subprocess.Popen(
-            command,
-            stdin=subprocess.DEVNULL,
-            stdout=self._log,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,  # its own process group: close() stops it and its children
-        )
+        self.process = _spawn(command, self._log)
         try:
             self._wait_ready()
         except ConfigError:

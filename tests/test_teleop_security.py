@@ -149,7 +149,8 @@ def test_a_non_loopback_host_prints_a_warning(monkeypatch, capsys) -> None:
 
 
 def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
-    """All listening sockets of `bt teleop` (defaults, Rerun serving) and its children."""
+    """All listening sockets of `bt teleop` (defaults, Rerun serving) and its children; and
+    when the app is killed with SIGKILL (it cannot stop them), its Rerun children die too."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     command = ["teleop", "--port", "0", "--recordings", str(tmp_path / "rec")]
     process = subprocess.Popen(
@@ -172,6 +173,12 @@ def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
         assert sockets, "bt teleop listens on nothing"
         exposed = [s for s in sockets if not is_loopback_address(s[1])]
         assert not exposed, f"sockets on non-loopback interfaces: {exposed}"
+        children = psutil.Process(process.pid).children(recursive=True)
+        assert any("rerun" in " ".join(c.cmdline()) for c in children), children
+        process.kill()
+        process.wait(30)
+        _, alive = psutil.wait_procs(children, timeout=10.0)
+        assert not alive, f"children outlived a SIGKILL of bt teleop: {alive}"
     finally:
         process.terminate()
         process.wait(30)
