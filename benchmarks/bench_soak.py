@@ -19,11 +19,15 @@ Reported:
 * resident memory (psutil) every ``--sample-every`` seconds, and its slope over the second
   half of the run [MiB/min] (flat: about 0), with the machine's 1-minute load average at the
   same moments (other jobs share the CPU);
-* takes saved vs intended (Stop & save presses; files counted on disk at the end).
+* takes saved vs intended (Stop & save presses; files counted on disk at the end);
+* with ``--tracemalloc N``: what grew between a third of the run and its end, by the Python
+  line that allocated it (N frames of traceback; tracing slows the app down a lot, so use it
+  for a short run that finds the growth, not for the stall or RSS numbers).
 
 Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes.
 
     nice -n 10 .venv/bin/python benchmarks/bench_soak.py --minutes 10
+    nice -n 10 .venv/bin/python benchmarks/bench_soak.py --minutes 2 --tracemalloc 8
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ import shutil
 import tempfile
 import threading
 import time
+import tracemalloc
 from pathlib import Path
 from typing import Any
 
@@ -155,15 +160,54 @@ class Sampler:
         return float(np.polyfit(half[:, 0] / 60.0, half[:, 1], 1)[0])
 
 
-def cache_bytes(app: TeleopApp) -> int:
-    """Bytes of the numpy arrays in the recordings the shared library loader holds."""
-    total = 0
-    for _key, recording in list(app.context.libraries._files.values()):
-        for record in recording.demos.values():
-            for value in vars(record).values():
-                if isinstance(value, np.ndarray):
-                    total += value.nbytes
-    return total
+def held_by_loader(app: TeleopApp) -> str:
+    """What the tabs' shared library loader and the Play reader hold."""
+    files = list(app.context.libraries._files.values())
+    arrays = sum(
+        value.nbytes
+        for file in files
+        for track in file.tracks
+        for value in (getattr(track, name) for name in track.__slots__)
+        if isinstance(value, np.ndarray)
+    )
+    tracks = sum(len(file.tracks) for file in files)
+    return (
+        f"the tabs' shared loader lists {tracks} demos of {len(files)} files "
+        f"({arrays} bytes of sample arrays); Play's reader holds "
+        f"{app.context.samples.cached} tracks"
+    )
+
+
+class Refusals:
+    """Counts the notices of failed actions of a tab (its own list keeps only the last 100)."""
+
+    def __init__(self, ui: ClientUI) -> None:
+        self.bodies: list[str] = []
+        notify = ui._notify
+
+        def counted(title: str, body: str, color: Any = None) -> None:
+            if title in REFUSALS:
+                self.bodies.append(body)
+            notify(title, body, color)
+
+        ui._notify = counted  # type: ignore[method-assign]
+
+
+def top_growth(before: tracemalloc.Snapshot, after: tracemalloc.Snapshot, n: int = 25) -> str:
+    """The `n` allocation sites that grew most from `before` to `after` (by traceback)."""
+    noise = [
+        tracemalloc.Filter(False, tracemalloc.__file__),
+        tracemalloc.Filter(False, "<frozen importlib._bootstrap*>"),
+        tracemalloc.Filter(False, "<unknown>"),
+    ]
+    stats = after.filter_traces(noise).compare_to(before.filter_traces(noise), "traceback")
+    lines = []
+    for stat in stats[:n]:
+        lines.append(f"{stat.size_diff / 1024:+.1f} KiB ({stat.count_diff:+d} blocks), now "
+                     f"{stat.size / 1024:.1f} KiB:")
+        lines += [f"      {frame.filename}:{frame.lineno}" for frame in stat.traceback[-6:]]
+    total = sum(stat.size_diff for stat in stats)
+    return f"traced growth {total / 2**20:+.2f} MiB in all; top sites:\n  " + "\n  ".join(lines)
 
 
 def drive(ui: ClientUI, stop: threading.Event, seed: int, counts: dict[str, int]) -> None:
@@ -192,7 +236,12 @@ def main() -> None:
     parser.add_argument("--sessions", type=int, default=8)
     parser.add_argument("--clean-every", type=float, default=120.0, help="[s]; 0: never")
     parser.add_argument("--sample-every", type=float, default=30.0, help="RSS and load [s]")
+    parser.add_argument(
+        "--tracemalloc", type=int, default=0, help="frames to trace (0: off); see the docstring"
+    )
     args = parser.parse_args()
+    if args.tracemalloc:
+        tracemalloc.start(args.tracemalloc)
     process = psutil.Process()
     loads = Timed()
     bt_teleop.library_loader.load_library = loads.wrap(bt_teleop.library.load_library)
@@ -206,6 +255,7 @@ def main() -> None:
         tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
         clocks = [TickClock(ui) for ui in uis]
+        refusals = [Refusals(ui) for ui in uis]
         time.sleep(2.0)
         sampler = Sampler(args.sample_every)
         pauses = GcPauses()
@@ -221,8 +271,13 @@ def main() -> None:
         end = time.monotonic() + 60.0 * args.minutes
         next_clean = time.monotonic() + args.clean_every if args.clean_every else None
         cleans = 0
+        first: tracemalloc.Snapshot | None = None
+        snapshot_at = time.monotonic() + 20.0 * args.minutes  # a third of the run
         while time.monotonic() < end:
             time.sleep(1.0)
+            if args.tracemalloc and first is None and time.monotonic() >= snapshot_at:
+                gc.collect()
+                first = tracemalloc.take_snapshot()
             if next_clean is not None and time.monotonic() >= next_clean:
                 uis[cleans % len(uis)].controls.clean_button.value = True
                 cleans += 1
@@ -233,13 +288,17 @@ def main() -> None:
         wait_until(app.settled, 60.0, "tabs to settle")
         for ui in uis:
             ui.wait_idle(120.0)  # the last Stop & save may still be queued
-        refused = [body for ui in uis for title, body in ui.messages if title in REFUSALS]
+        refused = [body for counted in refusals for body in counted.bodies]
         sampler.stop()
+        growth_text = ""
+        if first is not None:
+            gc.collect()
+            growth_text = top_growth(first, tracemalloc.take_snapshot())
         cpu_end, wall = process.cpu_times(), time.monotonic() - wall_start
         received = sum(tab.bytes for tab in tabs)
-        saved_ui = sum(len(ui.saved) for ui in uis)
+        saved_ui = sum(ui.takes.saved_count for ui in uis)
         files = len(list((Path(tmp) / "rec" / "wiping").glob("*.hdf5")))
-        cached = cache_bytes(app) / 2**20
+        held = held_by_loader(app)
     gaps = np.concatenate([np.asarray(c.gaps) for c in clocks])
     compute = np.concatenate([np.asarray(c.compute) for c in clocks])
     period = 1.0 / uis[0].session.config.control_hz
@@ -275,13 +334,12 @@ def main() -> None:
         "  t [s]  RSS [MiB]  load: " + "; ".join(f"{t:.0f} {m:.0f} {la:.1f}" for t, m, la in rows)
     )
     growth = rows[-1, 1] - rows[0, 1]
-    print(
-        f"RSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; the tabs' "
-        f"shared library holds {cached:.1f} MiB of demo arrays ({files} files)"
-    )
+    print(f"RSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}")
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")
+    if growth_text:
+        print(growth_text)
     shutil.rmtree(tmp, ignore_errors=True)
 
 
