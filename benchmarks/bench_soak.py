@@ -203,8 +203,10 @@ def top_growth(before: tracemalloc.Snapshot, after: tracemalloc.Snapshot, n: int
     stats = after.filter_traces(noise).compare_to(before.filter_traces(noise), "traceback")
     lines = []
     for stat in stats[:n]:
-        lines.append(f"{stat.size_diff / 1024:+.1f} KiB ({stat.count_diff:+d} blocks), now "
-                     f"{stat.size / 1024:.1f} KiB:")
+        lines.append(
+            f"{stat.size_diff / 1024:+.1f} KiB ({stat.count_diff:+d} blocks), now "
+            f"{stat.size / 1024:.1f} KiB:"
+        )
         lines += [f"      {frame.filename}:{frame.lineno}" for frame in stat.traceback[-6:]]
     total = sum(stat.size_diff for stat in stats)
     return f"traced growth {total / 2**20:+.2f} MiB in all; top sites:\n  " + "\n  ".join(lines)

@@ -33,7 +33,7 @@ __all__ = ["MAX_SAVED_KEPT", "TakeDesk"]
 
 Notify = Callable[..., None]
 MAX_SAVED_KEPT = 100
-"""Paths of the tab's last saved takes it keeps (:attr:`TakeDesk.saved`; the files list them all)."""
+"""The last saved takes a tab keeps (:attr:`TakeDesk.saved`; the files list them all)."""
 
 
 class TakeDesk:

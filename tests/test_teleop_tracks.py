@@ -95,8 +95,8 @@ def test_the_listing_matches_the_files(takes: Path) -> None:
         assert track.stamp == file_stamp(track.file)
         assert track.demonstrator == record.demonstrator
     by_prefix = {t.file.name.split("_")[0]: t for t in library.raw}
-    assert set(by_prefix["still"].flags) >= {"no_motion"}
-    assert "closed_mid_take" in by_prefix["erin"].flags
+    assert by_prefix["erin"].flags == ("closed_mid_take",)  # ep_meta incomplete (older app)
+    assert not by_prefix["erin"].usable and by_prefix["erin"].utility is None
     assert "clamped" in by_prefix["dave"].warnings  # 56 clamped samples
     assert by_prefix["script-alert-1-script"].demonstrator.startswith("<script")
     for track in library.cleaned:  # each cleaned demo names the raw take it came from
