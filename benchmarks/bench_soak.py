@@ -20,14 +20,17 @@ Reported:
   half of the run [MiB/min] (flat: about 0), with the machine's 1-minute load average at the
   same moments (other jobs share the CPU);
 * takes saved vs intended (Stop & save presses; files counted on disk at the end);
-* with ``--tracemalloc N``: what grew between a third of the run and its end, by the Python
-  line that allocated it (N frames of traceback; tracing slows the app down a lot, so use it
-  for a short run that finds the growth, not for the stall or RSS numbers).
+* with ``--tracemalloc N``: what was allocated after a third of the run and is still held at
+  its end, by the Python lines that allocated it (N frames of traceback; tracing starts at the
+  third). Tracing slows the app down several times, so the starved loops simulate too little
+  time for a 2-4 s take: give longer takes (``--take-s 15``) and use such a run to find what
+  grows, not for the stall or RSS numbers.
 
 Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes.
 
     nice -n 10 .venv/bin/python benchmarks/bench_soak.py --minutes 10
-    nice -n 10 .venv/bin/python benchmarks/bench_soak.py --minutes 2 --tracemalloc 8
+    nice -n 10 .venv/bin/python benchmarks/bench_soak.py --minutes 4 --sessions 4 \
+        --take-s 15 --tracemalloc 6
 """
 
 from __future__ import annotations
@@ -36,10 +39,12 @@ import argparse
 import gc
 import os
 import shutil
+import sys
 import tempfile
 import threading
 import time
 import tracemalloc
+import types
 from pathlib import Path
 from typing import Any
 
@@ -56,12 +61,53 @@ REFUSALS = ("Not done", "Error")
 """Titles of the notices a tab shows when an action fails."""
 
 
+class Durations:
+    """A histogram of durations in fixed memory (0.1 ms bins up to 5 s; the max exactly).
+
+    Keeping every tick's time in a list grew the benchmark's own memory by ~1 MiB a minute at
+    8 × 100 Hz, inside the RSS the soak measures; this allocates (and touches) its bins once.
+    """
+
+    BIN_S = 1e-4
+    BINS = 50_000
+
+    def __init__(self) -> None:
+        self.counts = np.ones(self.BINS, dtype=np.int64)  # ones, then zeros: every page touched
+        self.counts[:] = 0
+        self.max_s = 0.0
+
+    def add(self, seconds: float) -> None:
+        self.counts[min(int(seconds / self.BIN_S), self.BINS - 1)] += 1
+        self.max_s = max(self.max_s, seconds)
+
+    @property
+    def n(self) -> int:
+        return int(self.counts.sum())
+
+    def percentile(self, q: float) -> float:
+        """The `q`-th percentile [s] (to the bin's centre)."""
+        cumulative = np.cumsum(self.counts)
+        index = int(np.searchsorted(cumulative, q / 100.0 * cumulative[-1]))
+        return min((index + 0.5) * self.BIN_S, self.max_s)
+
+    def count_above(self, seconds: float) -> int:
+        return int(self.counts[int(seconds / self.BIN_S) + 1 :].sum())
+
+    @staticmethod
+    def merged(parts: list[Durations]) -> Durations:
+        total = Durations()
+        for part in parts:
+            total.counts += part.counts
+            total.max_s = max(total.max_s, part.max_s)
+        return total
+
+
 class TickClock:
     """Wraps a session's ``_tick`` to keep the gaps between ticks and each tick's own time."""
 
     def __init__(self, ui: ClientUI) -> None:
-        self.gaps: list[float] = []
-        self.compute: list[float] = []
+        self.gaps = Durations()
+        self.compute = Durations()
         self._last: float | None = None
         session = ui.session
         tick = session._tick
@@ -69,10 +115,10 @@ class TickClock:
         def timed() -> None:
             now = time.perf_counter()
             if self._last is not None:
-                self.gaps.append(now - self._last)
+                self.gaps.add(now - self._last)
             self._last = now
             tick()
-            self.compute.append(time.perf_counter() - now)
+            self.compute.add(time.perf_counter() - now)
 
         session._tick = timed  # type: ignore[method-assign]
 
@@ -160,20 +206,42 @@ class Sampler:
         return float(np.polyfit(half[:, 0] / 60.0, half[:, 1], 1)[0])
 
 
-def held_by_loader(app: TeleopApp) -> str:
-    """What the tabs' shared library loader and the Play reader hold."""
-    files = list(app.context.libraries._files.values())
-    arrays = sum(
-        value.nbytes
-        for file in files
-        for track in file.tracks
-        for value in (getattr(track, name) for name in track.__slots__)
-        if isinstance(value, np.ndarray)
-    )
-    tracks = sum(len(file.tracks) for file in files)
+def deep_size(root: Any) -> tuple[int, int]:
+    """(bytes, numpy array bytes) of everything reachable from `root` through containers and
+    records (``sys.getsizeof`` of each object once; classes, modules and functions left out)."""
+    total = arrays = 0
+    seen: set[int] = set()
+    stack = [root]
+    while stack:
+        item = stack.pop()
+        if id(item) in seen or isinstance(item, type | types.ModuleType | types.FunctionType):
+            continue
+        seen.add(id(item))
+        total += sys.getsizeof(item)
+        if isinstance(item, np.ndarray):
+            arrays += item.nbytes
+        elif isinstance(item, dict):
+            stack += [*item.keys(), *item.values()]
+        elif isinstance(item, list | tuple | set | frozenset):
+            stack += list(item)
+        elif not isinstance(item, str | bytes | int | float):
+            names = [n for cls in type(item).__mro__ for n in getattr(cls, "__slots__", ())]
+            stack += [getattr(item, n) for n in names if hasattr(item, n)]
+            stack += list(getattr(item, "__dict__", {}).values())
+    return total, arrays
+
+
+def held_by_loader(app: TeleopApp, uis: list[ClientUI]) -> str:
+    """What the tabs' shared library loader, the tabs' libraries and Play's reader hold."""
+    files = dict(app.context.libraries._files)
+    cache, cache_arrays = deep_size(files)
+    libraries, library_arrays = deep_size([ui.library for ui in uis])
+    tracks = sum(len(file.tracks) for file in files.values())
     return (
-        f"the tabs' shared loader lists {tracks} demos of {len(files)} files "
-        f"({arrays} bytes of sample arrays); Play's reader holds "
+        f"the tabs' shared loader lists {tracks} demos of {len(files)} files in "
+        f"{cache / 2**10:.0f} KiB ({cache / max(tracks, 1):.0f} bytes a demo, "
+        f"{cache_arrays} bytes of sample arrays); the tabs' libraries with it: "
+        f"{libraries / 2**10:.0f} KiB ({library_arrays} bytes of arrays); Play's reader holds "
         f"{app.context.samples.cached} tracks"
     )
 
@@ -193,34 +261,37 @@ class Refusals:
         ui._notify = counted  # type: ignore[method-assign]
 
 
-def top_growth(before: tracemalloc.Snapshot, after: tracemalloc.Snapshot, n: int = 25) -> str:
-    """The `n` allocation sites that grew most from `before` to `after` (by traceback)."""
+def top_growth(snapshot: tracemalloc.Snapshot, n: int = 25) -> str:
+    """The `n` allocation sites holding most of what was allocated since tracing started."""
     noise = [
         tracemalloc.Filter(False, tracemalloc.__file__),
         tracemalloc.Filter(False, "<frozen importlib._bootstrap*>"),
         tracemalloc.Filter(False, "<unknown>"),
     ]
-    stats = after.filter_traces(noise).compare_to(before.filter_traces(noise), "traceback")
+    stats = snapshot.filter_traces(noise).statistics("traceback")
     lines = []
     for stat in stats[:n]:
-        lines.append(
-            f"{stat.size_diff / 1024:+.1f} KiB ({stat.count_diff:+d} blocks), now "
-            f"{stat.size / 1024:.1f} KiB:"
-        )
+        lines.append(f"{stat.size / 1024:.1f} KiB in {stat.count} blocks:")
         lines += [f"      {frame.filename}:{frame.lineno}" for frame in stat.traceback[-6:]]
-    total = sum(stat.size_diff for stat in stats)
-    return f"traced growth {total / 2**20:+.2f} MiB in all; top sites:\n  " + "\n  ".join(lines)
+    total = sum(stat.size for stat in stats)
+    return (
+        f"allocated since tracing started and still held: {total / 2**20:.2f} MiB; top sites:"
+        "\n  " + "\n  ".join(lines)
+    )
 
 
-def drive(ui: ClientUI, stop: threading.Event, seed: int, counts: dict[str, int]) -> None:
-    """Record takes of 2-4 s with the target on a circle until `stop`."""
+def drive(
+    ui: ClientUI, stop: threading.Event, seed: int, counts: dict[str, int], take_s: float
+) -> None:
+    """Record takes of `take_s`-2 `take_s` seconds (wall time), the target on a circle, until
+    `stop`."""
     rng = np.random.default_rng(seed)
     plane = ui.session.scene.plane
     t0 = time.perf_counter()
     while not stop.is_set():
         ui.controls.record_button.value = True
         ui.wait_idle()
-        end = time.perf_counter() + float(rng.uniform(2.0, 4.0))
+        end = time.perf_counter() + float(rng.uniform(take_s, 2.0 * take_s))
         while time.perf_counter() < end and not stop.is_set():
             ui.session.set_target(plane.to_world(circle_uv(time.perf_counter() - t0)))
             time.sleep(1.0 / 30.0)
@@ -241,9 +312,10 @@ def main() -> None:
     parser.add_argument(
         "--tracemalloc", type=int, default=0, help="frames to trace (0: off); see the docstring"
     )
+    parser.add_argument(
+        "--take-s", type=float, default=2.0, help="takes last U(take_s, 2 take_s) s of wall time"
+    )
     args = parser.parse_args()
-    if args.tracemalloc:
-        tracemalloc.start(args.tracemalloc)
     process = psutil.Process()
     loads = Timed()
     bt_teleop.library_loader.load_library = loads.wrap(bt_teleop.library.load_library)
@@ -265,7 +337,7 @@ def main() -> None:
         stop = threading.Event()
         counts = [{"intended": 0} for _ in uis]
         drivers = [
-            threading.Thread(target=drive, args=(ui, stop, k, counts[k]), daemon=True)
+            threading.Thread(target=drive, args=(ui, stop, k, counts[k], args.take_s), daemon=True)
             for k, ui in enumerate(uis)
         ]
         for thread in drivers:
@@ -273,13 +345,12 @@ def main() -> None:
         end = time.monotonic() + 60.0 * args.minutes
         next_clean = time.monotonic() + args.clean_every if args.clean_every else None
         cleans = 0
-        first: tracemalloc.Snapshot | None = None
-        snapshot_at = time.monotonic() + 20.0 * args.minutes  # a third of the run
+        trace_at = time.monotonic() + 20.0 * args.minutes  # a third of the run
         while time.monotonic() < end:
             time.sleep(1.0)
-            if args.tracemalloc and first is None and time.monotonic() >= snapshot_at:
+            if args.tracemalloc and not tracemalloc.is_tracing() and time.monotonic() >= trace_at:
                 gc.collect()
-                first = tracemalloc.take_snapshot()
+                tracemalloc.start(args.tracemalloc)
             if next_clean is not None and time.monotonic() >= next_clean:
                 uis[cleans % len(uis)].controls.clean_button.value = True
                 cleans += 1
@@ -293,32 +364,33 @@ def main() -> None:
         refused = [body for counted in refusals for body in counted.bodies]
         sampler.stop()
         growth_text = ""
-        if first is not None:
+        if tracemalloc.is_tracing():
             gc.collect()
-            growth_text = top_growth(first, tracemalloc.take_snapshot())
+            growth_text = top_growth(tracemalloc.take_snapshot())
+            tracemalloc.stop()
         cpu_end, wall = process.cpu_times(), time.monotonic() - wall_start
         received = sum(tab.bytes for tab in tabs)
         saved_ui = sum(ui.takes.saved_count for ui in uis)
         files = len(list((Path(tmp) / "rec" / "wiping").glob("*.hdf5")))
-        held = held_by_loader(app)
-    gaps = np.concatenate([np.asarray(c.gaps) for c in clocks])
-    compute = np.concatenate([np.asarray(c.compute) for c in clocks])
+        held = held_by_loader(app, uis)
+    gaps = Durations.merged([c.gaps for c in clocks])
+    compute = Durations.merged([c.compute for c in clocks])
     period = 1.0 / uis[0].session.config.control_hz
     intended = sum(c["intended"] for c in counts)
     print(f"{args.sessions} sessions for {args.minutes:g} min, {cleans} Clean presses")
     print(
-        f"control ticks: {gaps.size} ({gaps.size / wall:.0f}/s of {args.sessions / period:.0f}/s"
+        f"control ticks: {gaps.n} ({gaps.n / wall:.0f}/s of {args.sessions / period:.0f}/s"
         f" intended), period {1e3 * period:.1f} ms"
     )
-    print(f"largest stall: {1e3 * (gaps.max() - period):.1f} ms beyond the period")
-    p50, p99, p999 = (1e3 * np.percentile(gaps, q) for q in (50, 99, 99.9))
+    print(f"largest stall: {1e3 * (gaps.max_s - period):.1f} ms beyond the period")
+    p50, p99, p999 = (1e3 * gaps.percentile(q) for q in (50, 99, 99.9))
     print(
         f"gap p50: {p50:.1f} ms, p99: {p99:.1f} ms, p99.9: {p999:.1f} ms, "
-        f"max {1e3 * gaps.max():.0f} ms"
+        f"max {1e3 * gaps.max_s:.0f} ms (0.1 ms bins)"
     )
-    print(f"stalls > 50 ms: {int(np.sum(gaps - period > 0.05))}")
-    c50, c99 = (1e3 * np.percentile(compute, q) for q in (50, 99))
-    print(f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * compute.max():.0f} ms")
+    print(f"stalls > 50 ms: {gaps.count_above(period + 0.05)}")
+    c50, c99 = (1e3 * compute.percentile(q) for q in (50, 99))
+    print(f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * compute.max_s:.0f} ms")
     print(f"gc pauses: {pauses.summary()}")
     print(f"task-library loads (after saves): {loads.summary()}")
     used = (cpu_end.user + cpu_end.system - cpu_start.user - cpu_start.system) / wall
