@@ -20,6 +20,8 @@ Reported:
   half of the run [MiB/min] (flat: about 0), with the machine's 1-minute load average at the
   same moments (other jobs share the CPU);
 * takes saved vs intended (Stop & save presses; files counted on disk at the end);
+* with ``--discard`` the tabs press Discard instead of Stop & save: the same recording work
+  without files, library loads or table updates, a control for the memory measured;
 * with ``--tracemalloc N``: what was allocated after a third of the run and is still held at
   its end, by the Python lines that allocated it (N frames of traceback; tracing starts at the
   third). Tracing slows the app down several times, so the starved loops simulate too little
@@ -44,7 +46,6 @@ import tempfile
 import threading
 import time
 import tracemalloc
-import types
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +55,7 @@ import psutil
 import bt_teleop.library
 import bt_teleop.library_loader
 from bt_teleop.app import TeleopApp
-from bt_teleop.testing import app_factory, circle_uv, tab_factory, wait_until
+from bt_teleop.testing import app_factory, circle_uv, reachable, tab_factory, wait_until
 from bt_teleop.ui import ClientUI
 
 REFUSALS = ("Not done", "Error")
@@ -207,28 +208,10 @@ class Sampler:
 
 
 def deep_size(root: Any) -> tuple[int, int]:
-    """(bytes, numpy array bytes) of everything reachable from `root` through containers and
-    records (``sys.getsizeof`` of each object once; classes, modules and functions left out)."""
-    total = arrays = 0
-    seen: set[int] = set()
-    stack = [root]
-    while stack:
-        item = stack.pop()
-        if id(item) in seen or isinstance(item, type | types.ModuleType | types.FunctionType):
-            continue
-        seen.add(id(item))
-        total += sys.getsizeof(item)
-        if isinstance(item, np.ndarray):
-            arrays += item.nbytes
-        elif isinstance(item, dict):
-            stack += [*item.keys(), *item.values()]
-        elif isinstance(item, list | tuple | set | frozenset):
-            stack += list(item)
-        elif not isinstance(item, str | bytes | int | float):
-            names = [n for cls in type(item).__mro__ for n in getattr(cls, "__slots__", ())]
-            stack += [getattr(item, n) for n in names if hasattr(item, n)]
-            stack += list(getattr(item, "__dict__", {}).values())
-    return total, arrays
+    """(bytes, numpy array bytes) of everything reachable from `root` (``sys.getsizeof``)."""
+    objects = list(reachable(root))
+    arrays = sum(item.nbytes for item in objects if isinstance(item, np.ndarray))
+    return sum(sys.getsizeof(item) for item in objects), arrays
 
 
 def held_by_loader(app: TeleopApp, uis: list[ClientUI]) -> str:
@@ -281,10 +264,15 @@ def top_growth(snapshot: tracemalloc.Snapshot, n: int = 25) -> str:
 
 
 def drive(
-    ui: ClientUI, stop: threading.Event, seed: int, counts: dict[str, int], take_s: float
+    ui: ClientUI,
+    stop: threading.Event,
+    seed: int,
+    counts: dict[str, int],
+    take_s: float,
+    discard: bool = False,
 ) -> None:
     """Record takes of `take_s`-2 `take_s` seconds (wall time), the target on a circle, until
-    `stop`."""
+    `stop`; save each (or, with `discard`, press Discard instead)."""
     rng = np.random.default_rng(seed)
     plane = ui.session.scene.plane
     t0 = time.perf_counter()
@@ -297,8 +285,8 @@ def drive(
             time.sleep(1.0 / 30.0)
         if stop.is_set():
             break
-        counts["intended"] += 1
-        ui.controls.save_button.value = True
+        counts["intended"] += 0 if discard else 1
+        (ui.controls.discard_button if discard else ui.controls.save_button).value = True
         ui.wait_idle(30.0)
         time.sleep(float(rng.uniform(0.2, 1.0)))
 
@@ -314,6 +302,11 @@ def main() -> None:
     )
     parser.add_argument(
         "--take-s", type=float, default=2.0, help="takes last U(take_s, 2 take_s) s of wall time"
+    )
+    parser.add_argument(
+        "--discard",
+        action="store_true",
+        help="press Discard instead of Stop & save (the same work without the files: a control)",
     )
     args = parser.parse_args()
     process = psutil.Process()
@@ -337,7 +330,9 @@ def main() -> None:
         stop = threading.Event()
         counts = [{"intended": 0} for _ in uis]
         drivers = [
-            threading.Thread(target=drive, args=(ui, stop, k, counts[k], args.take_s), daemon=True)
+            threading.Thread(
+                target=drive, args=(ui, stop, k, counts[k], args.take_s, args.discard), daemon=True
+            )
             for k, ui in enumerate(uis)
         ]
         for thread in drivers:

@@ -20,7 +20,7 @@ from bt_pipeline.score.utility import score_demos
 from bt_teleop.cleaning import cleaned_path
 from bt_teleop.library import load_library
 from bt_teleop.library_loader import LibraryLoader
-from bt_teleop.testing import shared_dir
+from bt_teleop.testing import reachable, shared_dir
 from bt_teleop.tracks import file_stamp, read_file_tracks
 
 TAKES = shared_dir() / "data/browser-takes/wiping"
@@ -49,28 +49,9 @@ def write_cleaned(root: Path) -> Path:
     return write_recording(cleaned_path(root, "wiping"), cleaned, overwrite=True)
 
 
-def arrays_reachable(root: Any) -> list[str]:
-    """Paths to every numpy array reachable from `root` through containers and records."""
-    found: list[str] = []
-    seen: set[int] = set()
-    stack: list[tuple[str, Any]] = [("library", root)]
-    while stack:
-        where, item = stack.pop()
-        if id(item) in seen or isinstance(item, str | bytes | int | float | type(None)):
-            continue
-        seen.add(id(item))
-        if isinstance(item, np.ndarray):
-            found.append(where)
-        elif isinstance(item, dict):
-            stack += [(f"{where}[{k!r}]", v) for k, v in item.items()]
-            stack += [(f"{where} key", k) for k in item]
-        elif isinstance(item, list | tuple | set | frozenset):
-            stack += [(f"{where}[{i}]", v) for i, v in enumerate(item)]
-        else:
-            names = [n for cls in type(item).__mro__ for n in getattr(cls, "__slots__", ())]
-            names += list(getattr(item, "__dict__", {}))
-            stack += [(f"{where}.{n}", getattr(item, n)) for n in names if hasattr(item, n)]
-    return found
+def arrays_reachable(root: Any) -> list[tuple[int, ...]]:
+    """The shapes of the numpy arrays reachable from `root` through containers and records."""
+    return [item.shape for item in reachable(root) if isinstance(item, np.ndarray)]
 
 
 def test_a_library_and_the_loader_cache_hold_no_samples(takes: Path) -> None:
