@@ -174,10 +174,11 @@ class GcPauses:
 
 
 class Sampler:
-    """RSS [MiB] and the 1-minute load average every `every_s` seconds, in a thread."""
+    """RSS [MiB], the 1-minute load average and, while tracemalloc traces, the Python memory
+    it sees [MiB] (NaN otherwise) every `every_s` seconds, in a thread."""
 
     def __init__(self, every_s: float) -> None:
-        self.rows: list[tuple[float, float, float]] = []  # (t [s], RSS [MiB], load)
+        self.rows: list[tuple[float, float, float, float]] = []  # t [s], RSS, load, traced
         self._process = psutil.Process()
         self._t0 = time.monotonic()
         self._stop = threading.Event()
@@ -187,7 +188,8 @@ class Sampler:
 
     def sample(self) -> None:
         rss = self._process.memory_info().rss / 2**20
-        self.rows.append((time.monotonic() - self._t0, rss, os.getloadavg()[0]))
+        traced = tracemalloc.get_traced_memory()[0] / 2**20 if tracemalloc.is_tracing() else np.nan
+        self.rows.append((time.monotonic() - self._t0, rss, os.getloadavg()[0], traced))
 
     def _run(self, every_s: float) -> None:
         while not self._stop.wait(every_s):
@@ -198,13 +200,14 @@ class Sampler:
         self._thread.join(5.0)
         self.sample()
 
-    def slope_second_half(self) -> float:
-        """Least-squares slope of RSS over the second half of the run [MiB/min]."""
+    def slope_second_half(self, column: int = 1) -> float:
+        """Least-squares slope of RSS (or another column) over the second half of the run
+        [MiB/min]."""
         rows = np.asarray(self.rows)
-        half = rows[rows[:, 0] >= rows[-1, 0] / 2.0]
+        half = rows[(rows[:, 0] >= rows[-1, 0] / 2.0) & np.isfinite(rows[:, column])]
         if len(half) < 2:
             return float("nan")
-        return float(np.polyfit(half[:, 0] / 60.0, half[:, 1], 1)[0])
+        return float(np.polyfit(half[:, 0] / 60.0, half[:, column], 1)[0])
 
 
 def deep_size(root: Any) -> tuple[int, int]:
@@ -400,8 +403,15 @@ def main() -> None:
         f"slope over the second half {sampler.slope_second_half():+.2f} MiB/min"
     )
     print(
-        "  t [s]  RSS [MiB]  load: " + "; ".join(f"{t:.0f} {m:.0f} {la:.1f}" for t, m, la in rows)
+        "  t [s]  RSS [MiB]  load: "
+        + "; ".join(f"{t:.0f} {m:.0f} {la:.1f}" for t, m, la, _ in rows)
     )
+    if np.isfinite(rows[:, 3]).any():
+        print(
+            f"Python memory tracemalloc sees: slope over the second half "
+            f"{sampler.slope_second_half(3):+.2f} MiB/min; t [s] MiB: "
+            + "; ".join(f"{t:.0f} {m:.1f}" for t, _, _, m in rows if np.isfinite(m))
+        )
     growth = rows[-1, 1] - rows[0, 1]
     print(f"RSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}")
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
