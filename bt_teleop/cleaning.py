@@ -96,6 +96,13 @@ class CleanJob:
         self._done.wait(timeout_s)
         return self.progress()
 
+    def take_result(self) -> TaskCleanResult | None:
+        """The cleaner's full result, handed out once (the job then lets go of it: it holds
+        every demo of the task, and a finished job is kept until the task's next Clean)."""
+        with self._lock:
+            result, self.result = self.result, None
+        return result
+
     @property
     def finished(self) -> bool:
         """Whether the job ended (done or failed)."""

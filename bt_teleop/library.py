@@ -1,10 +1,12 @@
 """A task's demos on disk, as the page lists them: raw and cleaned, scored, flagged, moderated.
 
-:func:`load_library` reads ``<recordings>/<task>/`` (raw, one file per demo) and
-``<recordings>/.cleaned/<task>.cleaned.hdf5`` (see :mod:`bt_teleop.cleaning`) into
-:class:`ReplayTrack` records: the end-effector path in the world frame with its timestamps, the
-demonstrator's preference, the take-check flags (demo attr ``flags``), whether the file is
-excluded (:mod:`bt_pipeline.data.moderation`) and the utility score Ũ.
+:func:`load_library` lists ``<recordings>/<task>/`` (raw, one file per demo) and
+``<recordings>/.cleaned/<task>.cleaned.hdf5`` (see :mod:`bt_teleop.cleaning`) as
+:class:`~bt_teleop.tracks.ReplayTrack` records: the demonstrator and preference, the duration,
+the take-check flags (demo attr ``flags``), whether the file is excluded
+(:mod:`bt_pipeline.data.moderation`), the utility score Ũ, and the file's identity. No samples:
+a track's path is read from its file when it is played (:mod:`bt_teleop.track_samples`), so the
+library of a task with thousands of takes stays small (about 1 KiB a take).
 
 Scores (paper Eq. 8, :func:`bt_pipeline.score.utility.score_demos`) are computed over the
 *usable* raw demos only: neither flagged nor excluded. A junk take therefore never shifts the
@@ -19,19 +21,19 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bt_pipeline.data.moderation import is_excluded
-from bt_pipeline.data.records import DemoRecord, FloatArray, Recording
+from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task, parse_task
-from bt_pipeline.exceptions import BtError, ConfigError, RecordingError
+from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.cleaning import cleaned_path, task_dir
 from bt_teleop.escape import markdown_text
+from bt_teleop.tracks import FileTracks, ReplayTrack, TrackKind, read_file_tracks
 
 if TYPE_CHECKING:
-    from bt_pipeline.data.demo import Demo
     from bt_pipeline.score.utility import RawMetrics
 
 __all__ = [
@@ -43,63 +45,12 @@ __all__ = [
     "plural",
 ]
 
-TrackKind = Literal["raw", "cleaned"]
 LOGGER = logging.getLogger("bt.teleop")
-CLAMPED_WARNING_SHARE = 0.05
-"""A demo with more than this share of samples clamped to the workspace gets a ⚠ warning."""
-
-
-@dataclass(frozen=True, eq=False)  # holds arrays
-class ReplayTrack:
-    """One replayable demo."""
-
-    key: str
-    """Unique label in the task's library (what the Replay picker shows)."""
-    kind: TrackKind
-    """raw or cleaned."""
-    file: Path
-    """The file it was read from."""
-    demo: str
-    """Its name in that file."""
-    positions: FloatArray
-    """End-effector path in the world frame, shape (T, 3), in [m]."""
-    times_s: FloatArray
-    """Timestamps from 0, strictly increasing, shape (T,), in [s]."""
-    demonstrator: str
-    """Who recorded it (as typed: escape it before showing it)."""
-    theta_deg: float
-    """θ [deg] (NaN when unknown)."""
-    rho: float
-    """ρ (NaN when unknown)."""
-    utility: float | None = None
-    """Ũ (raw: among the task's usable raw demos; cleaned: after cleaning), None if not scored."""
-    flags: tuple[str, ...] = ()
-    """Failed take checks (demo attr ``flags``; ``closed_mid_take`` for ep_meta incomplete)."""
-    excluded: bool = False
-    """Its file is excluded by moderation (a sidecar; the file is untouched)."""
-    session: str = ""
-    """The app session that recorded it (ep_meta ``session``; empty when unknown)."""
-    warnings: tuple[str, ...] = ()
-    """Things worth a look that do not make it unusable (e.g. ``clamped``, ``ik_failures``)."""
-
-    @property
-    def usable(self) -> bool:
-        """Neither flagged nor excluded: scored, rankable, cleaned."""
-        return not self.flags and not self.excluded
-
-    @property
-    def duration_s(self) -> float:
-        """Length [s]."""
-        return float(self.times_s[-1])
-
-    def target_at(self, t_s: float) -> FloatArray:
-        """Linearly interpolated position at `t_s` [s] (held outside the track), shape (3,)."""
-        return np.array([np.interp(t_s, self.times_s, self.positions[:, j]) for j in range(3)])
 
 
 @dataclass(frozen=True)
 class TaskLibrary:
-    """Everything replayable for one task."""
+    """Everything replayable for one task (listed, not loaded: see :mod:`bt_teleop.tracks`)."""
 
     task: Task
     raw: tuple[ReplayTrack, ...]
@@ -132,32 +83,34 @@ class TaskLibrary:
         valid = ", ".join(t.key for t in self.tracks[:5]) or "none yet"
         raise ConfigError(f"no demo {key!r}; valid are: {valid}")
 
+    def source_of(self, track: ReplayTrack) -> ReplayTrack | None:
+        """The raw demo a cleaned `track` was cleaned from (None: raw, or not listed)."""
+        return next((t for t in self.raw if track.source and t.key == track.source), None)
+
+
+ReadTracks = Callable[[Path, TrackKind], FileTracks]
+"""(file, raw or cleaned) -> its tracks (e.g. from a cache)."""
+
 
 def load_library(
-    recordings_dir: str | Path,
-    task: str,
-    read: Callable[[Path], Recording] | None = None,
-    metrics: MetricsOf | None = None,
+    recordings_dir: str | Path, task: str, read: ReadTracks | None = None
 ) -> TaskLibrary:
-    """Read `task`'s raw and cleaned demos (unreadable files are skipped with a warning).
+    """List `task`'s raw and cleaned demos (unreadable files are skipped with a warning).
 
     Args:
         recordings_dir: Root folder of the recordings.
         task: The task.
-        read: Reads one file (e.g. from a cache: :class:`bt_teleop.library_loader.LibraryLoader`);
-            :func:`~bt_pipeline.data.recording.read_recording` when None.
-        metrics: The raw metrics (I, L1-L3) of a file's demo (e.g. from a cache);
-            :func:`~bt_pipeline.score.utility.raw_metrics` when None. Ũ is then normalised over
-            the task's usable demos (Eqs. 7-8), exactly as
+        read: Reads one file's tracks and raw metrics (e.g. from a cache:
+            :class:`bt_teleop.library_loader.LibraryLoader`); :func:`read_file_tracks` when None.
+            Ũ is then normalised over the task's usable demos (Eqs. 7-8), exactly as
             :func:`~bt_pipeline.score.utility.score_demos` does.
     """
     from bt_pipeline.data.paths import expand_paths
-    from bt_pipeline.data.recording import read_recording
 
-    read = read or read_recording
+    read = read or read_file_tracks
     parsed = parse_task(task)
     folder = task_dir(recordings_dir, parsed)
-    raw_recordings: list[Recording] = []
+    files: list[FileTracks] = []
     if folder.is_dir():
         try:
             paths = expand_paths([folder])
@@ -165,47 +118,37 @@ def load_library(
             paths = []
         for path in paths:
             try:
-                raw_recordings.append(read(path))
-            except RecordingError as exc:
+                files.append(read(path, "raw"))
+            except BtError as exc:
                 LOGGER.warning("skipping %s", exc)
-    raw_recordings = [r for r in raw_recordings if r.task == parsed]
-    raw = _raw_tracks(raw_recordings, metrics or _raw_metrics)
+    files = [f for f in files if f.task == parsed]
+    raw = _scored(files)
     cleaned: tuple[ReplayTrack, ...] = ()
     stale = False
     cleaned_file = cleaned_path(recordings_dir, parsed)
     if cleaned_file.is_file():
         try:
-            cleaned = _cleaned_tracks(read(cleaned_file))
+            cleaned_tracks = read(cleaned_file, "cleaned")
         except BtError as exc:
             LOGGER.warning("skipping %s", exc)
-        stale = _newest_change(raw_recordings) > cleaned_file.stat().st_mtime
+        else:
+            cleaned = cleaned_tracks.tracks
+            stale = _newest_change_ns(files) > cleaned_tracks.stamp.mtime_ns
     return TaskLibrary(parsed, raw, cleaned, cleaned_stale=stale)
 
 
-def _newest_change(recordings: list[Recording]) -> float:
-    """Latest modification time [s since the epoch] of the files and their sidecars."""
+def _newest_change_ns(files: list[FileTracks]) -> int:
+    """Latest modification time [ns since the epoch] of the files and their sidecars."""
     from bt_pipeline.data.moderation import sidecar_path
 
-    newest = 0.0
-    for recording in recordings:
-        if recording.path is None:
+    newest = 0
+    for file in files:
+        newest = max(newest, file.stamp.mtime_ns)
+        try:
+            newest = max(newest, sidecar_path(file.path).stat().st_mtime_ns)
+        except OSError:
             continue
-        for path in (recording.path, sidecar_path(recording.path)):
-            try:
-                newest = max(newest, path.stat().st_mtime)
-            except OSError:
-                continue
     return newest
-
-
-MetricsOf = Callable[[Path, str, "Demo"], "RawMetrics"]
-"""(file, demo name, demo) -> its raw metrics."""
-
-
-def _raw_metrics(_path: Path, _name: str, demo: Demo) -> RawMetrics:
-    from bt_pipeline.score.utility import raw_metrics
-
-    return raw_metrics(demo.positions, demo.actions, demo.theta_deg)
 
 
 def _utilities(metrics: list[RawMetrics]) -> FloatArray:
@@ -218,86 +161,31 @@ def _utilities(metrics: list[RawMetrics]) -> FloatArray:
     return normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
 
 
-def _raw_tracks(recordings: list[Recording], metrics_of: MetricsOf) -> tuple[ReplayTrack, ...]:
-    from bt_pipeline.data.demo import demos_from_recording
+def _scored(files: list[FileTracks]) -> tuple[ReplayTrack, ...]:
+    """The raw tracks of `files`, marked excluded (moderation) and scored among the usable ones.
 
+    A usable demo whose raw metrics could not be computed stays unscored (Ũ None); the others
+    are normalised without it.
+    """
     tracks: list[ReplayTrack] = []
-    demos = []
-    usable: list[int] = []
-    for recording in recordings:
-        assert recording.path is not None
-        several = len(recording.demos) > 1
-        excluded = is_excluded(recording.path)
-        file_demos = demos_from_recording(recording)
-        for (name, record), demo in zip(recording.demos.items(), file_demos, strict=True):
-            key = f"raw · {recording.path.stem}" + (f" · {name}" if several else "")
-            meta = record.ep_meta
-            warnings = []
-            clamped = meta.get("clamped_samples", 0)
-            if isinstance(clamped, int) and clamped > CLAMPED_WARNING_SHARE * record.num_samples:
-                warnings.append("clamped")
-            if isinstance(meta.get("ik_failures"), int) and meta["ik_failures"] > 0:
-                warnings.append("ik_failures")
-            track = _track(
-                key,
-                "raw",
-                recording.path,
-                name,
-                record,
-                flags=record.flags,
-                excluded=excluded,
-                session=str(meta.get("session", "")),
-                warnings=tuple(warnings),
-            )
-            if track.usable:
-                usable.append(len(tracks))
-                demos.append((recording.path, name, demo))
+    scored: list[tuple[int, RawMetrics]] = []
+    for file in files:
+        excluded = is_excluded(file.path)
+        for track, metrics in zip(file.tracks, file.metrics, strict=True):
+            track = replace(track, excluded=excluded) if excluded else track
+            if track.usable and metrics is not None:
+                scored.append((len(tracks), metrics))
             tracks.append(track)
-    if not demos:
+    if not scored:
         return tuple(tracks)
     try:
-        utilities = _utilities([metrics_of(*usable_demo) for usable_demo in demos])
+        utilities = _utilities([metrics for _, metrics in scored])
     except BtError as exc:
         LOGGER.warning("cannot score the raw demos: %s", exc)
         return tuple(tracks)
-    for index, utility in zip(usable, utilities, strict=True):
+    for (index, _), utility in zip(scored, utilities, strict=True):
         tracks[index] = replace(tracks[index], utility=float(utility))
     return tuple(tracks)
-
-
-def _cleaned_tracks(recording: Recording) -> tuple[ReplayTrack, ...]:
-    assert recording.path is not None
-    tracks = []
-    for name, record in recording.demos.items():
-        source = str(record.attrs.get("cleaned_from", name))
-        file, _, demo = source.rpartition(":")
-        label = Path(file).stem if file else name
-        if demo and demo != "demo_0":
-            label = f"{label} · {demo}"
-        utility = record.attrs.get("utility_cleaned")
-        utility = None if utility is None else float(utility)
-        tracks.append(
-            _track(f"cleaned · {label}", "cleaned", recording.path, name, record, utility=utility)
-        )
-    return tuple(tracks)
-
-
-def _track(
-    key: str, kind: TrackKind, file: Path, demo: str, record: DemoRecord, **extra: Any
-) -> ReplayTrack:
-    """A track of `record` (demo `demo` of `file`); `extra` sets the other fields."""
-    return ReplayTrack(
-        key=key,
-        kind=kind,
-        file=file,
-        demo=demo,
-        positions=record.ee_pos,
-        times_s=record.timestamps - record.timestamps[0],
-        demonstrator=record.demonstrator,
-        theta_deg=record.theta_deg,
-        rho=record.rho,
-        **extra,
-    )
 
 
 def plural(n: int, noun: str) -> str:

@@ -10,7 +10,7 @@ loops. :class:`LibraryLoader` makes that cost one incremental load per change::
         a load of `task` queued and not yet started?  share it (it reads the files as they
                                                         are when it starts: newer than asked)
         otherwise                                      queue a new one on the app's reader
-    the load: load_library(dir, task, read=cached read, metrics=cached metrics)
+    the load: load_library(dir, task, read=cached read)
         a file whose (size, mtime, inode) did not change is not read again, nor are its
         demos' raw metrics (I, L1-L3: 14 ms a demo) computed again; only the normalisation
         over the task's demos (Eqs. 7-8) is redone
@@ -21,34 +21,27 @@ machine (a load then takes seconds of wall time) the reader thread still leaves 
 GIL to the control loops most of the time; the table then lags the saves by that much (the save
 notice itself is immediate).
 
-The cache holds what the tabs' libraries hold anyway (the recordings of the task on disk); the
-entries of files that are gone are dropped at each load.
+The cache holds, per file, what the tabs' libraries list (:class:`~bt_teleop.tracks.FileTracks`:
+names, flags, durations, raw metrics, the file's identity; about 1 KiB a take), never its samples;
+the entries of files that are gone are dropped at each load.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
 import logging
-import os
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from bt_pipeline.data.records import Recording
-from bt_pipeline.exceptions import RecordingError
-from bt_teleop.cleaning import task_dir
+from bt_teleop.cleaning import cleaned_path, task_dir
 from bt_teleop.library import TaskLibrary, load_library
-
-if TYPE_CHECKING:
-    from bt_pipeline.data.demo import Demo
-    from bt_pipeline.score.utility import RawMetrics
+from bt_teleop.tracks import FileTracks, TrackKind, file_stamp, read_file_tracks
 
 __all__ = ["LibraryLoader"]
 
 LOGGER = logging.getLogger("bt.teleop")
-_Key = tuple[int, int, int]
 
 
 class LibraryLoader:
@@ -82,8 +75,7 @@ class LibraryLoader:
         self._next_start: dict[str, float] = {}
         self._lock = threading.Lock()
         self._queued: dict[str, tuple[object, concurrent.futures.Future[TaskLibrary]]] = {}
-        self._files: dict[Path, tuple[_Key, Recording]] = {}
-        self._metrics: dict[tuple[Path, str], tuple[_Key, RawMetrics]] = {}
+        self._files: dict[Path, FileTracks] = {}
         self.loads = 0
         """Loads run so far."""
         self.files_read = 0
@@ -119,58 +111,37 @@ class LibraryLoader:
         started = self._clock()
         seen: set[Path] = set()
 
-        def read(path: Path) -> Recording:
+        def read(path: Path, kind: TrackKind) -> FileTracks:
             seen.add(path)
-            return self._read(path)
+            return self._read(path, kind)
 
-        library = load_library(self.recordings_dir, task, read=read, metrics=self._raw_metrics)
+        library = load_library(self.recordings_dir, task, read=read)
         ended = self._clock()
         with self._lock:
             self.loads += 1
             pause = max(self.min_interval_s, self.duty * (ended - started))
             self._next_start[task] = ended + pause
             folder = task_dir(self.recordings_dir, library.task)
-            for path in [p for p in self._files if p.parent == folder and p not in seen]:
-                del self._files[path]  # deleted (or no longer listed) since the last load
-            for key in [k for k in self._metrics if k[0] not in self._files]:
-                del self._metrics[key]
+            cleaned = cleaned_path(self.recordings_dir, library.task)
+            for path in [p for p in self._files if p.parent == folder or p == cleaned]:
+                if path not in seen:  # deleted (or no longer listed) since the last load
+                    del self._files[path]
         return library
 
-    def _raw_metrics(self, path: Path, name: str, demo: Demo) -> RawMetrics:
-        """The raw metrics of demo `name` of `path`, computed once per version of the file."""
-        from bt_pipeline.score.utility import raw_metrics
-
-        with self._lock:
-            file_key = self._files[path][0] if path in self._files else None
-            cached = self._metrics.get((path, name))
-        if cached is not None and cached[0] == file_key:
-            return cached[1]
-        metrics = raw_metrics(demo.positions, demo.actions, demo.theta_deg)
-        if file_key is not None:
-            with self._lock:
-                self._metrics[(path, name)] = (file_key, metrics)
-        return metrics
-
-    def _read(self, path: Path) -> Recording:
-        """`path`'s recording, from the cache when the file did not change.
+    def _read(self, path: Path, kind: TrackKind) -> FileTracks:
+        """`path`'s tracks, from the cache when the file did not change.
 
         Raises:
             RecordingError: The file cannot be read (not cached: a file being replaced may be
                 readable next time).
         """
-        from bt_pipeline.data.recording import read_recording
-
-        try:
-            stat = os.stat(path)
-        except OSError as exc:
-            raise RecordingError(f"{path}: cannot read it ({exc.strerror})") from exc
-        key = (stat.st_size, stat.st_mtime_ns, stat.st_ino)
+        stamp = file_stamp(path)
         with self._lock:
             cached = self._files.get(path)
-        if cached is not None and cached[0] == key:
-            return cached[1]
-        recording = read_recording(path)
+        if cached is not None and cached.stamp == stamp:
+            return cached
+        tracks = read_file_tracks(path, kind)
         with self._lock:
-            self._files[path] = (key, recording)
+            self._files[path] = tracks
             self.files_read += 1
-        return recording
+        return tracks

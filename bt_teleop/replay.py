@@ -1,7 +1,8 @@
 """Replaying one demo of a task's library (:mod:`bt_teleop.library`) on a session's robot.
 
-Replaying feeds the track to the session as its target, so the FR3 tracks it through the same
-IK as a person's gizmo::
+Replaying feeds the track's samples (read from its file on Play:
+:class:`~bt_teleop.track_samples.TrackReader`) to the session as its target, so the FR3 tracks
+it through the same IK as a person's gizmo::
 
     ReplayPlayer thread (every ~5 ms of wall time)
         approach: target = track start, until the end effector is within 5 mm (or 2 s)
@@ -17,6 +18,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +27,7 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import BtError
 from bt_teleop.library import ReplayTrack, TaskLibrary, TrackKind, library_markdown, load_library
 from bt_teleop.session import Session
+from bt_teleop.track_samples import TrackReader, TrackSamples
 
 LOGGER = logging.getLogger("bt.teleop")
 APPROACH_TOLERANCE_M = 0.005
@@ -52,7 +55,7 @@ class ReplayResult:
         return float(np.sqrt(np.mean(np.sum((self.ee_positions - self.targets) ** 2, axis=1))))
 
 
-def replay_sync(session: Session, track: ReplayTrack) -> ReplayResult:
+def replay_sync(session: Session, track: TrackSamples) -> ReplayResult:
     """Replay `track` on `session` synchronously (the session must not run in real time)."""
     quat = session.scene.ee_quat
     session.set_target(track.positions[0], quat)
@@ -74,13 +77,58 @@ def replay_sync(session: Session, track: ReplayTrack) -> ReplayResult:
     return ReplayResult(np.array(times), np.array(reached), np.array(targets))
 
 
+def read_replay(
+    library: TaskLibrary,
+    track: ReplayTrack,
+    reader: TrackReader,
+    on_stale: Callable[[], object] = lambda: None,
+) -> tuple[TrackSamples, list[tuple[TrackKind, FloatArray]]]:
+    """Read `track`'s samples for Play, and the paths drawn while it replays.
+
+    Args:
+        library: The listed library `track` is from.
+        track: The demo to play.
+        reader: Reads (or recalls) a track's samples from its file.
+        on_stale: Called when `track`'s file is gone or changed (the list needs a reload).
+
+    Returns:
+        The samples, and each path drawn as (kind, positions of shape (T, 3) [m]): the track
+        and, for a cleaned demo, its raw source to compare (left out when that cannot be read).
+
+    Raises:
+        RecordingError: `track` cannot be read (the message names it and its file).
+    """
+    try:
+        samples = reader.read(track)
+    except BtError:
+        on_stale()
+        raise
+    paths: list[tuple[TrackKind, FloatArray]] = [(track.kind, samples.positions)]
+    source = library.source_of(track)
+    if source is not None:
+        try:
+            paths.append((source.kind, reader.read(source).positions))
+        except BtError as exc:
+            LOGGER.info("not drawing the raw source: %s", exc)
+    return samples, paths
+
+
 class ReplayPlayer:
     """Plays a track on a session running in real time, from a thread of its own."""
 
-    def __init__(self, session: Session, track: ReplayTrack, period_s: float = 0.005) -> None:
-        """Prepare to replay `track` on `session`; call :meth:`start`."""
+    def __init__(
+        self,
+        session: Session,
+        track: ReplayTrack,
+        samples: TrackSamples,
+        period_s: float = 0.005,
+    ) -> None:
+        """Prepare to replay `track` (its `samples`) on `session`; call :meth:`start`."""
         self.session = session
         self.track = track
+        """The demo played (as listed)."""
+        self.samples = samples
+        """Its samples."""
         self.period_s = period_s
         self.result: ReplayResult | None = None
         """Set when the track has been played to its end."""
@@ -107,7 +155,8 @@ class ReplayPlayer:
     @property
     def progress(self) -> tuple[str, float]:
         """(phase, fraction played): phase is approach, play or done."""
-        fraction = self._t_s / self.track.duration_s if self.track.duration_s > 0 else 1.0
+        duration = self.samples.duration_s
+        fraction = self._t_s / duration if duration > 0 else 1.0
         return self._phase, min(1.0, fraction)
 
     def _run(self) -> None:
@@ -119,7 +168,7 @@ class ReplayPlayer:
             self._phase = "done"
 
     def _play(self) -> None:
-        session, track = self.session, self.track
+        session, track = self.session, self.samples
         session.set_target(track.positions[0], session.scene.ee_quat)
         t_start = session.status().sim_time_s
         while not self._stop.is_set():
@@ -153,7 +202,9 @@ __all__ = [
     "ReplayTrack",
     "TaskLibrary",
     "TrackKind",
+    "TrackSamples",
     "library_markdown",
     "load_library",
+    "read_replay",
     "replay_sync",
 ]

@@ -8,7 +8,7 @@ the task-shape guide, the live trail and replayed paths, drawn into the tab's ow
     frame(camera, task scene)                  the task's default camera (and "Reset view")
     draw_guide(task scene, θ, ρ)               the blue loop the demonstrator traces
     show(status, trail)                        one frame (inside the tab's ``client.atomic()``)
-    draw_replay_paths / clear_replay_paths     raw (orange) and cleaned (green) paths
+    draw_replay_path / clear_replay_paths      raw (orange) and cleaned (green) paths
 
 Only the tab worker (:class:`bt_teleop.ui.ClientUI`) calls it; the gizmo callback only hands
 the dragged position to ``on_drag``.
@@ -23,7 +23,7 @@ import viser
 
 from bt_pipeline.data.records import FloatArray
 from bt_teleop.framing import default_view, plane_wxyz
-from bt_teleop.library import ReplayTrack, TaskLibrary
+from bt_teleop.library import TrackKind
 from bt_teleop.scene import SceneModel
 from bt_teleop.session_config import SessionStatus
 from bt_teleop.viewer import MjSceneView, Trail, draw_path, floor_height, guide_loop_world
@@ -106,15 +106,10 @@ class TabScene:
         if follow:
             self.gizmo.position = status.command_pos
 
-    def draw_replay_paths(self, track: ReplayTrack, library: TaskLibrary | None) -> None:
-        """Draw `track`'s path and, for a cleaned demo, its raw source's (to compare)."""
-        tracks = [track]
-        if track.kind == "cleaned" and library is not None:
-            raw_key = "raw · " + track.key.removeprefix("cleaned · ")
-            tracks += [t for t in library.raw if t.key == raw_key]
-        for shown in tracks:
-            color = CLEANED_RGB if shown.kind == "cleaned" else RAW_RGB
-            draw_path(self.scene_api, f"/replay/{shown.kind}", shown.positions, color)
+    def draw_replay_path(self, kind: TrackKind, positions: FloatArray) -> None:
+        """Draw a replayed demo's path, shape (T, 3) [m] (a cleaned one beside its raw source)."""
+        color = CLEANED_RGB if kind == "cleaned" else RAW_RGB
+        draw_path(self.scene_api, f"/replay/{kind}", positions, color)
 
     def clear_replay_paths(self) -> None:
         """Remove the replayed paths."""

@@ -7,6 +7,7 @@
     chromium_page() -> Playwright Page             Debian's headless Chromium, software WebGL
     wait_until(condition, timeout_s, what)         poll until truthy; TimeoutError otherwise
     circle_uv(t_s)                                 a reachable circle in task-plane coordinates
+    reachable(root)                                every object a record holds (memory checks)
 
 :class:`FakeTab` is a browser tab as the server sees it: it connects with viser's protocol
 version, sends the first camera message (what makes viser call ``on_client_connect``), reads
@@ -20,6 +21,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+import types
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -48,6 +50,7 @@ __all__ = [
     "circle_uv",
     "decode_frame",
     "guide_script",
+    "reachable",
     "shared_dir",
     "tab_factory",
     "wait_until",
@@ -253,3 +256,29 @@ def circle_uv(t_s: float, radius_m: float = 0.06, period_s: float = 4.0) -> Floa
     `t_s` [s]: (u, v), shape (2,) [m]."""
     phase = 2.0 * math.pi * t_s / period_s
     return radius_m * np.array([math.sin(phase), 1.0 - math.cos(phase)])
+
+
+def reachable(root: object) -> Iterator[object]:
+    """Every object reachable from `root` through containers and records, each once.
+
+    Follows dict keys and values, list / tuple / set items, and the ``__slots__`` and
+    ``__dict__`` attributes of other objects; never classes, modules or functions (they would
+    reach the whole program). For checks of what a record holds (e.g. no numpy arrays) and of
+    its size (``sys.getsizeof`` summed).
+    """
+    seen: set[int] = set()
+    stack = [root]
+    while stack:
+        item = stack.pop()
+        if id(item) in seen or isinstance(item, type | types.ModuleType | types.FunctionType):
+            continue
+        seen.add(id(item))
+        yield item
+        if isinstance(item, dict):
+            stack += [*item.keys(), *item.values()]
+        elif isinstance(item, list | tuple | set | frozenset):
+            stack += list(item)
+        elif not isinstance(item, str | bytes | int | float | np.ndarray):
+            names = [n for cls in type(item).__mro__ for n in getattr(cls, "__slots__", ())]
+            stack += [getattr(item, n) for n in names if hasattr(item, n)]
+            stack += list(getattr(item, "__dict__", {}).values())

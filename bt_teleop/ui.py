@@ -23,7 +23,9 @@ Beside it: panels :mod:`~bt_teleop.ui_panels`, takes and moderation :mod:`~bt_te
 from __future__ import annotations
 
 import asyncio
+import collections
 import concurrent.futures
+import functools
 import logging
 import queue
 import threading
@@ -41,7 +43,7 @@ from bt_pipeline.exceptions import BtError
 from bt_teleop.cleaning import CleanJob
 from bt_teleop.escape import breakable, display_text
 from bt_teleop.library import TaskLibrary
-from bt_teleop.replay import ReplayPlayer
+from bt_teleop.replay import ReplayPlayer, read_replay
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
 from bt_teleop.session import Session
@@ -53,6 +55,8 @@ from bt_teleop.ui_takes import TakeDesk
 __all__ = ["ClientUI", "Frame", "TaskVersions", "UiContext", "status_markdown"]
 
 LOGGER = logging.getLogger("bt.teleop")
+MAX_MESSAGES = 100
+"""Notifications a tab remembers (:attr:`ClientUI.messages`; one or two come with each take)."""
 
 
 class ClientUI:
@@ -64,8 +68,8 @@ class ClientUI:
         self.ctx = ctx
         self.session_id = session_id
         self.logger: SessionLogger = ctx.rerun.session_logger(session_id)
-        self.messages: list[tuple[str, str]] = []
-        """(title, body) of every notification shown (newest last)."""
+        self.messages: collections.deque[tuple[str, str]] = collections.deque(maxlen=MAX_MESSAGES)
+        """(title, body) of the last notifications shown (newest last)."""
         self.last_frame: Frame | None = None
         self.library: TaskLibrary | None = None
         self.replay: ReplayPlayer | None = None
@@ -88,10 +92,7 @@ class ClientUI:
         self.controls.connect(self)
         self.session: Session = self._new_session(ctx.initial_task)
         self.tab_scene = TabScene(
-            client.scene,
-            self.session.scene,
-            self._on_drag,
-            fancy_lighting=ctx.fancy_lighting,
+            client.scene, self.session.scene, self._on_drag, fancy_lighting=ctx.fancy_lighting
         )
         """The tab's 3-D view."""
         self._task_shown()
@@ -193,8 +194,7 @@ class ClientUI:
             keep = self.ctx.save_incomplete if save_incomplete is None else save_incomplete
             path = self.session.close(save_incomplete=keep)
             if path is not None:
-                self.saved.append(path)
-                self.ctx.versions.bump(self.task)
+                self.takes.note_saved(path, self.task)
             self.logger.close()
             return path
 
@@ -311,13 +311,10 @@ class ClientUI:
                 self.controls.library_text.content = f"Cannot read the recordings: {exc}"
             else:
                 if library.task == self.task:
-                    self._show_library(library)
+                    self.library = library
+                    self.controls.show_library(library)
         self._poll_clean()
         self._poll_replay()
-
-    def _show_library(self, library: TaskLibrary) -> None:
-        self.library = library
-        self.controls.show_library(library)
 
     def _poll_clean(self) -> None:
         cleaner = self.ctx.cleaner
@@ -330,8 +327,9 @@ class ClientUI:
             progress = job.progress()
             if progress.state == "done":
                 self._notify("Clean done", clean_done_text(job.task, progress))
-                if job.result is not None:
-                    self.logger.log_clean_result(job.result, self.ctx.cleaner.options.seed)
+                result = job.take_result()  # the job lets go of it (every demo of the task)
+                if result is not None:
+                    self.logger.log_clean_result(result, self.ctx.cleaner.options.seed)
             else:
                 self._notify(f"Clean {progress.state}", progress.message, color="red")
 
@@ -395,12 +393,15 @@ class ClientUI:
             raise BtError("stop or discard the recording before replaying a demo")
         if self.library is None:
             raise BtError("the recordings are still loading")
-        track = self.library.find(key)
+        track = self.library.find(key)  # listed without samples: read them from its file now
+        stale = functools.partial(self.ctx.versions.bump, self.task)  # a file gone: reload
+        samples, paths = read_replay(self.library, track, self.ctx.samples, stale)
         self._do_stop_replay()
-        self.tab_scene.draw_replay_paths(track, self.library)
-        self.replay = ReplayPlayer(self.session, track)
+        for kind, path in paths:
+            self.tab_scene.draw_replay_path(kind, path)
+        self.replay = ReplayPlayer(self.session, track, samples)
         self.replay.start()
-        self.logger.log_replay(track.key, track.positions, track.kind)
+        self.logger.log_replay(track.key, samples.positions, track.kind)
 
     def _do_stop_replay(self) -> None:
         if self.replay is not None:

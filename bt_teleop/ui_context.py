@@ -15,6 +15,7 @@ from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.rerun_live import RerunHub
 from bt_teleop.scene import Robot
 from bt_teleop.session_config import SessionConfig
+from bt_teleop.track_samples import TrackReader
 
 __all__ = ["TaskVersions", "UiContext"]
 
@@ -50,6 +51,8 @@ class UiContext:
     libraries: LibraryLoader
     """Loads a task's library once for every tab, reading only changed files."""
     versions: TaskVersions = field(default_factory=TaskVersions)
+    samples: TrackReader = field(default_factory=TrackReader)
+    """Reads a track's samples when it is played (the libraries list tracks without them)."""
     session_config: SessionConfig = field(default_factory=SessionConfig)
     publish_hz: float = 30.0
     """Scene updates per second sent to each tab."""

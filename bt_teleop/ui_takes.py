@@ -14,6 +14,7 @@ Runs on the tab's worker thread (:class:`bt_teleop.ui.ClientUI` queues the calls
 
 from __future__ import annotations
 
+import collections
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,9 +29,11 @@ from bt_teleop.session import Session
 from bt_teleop.ui_context import UiContext
 from bt_teleop.ui_panels import TabControls
 
-__all__ = ["TakeDesk"]
+__all__ = ["MAX_SAVED_KEPT", "TakeDesk"]
 
 Notify = Callable[..., None]
+MAX_SAVED_KEPT = 100
+"""The last saved takes a tab keeps (:attr:`TakeDesk.saved`; the files list them all)."""
 
 
 class TakeDesk:
@@ -49,8 +52,10 @@ class TakeDesk:
         self.controls = controls
         self.logger = logger
         self.notify = notify
-        self.saved: list[Path] = []
-        """Demo files this tab saved."""
+        self.saved: collections.deque[Path] = collections.deque(maxlen=MAX_SAVED_KEPT)
+        """The last demo files this tab saved (oldest first)."""
+        self.saved_count = 0
+        """Demo files this tab saved in all."""
         self.flagged: Path | None = None
         """The last take, when it failed a check and was neither discarded nor followed."""
         self.operator = False
@@ -66,8 +71,7 @@ class TakeDesk:
         trail = session.trail()
         take = session.stop_and_check()
         path = take.path
-        self.saved.append(path)
-        self.ctx.versions.bump(session.scene.task)
+        self.note_saved(path, session.scene.task)
         self.logger.log_demo(path.stem, trail)
         if take.check.ok:
             self.notify("Saved", f"{path.parent.name}/\n{path.name}")
@@ -77,6 +81,12 @@ class TakeDesk:
             self.controls.show_take_check(reasons)
             self.notify("Saved but flagged", f"{path.name}\n{'; '.join(reasons)}", color="yellow")
         return path
+
+    def note_saved(self, path: Path, task: Task) -> None:
+        """A take of `task` was saved to `path`: remember it, and tell every tab to reload."""
+        self.saved.append(path)
+        self.saved_count += 1
+        self.ctx.versions.bump(task)
 
     def discard_flagged(self, task: Task) -> None:
         """Exclude the flagged take just saved (its file stays; Restore brings it back)."""

@@ -26,6 +26,7 @@ from bt_teleop.rerun_live import RerunHub, SessionLogger
 from bt_teleop.script import run_script
 from bt_teleop.session import Session
 from bt_teleop.testing import guide_script, wait_until
+from bt_teleop.track_samples import TrackReader
 from bt_teleop.ui import ClientUI
 from bt_teleop.viewer import Trail, guide_loop_world
 
@@ -123,7 +124,7 @@ def test_a_closed_tab_discards_its_recording_when_configured(make_app, tabs) -> 
     wait_until(lambda: ui.session.status().n_samples >= 40, what="samples")
     tab.close()
     wait_until(lambda: not app.sessions() and app.settled(), what="the session to end")
-    assert ui.saved == [] and not list(app.options.recordings.rglob("*.hdf5"))
+    assert not ui.saved and not list(app.options.recordings.rglob("*.hdf5"))
 
 
 def test_more_tabs_than_max_sessions_get_a_full_message(make_app, tabs) -> None:
@@ -215,7 +216,8 @@ def test_replay_tracks_a_raw_demo(three_recordings) -> None:
     library = load_library(three_recordings, "wiping")
     track = library.raw[0]
     session = Session("wiping", three_recordings / "unused")
-    result = replay_sync(session, track)
+    samples = TrackReader().read(track)  # the library lists it; Play reads it from its file
+    result = replay_sync(session, samples)
     assert result.times_s[-1] == pytest.approx(track.duration_s)
     assert result.rms_error_m < 0.005
     session.close()

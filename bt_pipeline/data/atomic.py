@@ -63,8 +63,13 @@ def remove_stale_temps(path: Path) -> list[Path]:
     .rrd writer carry no pid and are always stale.
     """
     removed = []
-    for candidate in path.parent.glob(f".{glob.escape(path.name)}.*tmp*"):
-        rest = candidate.name[len(path.name) + 2 :]
+    prefix = f".{path.name}."
+    # One fixed pattern, filtered by name: a pattern naming the file would be compiled and
+    # kept in pathlib's and re's caches once per file written (~1 KiB each, up to their sizes).
+    for candidate in path.parent.glob(".*tmp*"):
+        if not candidate.name.startswith(prefix):
+            continue
+        rest = candidate.name[len(prefix) :]
         match = _TEMP.fullmatch(rest)
         if match is None:
             continue

@@ -1,0 +1,255 @@
+"""The demos of one recording file as the page lists them: small records, no samples.
+
+A crowdsourcing app collects thousands of takes, and every tab lists every take of its task, so
+what the app keeps per take must stay small. :func:`read_file_tracks` reads a file once (fully
+checked by :func:`~bt_pipeline.data.recording.read_recording`), keeps what the table and the
+pickers show and what scoring needs, and drops the samples::
+
+    <task>/<take>.hdf5 --read_recording--> Recording (all arrays)
+        --> FileTracks: per demo a ReplayTrack (key, who, θ, ρ, duration, flags, warnings,
+                        file identity) and its raw metrics (I, L1-L3; paper Eqs. 1, 4-6)
+        (the Recording is dropped: ~1 KiB kept per take instead of its arrays)
+
+A track's samples are read from its file again when it is played
+(:mod:`bt_teleop.track_samples`), and only if the file is still the one listed: its
+:class:`FileStamp` (size, modification time, inode) is kept for that.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
+
+from bt_pipeline.data.records import DemoRecord, Recording
+from bt_pipeline.data.tasks import Task
+from bt_pipeline.exceptions import BtError, RecordingError
+
+if TYPE_CHECKING:
+    from bt_pipeline.data.demo import Demo
+    from bt_pipeline.score.utility import RawMetrics
+
+__all__ = [
+    "CLAMPED_WARNING_SHARE",
+    "FileStamp",
+    "FileTracks",
+    "ReplayTrack",
+    "TrackKind",
+    "file_stamp",
+    "read_file_tracks",
+]
+
+TrackKind = Literal["raw", "cleaned"]
+LOGGER = logging.getLogger("bt.teleop")
+CLAMPED_WARNING_SHARE = 0.05
+"""A demo with more than this share of samples clamped to the workspace gets a ⚠ warning."""
+
+
+class FileStamp(NamedTuple):
+    """Which version of a file: a file replaced or rewritten gets another stamp."""
+
+    size: int
+    """Size [bytes]."""
+    mtime_ns: int
+    """Last modification [ns since the epoch]."""
+    inode: int
+    """Inode number (an atomic replace by rename gives a new one)."""
+
+
+def file_stamp(path: Path) -> FileStamp:
+    """`path`'s current stamp.
+
+    Raises:
+        RecordingError: The file is gone or cannot be examined.
+    """
+    try:
+        stat = os.stat(path)
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: the file is gone") from None
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read it ({exc.strerror})") from exc
+    return FileStamp(stat.st_size, stat.st_mtime_ns, stat.st_ino)
+
+
+@dataclass(frozen=True, slots=True)  # one per take in every library: no __dict__
+class ReplayTrack:
+    """One replayable demo as listed: what the page shows, and where its samples are."""
+
+    key: str
+    """Unique label in the task's library (what the Replay picker shows)."""
+    kind: TrackKind
+    """raw or cleaned."""
+    file: Path
+    """The file it was read from."""
+    demo: str
+    """Its name in that file."""
+    stamp: FileStamp
+    """The version of `file` it was listed from (its samples are read only from that one)."""
+    num_samples: int
+    """Samples T."""
+    duration_s: float
+    """Length [s] (last timestamp minus the first)."""
+    demonstrator: str
+    """Who recorded it (as typed: escape it before showing it)."""
+    theta_deg: float
+    """θ [deg] (NaN when unknown)."""
+    rho: float
+    """ρ (NaN when unknown)."""
+    utility: float | None = None
+    """Ũ (raw: among the task's usable raw demos; cleaned: after cleaning), None if not scored."""
+    flags: tuple[str, ...] = ()
+    """Failed take checks (demo attr ``flags``; ``closed_mid_take`` for ep_meta incomplete)."""
+    excluded: bool = False
+    """Its file is excluded by moderation (a sidecar; the file is untouched)."""
+    session: str = ""
+    """The app session that recorded it (ep_meta ``session``; empty when unknown)."""
+    warnings: tuple[str, ...] = ()
+    """Things worth a look that do not make it unusable (e.g. ``clamped``, ``ik_failures``)."""
+    source: str = ""
+    """For a cleaned demo, the key of the raw demo it was cleaned from (empty for raw ones)."""
+
+    @property
+    def usable(self) -> bool:
+        """Neither flagged nor excluded: scored, rankable, cleaned."""
+        return not self.flags and not self.excluded
+
+
+@dataclass(frozen=True)
+class FileTracks:
+    """What the app keeps of one recording file (no samples)."""
+
+    path: Path
+    """The file."""
+    stamp: FileStamp
+    """The version of the file read."""
+    task: Task
+    """The task of its demos."""
+    tracks: tuple[ReplayTrack, ...]
+    """Its demos, in file order (``utility`` and ``excluded`` unset: they depend on the task's
+    other files and on the moderation sidecar, so the library sets them at each load)."""
+    metrics: tuple[RawMetrics | None, ...] = ()
+    """Raw metrics of each raw demo without flags (None: flagged, or they could not be
+    computed); empty for a cleaned file."""
+
+
+def read_file_tracks(path: Path, kind: TrackKind) -> FileTracks:
+    """Read `path` and keep its demos' tracks (and, for raw demos, their raw metrics).
+
+    Args:
+        path: A raw take file, or a task's cleaned file.
+        kind: Which of the two.
+
+    Raises:
+        RecordingError: The file cannot be read, breaks format v1, or kept changing while it
+            was read.
+    """
+    from bt_pipeline.data.recording import read_recording
+
+    for _attempt in range(3):
+        stamp = file_stamp(path)
+        recording = read_recording(path)
+        if file_stamp(path) == stamp:  # not replaced while it was read
+            if kind == "raw":
+                return _raw_file(recording, path, stamp)
+            return FileTracks(path, stamp, recording.task, _cleaned_tracks(recording, stamp))
+    raise RecordingError(f"{path}: the file kept changing while it was read; try again later")
+
+
+def _raw_file(recording: Recording, path: Path, stamp: FileStamp) -> FileTracks:
+    from bt_pipeline.data.demo import demos_from_recording
+
+    several = len(recording.demos) > 1
+    tracks: list[ReplayTrack] = []
+    metrics: list[RawMetrics | None] = []
+    try:
+        demos: list[Demo | None] = list(demos_from_recording(recording))
+    except BtError as exc:  # listed all the same, unscored
+        LOGGER.warning("cannot score %s: %s", path, exc)
+        demos = [None] * len(recording.demos)
+    for (name, record), demo in zip(recording.demos.items(), demos, strict=True):
+        key = f"raw · {path.stem}" + (f" · {name}" if several else "")
+        meta = record.ep_meta
+        warnings = []
+        clamped = meta.get("clamped_samples", 0)
+        if isinstance(clamped, int) and clamped > CLAMPED_WARNING_SHARE * record.num_samples:
+            warnings.append("clamped")
+        if isinstance(meta.get("ik_failures"), int) and meta["ik_failures"] > 0:
+            warnings.append("ik_failures")
+        track = _track(
+            key,
+            "raw",
+            path,
+            name,
+            record,
+            stamp,
+            flags=record.flags,
+            session=str(meta.get("session", "")),
+            warnings=tuple(warnings),
+        )
+        tracks.append(track)
+        metrics.append(None if demo is None or track.flags else _metrics_or_none(demo, name))
+    return FileTracks(path, stamp, recording.task, tuple(tracks), tuple(metrics))
+
+
+def _metrics_or_none(demo: Demo, name: str) -> RawMetrics | None:
+    """I(S; A) and L1-L3 of `demo` (paper Eqs. 1, 4-6), or None (logged) when they fail."""
+    from bt_pipeline.score.utility import raw_metrics
+
+    try:
+        return raw_metrics(demo.positions, demo.actions, demo.theta_deg)
+    except BtError as exc:
+        LOGGER.warning("cannot score %s: %s: %s", demo.file, name, exc)
+        return None
+
+
+def _cleaned_tracks(recording: Recording, stamp: FileStamp) -> tuple[ReplayTrack, ...]:
+    assert recording.path is not None
+    tracks = []
+    for name, record in recording.demos.items():
+        origin = str(record.attrs.get("cleaned_from", name))
+        file, _, demo = origin.rpartition(":")
+        label = Path(file).stem if file else name
+        if demo and demo != "demo_0":
+            label = f"{label} · {demo}"
+        utility = record.attrs.get("utility_cleaned")
+        utility = None if utility is None else float(utility)
+        tracks.append(
+            _track(
+                f"cleaned · {label}",
+                "cleaned",
+                recording.path,
+                name,
+                record,
+                stamp,
+                utility=utility,
+                source=f"raw · {label}",
+            )
+        )
+    return tuple(tracks)
+
+
+def _track(
+    key: str,
+    kind: TrackKind,
+    file: Path,
+    demo: str,
+    record: DemoRecord,
+    stamp: FileStamp,
+    **extra: Any,
+) -> ReplayTrack:
+    """A track of `record` (demo `demo` of `file`); `extra` sets the other fields."""
+    return ReplayTrack(
+        key=key,
+        kind=kind,
+        file=file,
+        demo=demo,
+        stamp=stamp,
+        num_samples=record.num_samples,
+        duration_s=float(record.timestamps[-1] - record.timestamps[0]),
+        demonstrator=record.demonstrator,
+        theta_deg=float(record.theta_deg),
+        rho=float(record.rho),
+        **extra,
+    )
