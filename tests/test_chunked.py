@@ -24,7 +24,8 @@ from bt_pipeline.clean.stage2.chunked import (
     refine_in_chunks,
 )
 from bt_pipeline.clean.stage2.config import RefineConfig, RefineResult
-from bt_pipeline.clean.stage2.refiner import refine_demos, refine_normaliser, task_scales
+from bt_pipeline.clean.stage2.refiner import refine_demos
+from bt_pipeline.clean.stage2.scales import refine_normaliser, task_scales
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.synth_human import make_human_set
