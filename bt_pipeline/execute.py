@@ -292,8 +292,8 @@ LOCAL_RAY_UNUSED_SERVICES = ("dashboard", "monitor", "log_monitor")
 the dashboard's API server (with the dashboard off it only reports usage stats, which are off),
 the autoscaler monitor (one fixed node: nothing to scale) and the log monitor (it streams worker
 logs to the driver, and ``log_to_driver`` is off). Each is a Python process of 45-80 MiB PSS
-(docs/scale.md); the GCS, raylet, dashboard agent and runtime-env agent stay (the raylet needs
-its agents)."""
+(docs/scale.md); the GCS, raylet, dashboard agent and runtime-env agent stay (the raylet starts
+and uses its agents)."""
 
 
 def start_local_ray(num_cpus: int) -> None:
