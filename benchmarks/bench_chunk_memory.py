@@ -44,7 +44,8 @@ def child(mode: str, m: int, chunk_size: int, epochs: int) -> None:
     """Refine one set in this process and print 'peak_rss_bytes growth_bytes'."""
     from bt_pipeline.clean.stage2.chunked import chunk_sizes
     from bt_pipeline.clean.stage2.config import RefineConfig
-    from bt_pipeline.clean.stage2.refiner import refine_demos, refine_normaliser, task_scales
+    from bt_pipeline.clean.stage2.refiner import refine_demos
+    from bt_pipeline.clean.stage2.scales import refine_normaliser, task_scales
     from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
     from bt_pipeline.score.utility import Normaliser
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import os
 import resource
+import shutil
 import tempfile
 import threading
 import time
@@ -39,8 +40,46 @@ from bt_pipeline.execute import ExecutorConfig
 TASKS = ("wiping", "weaving", "pick_and_place")
 
 
+def process_kind(proc: psutil.Process, me: int) -> str:
+    """What a process of the tree is: the driver, a pool or Ray worker, or one of Ray's services.
+
+    Ray names its workers ``ray::<task>`` (``ray::IDLE`` between tasks) and starts its services
+    as ``gcs_server``, ``raylet`` and Python scripts (dashboard API server and its modules,
+    dashboard agent, runtime-env agent, log monitor, autoscaler monitor, process reaper).
+    """
+    if proc.pid == me:
+        return "driver"
+    try:
+        name, cmdline = proc.name(), " ".join(proc.cmdline())
+    except psutil.Error:
+        return "gone"
+    if name in ("gcs_server", "raylet"):  # Ray's two binaries (other cmdlines name the raylet)
+        return name
+    for needle, kind in (
+        ("ray::DashboardAgent", "dashboard agent"),
+        ("ray::RuntimeEnvAgent", "runtime-env agent"),
+        ("ray::", "ray worker"),
+        ("default_worker.py", "ray worker"),
+        ("dashboard/agent.py", "dashboard agent"),
+        ("runtime_env/agent", "runtime-env agent"),
+        ("dashboard/dashboard.py", "dashboard (API server)"),
+        ("ray-dashboard", "dashboard modules"),
+        ("log_monitor.py", "log monitor"),
+        ("monitor.py", "autoscaler monitor"),
+        ("ray_process_reaper", "reaper"),
+        ("multiprocessing", "pool worker"),
+    ):
+        if needle in cmdline:
+            return kind
+    return name
+
+
 class TreeSampler:
-    """Peak RSS [bytes] and CPU seconds of this process and all its descendants."""
+    """Peak RSS and PSS [bytes] and CPU seconds of this process and all its descendants.
+
+    Also the PSS of each kind of process (:func:`process_kind`) at the moment the tree's PSS
+    peaked, and the most processes of each kind seen at once.
+    """
 
     def __init__(self, period_s: float = 0.1) -> None:
         self.period_s = period_s
@@ -49,7 +88,15 @@ class TreeSampler:
         self.peak_driver = 0
         self.driver_start = psutil.Process().memory_info().rss
         self.cpu_at_start = 0.0
+        self.kinds_at_peak: dict[str, int] = {}
+        """PSS [bytes] per kind of process, at the sample where the tree's PSS peaked."""
+        self.most_processes: dict[str, int] = {}
+        """Most processes of each kind alive at one sample."""
+        self.shm_start = _shm_used()
+        self.peak_shm = self.shm_start
+        """Peak of /dev/shm in use [bytes] (Ray's object store lives there; machine-wide)."""
         self._cpu: dict[int, float] = {}
+        self._kinds: dict[int, str] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -68,27 +115,55 @@ class TreeSampler:
     def cpu_s(self) -> float:
         return sum(self._cpu.values())
 
+    def breakdown(self) -> str:
+        """``kind PSS [MiB] (×n)`` per kind at the peak, largest first."""
+        parts = sorted(self.kinds_at_peak.items(), key=lambda kv: -kv[1])
+        return ", ".join(
+            f"{kind} {pss / 2**20:.0f}"
+            + (f" (x{self.most_processes[kind]})" if self.most_processes.get(kind, 1) > 1 else "")
+            for kind, pss in parts
+        )
+
     def _sample(self) -> None:
         me = psutil.Process()
         rss = pss = 0
+        kinds: dict[str, int] = {}
+        counts: dict[str, int] = {}
         for proc in [me, *me.children(recursive=True)]:
             try:
                 with proc.oneshot():
                     memory = proc.memory_full_info()
-                    rss += memory.rss
-                    pss += memory.pss  # shared pages (libraries, Ray's object store) counted once
                     times = proc.cpu_times()
-                    self._cpu[proc.pid] = times.user + times.system
             except psutil.Error:
                 continue
+            rss += memory.rss
+            pss += memory.pss  # shared pages (libraries, Ray's object store) counted once
+            self._cpu[proc.pid] = times.user + times.system
+            if proc.pid not in self._kinds:  # a pid's kind is looked up once (Ray renames
+                self._kinds[proc.pid] = process_kind(proc, me.pid)  # workers per task)
+            kind = self._kinds[proc.pid]
+            kinds[kind] = kinds.get(kind, 0) + memory.pss
+            counts[kind] = counts.get(kind, 0) + 1
         self.peak = max(self.peak, rss)
-        self.peak_pss = max(self.peak_pss, pss)
+        if pss > self.peak_pss:
+            self.peak_pss, self.kinds_at_peak = pss, kinds
+        for kind, n in counts.items():
+            self.most_processes[kind] = max(self.most_processes.get(kind, 0), n)
         self.peak_driver = max(self.peak_driver, me.memory_info().rss)
+        self.peak_shm = max(self.peak_shm, _shm_used())
 
     def _run(self) -> None:
         while not self._stop.is_set():
             self._sample()
             self._stop.wait(self.period_s)
+
+
+def _shm_used() -> int:
+    """Bytes in use on /dev/shm (0 where there is none)."""
+    try:
+        return shutil.disk_usage("/dev/shm").used
+    except OSError:
+        return 0
 
 
 def _rusage_cpu() -> float:
@@ -170,6 +245,11 @@ def main() -> None:
                     f"{sampler.peak_driver / 2**30:.2f}, {sampler.driver_start / 2**30:.2f} at the "
                     f"start); load average {load_before:.2f} before, "
                     f"{os.getloadavg()[0]:.2f} after",
+                    flush=True,
+                )
+                print(
+                    f"{kind} M={m} PSS at the peak [MiB]: {sampler.breakdown()}; /dev/shm "
+                    f"(object store) grew by {(sampler.peak_shm - sampler.shm_start) / 2**20:.0f}",
                     flush=True,
                 )
     print()

@@ -29,7 +29,8 @@ import numpy as np
 from bt_pipeline.clean.stage1.alignment import shape_loss
 from bt_pipeline.clean.stage1.extract import run_stage1
 from bt_pipeline.clean.stage2.config import RefineConfig
-from bt_pipeline.clean.stage2.refiner import refine_demos, refine_normaliser
+from bt_pipeline.clean.stage2.refiner import refine_demos
+from bt_pipeline.clean.stage2.scales import refine_normaliser
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.data.tasks import TASKS, Task

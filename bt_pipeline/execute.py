@@ -281,9 +281,23 @@ _RAY_QUIET = {"include_dashboard": False, "log_to_driver": False, "configure_log
 RAY_LOCAL_ONLY_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
 """Ray's switch between "a local Ray only" (0) and "may join a cluster" (Linux default)."""
 
+LOCAL_RAY_OBJECT_STORE_BYTES = 256 * 2**20
+"""Object store of the private local Ray [bytes]. Ray's default is 30 % of the RAM; bt's objects
+are chunk jobs and their results (a few MB each, a few in flight), and anything beyond this
+spills to disk instead of failing (docs/scale.md)."""
+LOCAL_RAY_SYSTEM_CONFIG: dict[str, Any] = {"enable_metrics_collection": False}
+"""Ray settings of the private local Ray: no metrics are collected (nothing scrapes them here)."""
+LOCAL_RAY_UNUSED_SERVICES = ("dashboard", "monitor", "log_monitor")
+"""Services of the private local Ray that bt stops once it is up, as Ray's ``Node.kill_<name>``:
+the dashboard's API server (with the dashboard off it only reports usage stats, which are off),
+the autoscaler monitor (one fixed node: nothing to scale) and the log monitor (it streams worker
+logs to the driver, and ``log_to_driver`` is off). Each is a Python process of 45-80 MiB PSS
+(docs/scale.md); the GCS, raylet, dashboard agent and runtime-env agent stay (the raylet starts
+and uses its agents)."""
+
 
 def start_local_ray(num_cpus: int) -> None:
-    """Start a private single-node Ray whose every socket binds to 127.0.0.1.
+    """Start a private single-node Ray whose every socket binds to 127.0.0.1, sized for bt.
 
     ``ray.init(_node_ip_address="127.0.0.1")`` alone is not enough: Ray 2.60 replaces a loopback
     node address by the machine's address (``ray/_private/services.py``,
@@ -291,6 +305,10 @@ def start_local_ray(num_cpus: int) -> None:
     (``ray_constants.ENABLE_RAY_CLUSTER``, set from ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER``), and
     its GCS, raylet, workers and agents then listen on every interface. With clusters disabled
     for this start, they all get node address 127.0.0.1 and bind to it (docs/security.md).
+
+    Memory: a small object store (:data:`LOCAL_RAY_OBJECT_STORE_BYTES`), no metrics
+    (:data:`LOCAL_RAY_SYSTEM_CONFIG`), and the services bt does not use stopped
+    (:data:`LOCAL_RAY_UNUSED_SERVICES`); docs/scale.md measures what each costs.
 
     Args:
         num_cpus: CPUs the local Ray may use.
@@ -302,13 +320,35 @@ def start_local_ray(num_cpus: int) -> None:
     os.environ[RAY_LOCAL_ONLY_ENV] = "0"  # what Ray's own processes read when they start
     ray_constants.ENABLE_RAY_CLUSTER = False  # the same, for a Ray imported before
     try:
-        ray.init(num_cpus=num_cpus, _node_ip_address="127.0.0.1", **_RAY_QUIET)
+        ray.init(
+            num_cpus=num_cpus,
+            object_store_memory=LOCAL_RAY_OBJECT_STORE_BYTES,
+            _node_ip_address="127.0.0.1",
+            _system_config=dict(LOCAL_RAY_SYSTEM_CONFIG),
+            **_RAY_QUIET,
+        )
     finally:  # later connections of this process (e.g. to a cluster) are not affected
         ray_constants.ENABLE_RAY_CLUSTER = saved_flag
         if saved_env is None:
             os.environ.pop(RAY_LOCAL_ONLY_ENV, None)
         else:
             os.environ[RAY_LOCAL_ONLY_ENV] = saved_env
+    _stop_unused_services(ray)
+
+
+def _stop_unused_services(ray: Any) -> None:
+    """Stop :data:`LOCAL_RAY_UNUSED_SERVICES` of the local Ray this process started.
+
+    Ray has no ``ray.init`` option for them (``ray start`` has ``--no-monitor`` and
+    ``--include-log-monitor``); its node object, which ``ray.shutdown`` uses to stop the rest,
+    has a ``kill_<name>`` method for each. A Ray without them keeps its services.
+    """
+    node = getattr(getattr(ray, "_private", None), "worker", None)
+    node = getattr(node, "_global_node", None)
+    for service in LOCAL_RAY_UNUSED_SERVICES:
+        kill = getattr(node, f"kill_{service}", None)
+        if kill is not None:
+            kill(check_alive=False)
 
 
 def _import_ray() -> Any:

@@ -24,7 +24,8 @@ from bt_pipeline.clean.stage2.chunked import (
     refine_in_chunks,
 )
 from bt_pipeline.clean.stage2.config import RefineConfig, RefineResult
-from bt_pipeline.clean.stage2.refiner import refine_demos, refine_normaliser, task_scales
+from bt_pipeline.clean.stage2.refiner import refine_demos
+from bt_pipeline.clean.stage2.scales import refine_normaliser, task_scales
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.synth_human import make_human_set
@@ -218,3 +219,35 @@ def test_bt_clean_refuses_a_chunk_size_below_one_in_one_line(
     err = capsys.readouterr().err.strip()
     assert err == "bt: error: --chunk-size must be ≥ 1; got 0"
     assert not (tmp_path / "out").exists()
+
+
+DRIVER_PROBE = """
+import sys
+from bt_pipeline.cli import main
+try:
+    main(sys.argv[1:])
+finally:
+    print("torch imported:", "torch" in sys.modules)
+"""
+
+
+@pytest.mark.parametrize("executor", ["processes", "local"])
+def test_the_bt_clean_process_of_a_large_task_loads_torch_only_to_refine_itself(
+    tmp_path: Path, executor: str
+) -> None:
+    """With workers, the process that drives a task of more than K demos sends Stage 2's chunks
+    and the task scales' I_KL out as jobs and never imports torch (about 140 MiB per process,
+    docs/scale.md); with ``local`` it refines them itself, so it does."""
+    import os
+    import subprocess
+    import sys
+
+    source = write_recording(tmp_path / "in.hdf5", make_human_set("wiping", 7, seed=5).recording)
+    command = [sys.executable, "-c", DRIVER_PROBE, "clean", str(source), "--out"]
+    command += [str(tmp_path / "out"), "--epochs", "2", "--chunk-size", "3", "--no-rrd"]
+    command += ["--executor", executor, "--workers", "2"]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "out" / "wiping.cleaned.hdf5").exists()
+    assert f"torch imported: {executor == 'local'}" in done.stdout, done.stdout

@@ -3,6 +3,7 @@ reach the caller unchanged, and a worker that dies mid-job is retried (issue 14)
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -14,6 +15,8 @@ import pytest
 
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.execute import (
+    LOCAL_RAY_OBJECT_STORE_BYTES,
+    LOCAL_RAY_SYSTEM_CONFIG,
     ExecutorConfig,
     WorkerLostError,
     iter_jobs,
@@ -195,6 +198,28 @@ def test_the_local_ray_listens_on_loopback_only(ray_local: None) -> None:
     assert len(sockets) >= 3, sockets  # GCS, raylet (2), agents, workers
     exposed = [s for s in sockets if not is_loopback_address(s[1])]
     assert not exposed, f"Ray sockets on non-loopback interfaces: {exposed}"
+
+
+def test_the_local_ray_is_sized_for_bt(ray_local: None) -> None:
+    """bt's local Ray: its small object store and settings reached Ray, and the services bt
+    does not use are gone while the ones it needs run (docs/scale.md, memory)."""
+    import psutil
+    import ray
+    from ray._private.state import state
+
+    run_jobs(square, [(1, ""), (2, "")], ExecutorConfig("ray", workers=2))  # the node works
+    assert ray.cluster_resources()["object_store_memory"] == LOCAL_RAY_OBJECT_STORE_BYTES
+    config = state.get_system_config()  # what the GCS runs with
+    for key, value in LOCAL_RAY_SYSTEM_CONFIG.items():
+        assert config[key] == value, key
+    commands = []
+    for child in psutil.Process().children(recursive=True):
+        with contextlib.suppress(psutil.Error):
+            commands.append(" ".join([child.name(), *child.cmdline()]))
+    for needed in ("gcs_server", "raylet", "ray::DashboardAgent", "ray::RuntimeEnvAgent"):
+        assert any(needed in c for c in commands), (needed, commands)
+    for unused in ("dashboard/dashboard.py", "autoscaler/_private/monitor.py", "log_monitor.py"):
+        assert not any(unused in c for c in commands), (unused, commands)
 
 
 def test_bt_clean_with_ray_listens_on_loopback_only(tmp_path, write_example_file) -> None:

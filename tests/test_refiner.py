@@ -12,7 +12,8 @@ from scipy.spatial import KDTree
 
 from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult
 from bt_pipeline.clean.stage2.objective import Adam
-from bt_pipeline.clean.stage2.refiner import refine_demos, refine_normaliser, update_beta
+from bt_pipeline.clean.stage2.refiner import refine_demos, update_beta
+from bt_pipeline.clean.stage2.scales import refine_normaliser
 from bt_pipeline.evaluate.distance import distance_to_truth
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss

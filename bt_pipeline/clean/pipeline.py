@@ -37,7 +37,7 @@ from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
 from bt_pipeline.clean.stage2.chunked import DEFAULT_CHUNK_SIZE, refine_in_chunks
 from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, Variant
-from bt_pipeline.clean.stage2.refiner import refine_normaliser
+from bt_pipeline.clean.stage2.scales import refine_normaliser
 from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task

@@ -19,7 +19,7 @@ import numpy as np
 
 from bt_pipeline.clean.stage1.alignment import shape_loss
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
-from bt_pipeline.clean.stage2.refiner import refine_normaliser
+from bt_pipeline.clean.stage2.scales import refine_normaliser
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.evaluate.distance import PointSet

@@ -37,7 +37,7 @@ from bt_pipeline.clean.stage1.alignment import rotation_matrix
 from bt_pipeline.clean.stage1.extract import Stage1Result
 from bt_pipeline.clean.stage1.value_map import ValueMap
 from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, TaskScales
-from bt_pipeline.clean.stage2.refiner import refine_demos, task_scales
+from bt_pipeline.clean.stage2.scales import task_scales
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.execute import ExecutorConfig, run_jobs
@@ -137,6 +137,9 @@ def refine_chunk(
     job: ChunkJob, on_epoch: Callable[[EpochStats], None] | None = None
 ) -> RefineResult:
     """Refine one chunk with its own network (a job for :func:`bt_pipeline.execute.run_jobs`)."""
+    # Imported here: the process that only drives chunks elsewhere never loads torch.
+    from bt_pipeline.clean.stage2.refiner import refine_demos
+
     return refine_demos(
         job.positions,
         job.references,
@@ -158,6 +161,7 @@ def chunk_jobs(
     config: RefineConfig,
     chunk_size: int,
     label: str = "",
+    executor: ExecutorConfig | None = None,
 ) -> list[ChunkJob]:
     """Split a task's Stage 2 into chunk jobs sharing its Stage 1 and frozen normalisers.
 
@@ -168,6 +172,8 @@ def chunk_jobs(
         config: Refinement settings; chunk c gets the seed ``chunk_seed(config.seed, c)``.
         chunk_size: K, most demos per chunk.
         label: The task's name, for progress and error messages.
+        executor: Where the task scales' I_KL blocks run (None: here; see
+            :func:`~bt_pipeline.clean.stage2.scales.task_scales`).
 
     Raises:
         DemoError: `positions` do not match Stage 1's aligned references.
@@ -179,7 +185,9 @@ def chunk_jobs(
             f"{x.shape}"
         )
     sizes = chunk_sizes(x.shape[0], chunk_size)
-    scales = task_scales(x, stage1.aligned, block=chunk_size, threads=config.threads)
+    scales = task_scales(
+        x, stage1.aligned, block=chunk_size, threads=config.threads, executor=executor
+    )
     jobs = []
     start = 0
     for c, size in enumerate(sizes):
@@ -236,6 +244,7 @@ def refine_in_chunks(
         config=config,
         chunk_size=chunk_size,
         label=label,
+        executor=executor,
     )
     if executor is None or len(jobs) == 1:
         results = [refine_chunk(job, on_epoch) for job in jobs]

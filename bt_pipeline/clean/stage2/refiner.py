@@ -35,7 +35,6 @@ import torch
 from numpy.typing import ArrayLike
 from torch import nn
 
-from bt_pipeline.clean.stage2 import losses as tl
 from bt_pipeline.clean.stage2.config import (
     REFINE_METRICS,
     EpochStats,
@@ -46,6 +45,7 @@ from bt_pipeline.clean.stage2.config import (
     TaskScales,
 )
 from bt_pipeline.clean.stage2.objective import Adam, UtilityObjective
+from bt_pipeline.clean.stage2.scales import task_scales
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.score.utility import Normaliser
@@ -128,12 +128,12 @@ def refine_demos(
             the batch is a chunk of a task that does not hold the best demo.
         reward_fn: R̄ of each demo's positions in its own frame, (M, N, 2) -> (M,) in [0, 1].
         normaliser: Frozen raw-set (min, max) holding at least the columns
-            :data:`REFINE_METRICS` (see :func:`refine_normaliser`). The loss normalises the MI
-            stand-in I_KL by its own raw-set range, computed here.
+            :data:`REFINE_METRICS` (see :func:`~bt_pipeline.clean.stage2.scales.refine_normaliser`).
+            The loss normalises the MI stand-in I_KL by its own raw-set range, computed here.
         config: Settings; ``RefineConfig()`` (the default variant) when None.
         on_epoch: Called after every epoch with that epoch's statistics.
         scales: Frozen task-wide standardisation (a chunk of a larger task); None computes it
-            from these demos (:func:`task_scales`).
+            from these demos (:func:`~bt_pipeline.clean.stage2.scales.task_scales`).
 
     Returns:
         The refined demos and the history of β, loss and reward.
@@ -222,68 +222,6 @@ def refine_demos(
     refined = x.copy()
     refined[refine_mask] += final
     return _result(refined, betas, beta_log, loss_log, reward_log, settings)
-
-
-def refine_normaliser(normaliser: Normaliser, shape_losses: ArrayLike) -> Normaliser:
-    """The selection stage's raw-set normaliser plus the shape loss L4 of the same raw demos.
-
-    Args:
-        normaliser: Raw-set normaliser of :mod:`bt_pipeline.score.utility` (MI, L1, L2, L3).
-        shape_losses: L4 of each raw demo against its aligned reference, shape (M,), in [m].
-
-    Returns:
-        A normaliser with the extra column ``"shape"``.
-    """
-    if "shape" in normaliser.names:
-        raise ConfigError(f"the normaliser already has a shape column: {normaliser.names}")
-    values = np.asarray(shape_losses, dtype=np.float64)
-    if values.ndim != 1 or values.size == 0 or not np.all(np.isfinite(values)):
-        raise DemoError(f"shape_losses must be finite with shape (M,); got {values.shape}")
-    return Normaliser(
-        names=(*normaliser.names, "shape"),
-        min=np.append(normaliser.min, values.min()),
-        max=np.append(normaliser.max, values.max()),
-        delta=normaliser.delta,
-    )
-
-
-def task_scales(
-    positions: ArrayLike, references: ArrayLike, *, block: int = 256, threads: int = 1
-) -> TaskScales:
-    """Stage 2's standardisation over all of a task's raw demos, frozen for every chunk.
-
-    Args:
-        positions: Raw demos x_i, shape (M, N, 2), in [m].
-        references: Their aligned references x_i^aligned, shape (M, N, 2), in [m].
-        block: Demos per I_KL evaluation (bounds the memory it takes; values do not depend on it
-            beyond float32 rounding).
-        threads: Torch CPU threads for I_KL.
-
-    Returns:
-        The centre, scale and pull RMS of the network input and the raw I_KL range (Eq. 7).
-    """
-    x = np.asarray(positions, dtype=np.float64)
-    pull = np.asarray(references, dtype=np.float64) - x
-    saved = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        with torch.no_grad():
-            mi = torch.cat(
-                [
-                    tl.mi_kl(torch.as_tensor(x[i : i + block], dtype=torch.float32))
-                    for i in range(0, x.shape[0], block)
-                ]
-            )
-    finally:
-        torch.set_num_threads(saved)
-    return TaskScales(
-        centre=x.reshape(-1, 2).mean(axis=0),
-        scale=float(x.std()) or 1.0,
-        # Unit RMS, so Adam's ~lr-sized first steps already move a sizeable part of the way.
-        pull_rms=max(float(np.sqrt(np.mean(pull**2))), 1e-12),
-        mi_low=float(mi.min()),
-        mi_span=float(mi.max() - mi.min()),
-    )
 
 
 def _features(
