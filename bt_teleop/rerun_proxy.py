@@ -23,6 +23,7 @@ from __future__ import annotations
 import concurrent.futures
 import ctypes
 import ctypes.util
+import functools
 import importlib.util
 import logging
 import os
@@ -49,12 +50,18 @@ _SPAWNER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-rerun
 """Starts every child: its one thread lives as long as the app (module doc)."""
 
 
+@functools.cache
+def _libc() -> ctypes.CDLL:
+    """The C library, loaded once (``find_library`` runs ``ldconfig`` on every call)."""
+    return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+
+
 def _die_with_parent_hook() -> Callable[[], None] | None:
     """A ``preexec_fn`` that makes the child get SIGTERM when the spawning thread ends (Linux;
     None elsewhere). libc is loaded here, in the parent: the hook itself only calls prctl."""
     if not sys.platform.startswith("linux"):
         return None
-    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    libc = _libc()
     parent = os.getpid()
 
     def hook() -> None:
