@@ -29,7 +29,6 @@ from collections import defaultdict
 
 import numpy as np
 
-from bt_pipeline.clean.periodic import output_on_raw_times
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth import make_demo_set
@@ -59,7 +58,7 @@ def measure(
         assert stored is not None
         truth, on_loop = stored
         raw_uv, raw_t = demos[i].raw_samples()
-        t, cleaned = output_on_raw_times(result.demos[i], result.positions[i])
+        t, cleaned = result.on_raw_times(i)
         idx = np.searchsorted(raw_t, t)
         shape = shape_distance(cleaned, truth[on_loop]) / shape_distance(
             raw_uv[on_loop], truth[on_loop]

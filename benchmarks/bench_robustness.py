@@ -28,7 +28,6 @@ import numpy as np
 
 import bt_pipeline.clean.periodic
 import bt_pipeline.data.demo
-from bt_pipeline.clean.periodic import output_on_raw_times
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.records import DemoRecord, FloatArray
@@ -86,7 +85,7 @@ def measure(task: str, n: int, seed: int, kind: str) -> dict[str, list[float]]:
         assert stored is not None
         truth, on = stored
         raw_uv, raw_t = demos[i].raw_samples()
-        t, cleaned = output_on_raw_times(result.demos[i], result.positions[i])
+        t, cleaned = result.on_raw_times(i)
         idx = np.searchsorted(raw_t, t)
         shape = shape_distance(cleaned, truth[on]) / shape_distance(raw_uv[on], truth[on])
         timing = timing_distance(cleaned, truth[idx]) / timing_distance(raw_uv[idx], truth[idx])

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from bt_pipeline.clean.driver import clean_paths
-from bt_pipeline.clean.periodic import output_on_raw_times
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.recording import read_recording, write_recording
@@ -72,7 +71,7 @@ def test_cleaning_moves_naive_demos_toward_their_true_shape() -> None:
         assert stored is not None
         truth = stored[0]
         raw, _ = demos[i].raw_samples()
-        _, cleaned = output_on_raw_times(result.demos[i], result.positions[i])
+        _, cleaned = result.on_raw_times(i)
         before, after = shape_distance(raw, truth), shape_distance(cleaned, truth)
         if demo.is_expert:
             assert after <= 1.1 * before

@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 from scipy.spatial import KDTree
 
-from bt_pipeline.clean.periodic import output_on_raw_times
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
 from bt_pipeline.data.demo import Demo, load_demos
 from bt_pipeline.data.shapes import canonical_loop, canonical_shape, similarity_transform
@@ -47,7 +46,7 @@ def _check_not_worse(result: TaskCleanResult, raw_demos: list[Demo], i: int) -> 
     raw, times = raw_demos[i].raw_samples()
     segment = result.segments[i]
     inside = (times >= segment.start_s) & (times <= segment.end_s)
-    out_times, cleaned = output_on_raw_times(result.demos[i], result.positions[i])
+    out_times, cleaned = result.on_raw_times(i)
     assert np.array_equal(out_times, times[inside])  # the raw time base, never re-based
     name = raw_demos[i].label
     assert _length(cleaned) <= 1.05 * _length(raw[inside]), name
@@ -76,7 +75,7 @@ def test_careful_browser_takes_are_not_made_worse() -> None:
             raw, times = demo.raw_samples()
             segment = result.segments[i]
             inside = (times >= segment.start_s) & (times <= segment.end_s)
-            _, cleaned = output_on_raw_times(result.demos[i], result.positions[i])
+            _, cleaned = result.on_raw_times(i)
             assert _guide_distance(demo, cleaned) < 0.5 * _guide_distance(demo, raw[inside])
 
 

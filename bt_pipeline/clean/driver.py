@@ -25,7 +25,6 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from bt_pipeline.clean.periodic import output_on_raw_times
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult
 from bt_pipeline.clean.skipping import clean_skipping
 from bt_pipeline.clean.stage2.chunked import chunk_sizes
@@ -125,7 +124,7 @@ def cleaned_recording(
     for i, (demo, name) in enumerate(zip(result.demos, output_names(result.demos), strict=True)):
         record = records[(demo.file, demo.name)]
         # The cleaned span at the raw sample times inside it: the raw demo's own time base.
-        timestamps, uv = output_on_raw_times(demo, result.positions[i])
+        timestamps, uv = result.on_raw_times(i)
         ee_pos = plane.to_world(uv)
         raw, cleaned = result.raw[i], result.cleaned[i]
         out[name] = DemoRecord(
