@@ -71,7 +71,7 @@ def test_careful_browser_takes_are_not_made_worse() -> None:
             assert 0.8 <= result.segments[i].cycles <= 1.2  # one loop each
         elif demo.demonstrator == "carol":
             # Her 69 mm excursion is a defect: cleaning brings her loop back to her guide
-            # (measured 22.5 -> 3.0 mm mean distance).
+            # (measured 22.6 -> 2.8 mm mean distance).
             raw, times = demo.raw_samples()
             segment = result.segments[i]
             inside = (times >= segment.start_s) & (times <= segment.end_s)
