@@ -11,7 +11,9 @@ Data flow (used by :func:`bt_pipeline.clean.pipeline.clean_demos`)::
 
 Pooling (docs/refinement.md): a demonstrator's θ and ρ are the weighted medians of the densest
 cluster of the guide fits of their demos (fits within 2.5° and 0.025 of the fit with the most
-such support), each fit weighted by its quality q = 1 / (1 + (residual / 2 % of size)²). The
+such support), each fit weighted by its quality q = 1 / (1 + (misfit / 2 % of size)²), with the
+misfit the 90th percentile of the whole span's distances to the fit (a lopsided loop's fit
+follows one side closely, so its trimmed residual is small, but its bulged side is far off). The
 confidence is q̄ / (1 + (spread_θ / 5°)² + (spread_ρ / 0.05)²), with the spreads the median
 absolute deviations of the demonstrator's estimates (0 for one demo); below 0.5 an estimate is
 reported as uncertain.
@@ -81,7 +83,7 @@ def pool_preferences(
 ) -> tuple[PreferenceEstimate, ...]:
     """θ/ρ of every demo: given ones kept, missing ones pooled per demonstrator (module doc)."""
     quality = np.array(
-        [1.0 / (1.0 + (s.guide.residual_m / (0.02 * s.guide.size_m)) ** 2) for s in segments]
+        [1.0 / (1.0 + (s.misfit_m / (0.02 * s.guide.size_m)) ** 2) for s in segments]
     )
     pooled: dict[str, PreferenceEstimate] = {}
     for who in {d.demonstrator for d in demos}:
