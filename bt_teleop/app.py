@@ -115,6 +115,9 @@ class AppOptions:
     not reach the present sooner in benchmarks/bench_teleop_rerun.py, docs/teleop.md)."""
     session: SessionConfig = field(default_factory=SessionConfig)
     """Control and recording rates of every session."""
+    session_processes: bool = True
+    """Run each tab's simulation (control loop, IK, recorder) in a child process of its own,
+    one GIL per loop (bt_teleop/session_process.py); False: in the app's process."""
     fancy_lighting: bool = False
     """viser's environment map and shadows: pretty with a GPU, but software WebGL (headless
     browsers, GPU-less laptops) needs tens of seconds to prepare them."""
@@ -188,6 +191,7 @@ class TeleopApp:
             libraries=LibraryLoader(options.recordings, self._background),
             versions=self.versions,
             session_config=options.session,
+            session_processes=options.session_processes,
             publish_hz=options.publish_hz,
             save_incomplete=options.save_incomplete,
             initial_task=options.initial_task,
