@@ -29,19 +29,15 @@ raises :class:`~bt_pipeline.exceptions.SessionLostError` naming the session and 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
 import multiprocessing
 import multiprocessing.connection
-import os
-import pickle
 import secrets
-import signal
-import sys
 import threading
 import time
-import traceback
 from pathlib import Path
 from typing import Any
 
@@ -49,8 +45,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.exceptions import BtError, ConfigError, SessionLostError
+from bt_pipeline.exceptions import ConfigError, SessionLostError
 from bt_teleop.scene import SceneModel
+from bt_teleop.session_child import serve_session
 from bt_teleop.session_config import SessionConfig, SessionStatus
 from bt_teleop.session_recording import SavedTake
 from bt_teleop.tick_stats import TickReport, TimedSession
@@ -63,12 +60,6 @@ START_TIMEOUT_S = 60.0
 """Longest wait for a child to load its scene and answer [s] (Menagerie meshes: seconds)."""
 SAVE_TIMEOUT_S = 60.0
 """Longest wait for a call that writes a take (Stop & save, close) [s]."""
-_ONE_WAY = frozenset({"set_target", "set_gripper", "set_stay_on_plane"})
-_CALLS = frozenset(
-    {"status", "trail", "recording", "start", "stop", "start_recording", "stop_and_check"}
-    | {"discard", "close", "tick_stats", "reset"}
-)
-_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 _context_lock = threading.Lock()
 
@@ -122,7 +113,7 @@ class SessionProcess:
         self._conn, child_end = context.Pipe()
         args = (child_end, scene.task, scene.robot, self.recordings_dir, self.config)
         self._process = context.Process(
-            target=_child_main,
+            target=serve_session,
             args=(*args, self.session_id),
             name=f"bt-session-{self.session_id}",
             daemon=True,
@@ -234,10 +225,8 @@ class SessionProcess:
             return None
         self._closed = True
         path: Path | None = None
-        try:
+        with contextlib.suppress(SessionLostError):  # logged when it was lost
             path = self._call("close", save_incomplete, timeout_s=SAVE_TIMEOUT_S)
-        except SessionLostError:
-            pass  # logged when it was lost
         self._process.join(5.0)
         if self._process.is_alive():
             self._process.kill()
@@ -326,99 +315,3 @@ def open_session(
     if in_process:
         return TimedSession(scene, recordings_dir, config=config, session_id=session_id)
     return SessionProcess(scene, recordings_dir, config=config, session_id=session_id)
-
-
-# -- the child -------------------------------------------------------------------------------
-
-
-def _child_main(
-    conn: multiprocessing.connection.Connection,
-    task: str,
-    robot: str,
-    recordings_dir: Path,
-    config: SessionConfig,
-    session_id: str,
-) -> None:
-    """The child's main thread: make the session, then serve commands until close or EOF."""
-    from bt_teleop.tick_stats import TimedSession  # preloaded by the forkserver
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the app closes us itself
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
-    _die_with_parent()
-    try:
-        session = TimedSession(
-            task, recordings_dir, robot=robot, config=config, session_id=session_id
-        )
-    except BaseException as exc:
-        _send_reply(conn, False, exc)
-        return
-    _send_reply(conn, True, session.dt_s)
-    save_incomplete: bool | None = None  # EOF or SIGTERM: the app is gone; as a closed tab
-    try:
-        while True:
-            name, args = conn.recv()
-            if name == "close":
-                save_incomplete = args[0]
-                break
-            try:
-                attr = getattr(session, name) if name in _ONE_WAY | _CALLS else None
-                if attr is None:
-                    raise ConfigError(f"unknown session command {name!r}")
-                value = attr(*args) if callable(attr) else attr
-            except Exception as exc:
-                if name not in _ONE_WAY:
-                    _send_reply(conn, False, exc)
-                continue
-            if name not in _ONE_WAY:
-                _send_reply(conn, True, value)
-    except (EOFError, OSError, SystemExit):
-        pass
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # let the take be saved
-        path = _close_quietly(session, save_incomplete)
-    _send_reply(conn, True, path)
-
-
-def _close_quietly(session: Any, save_incomplete: bool | None) -> Path | None:
-    try:
-        return session.close(save_incomplete=save_incomplete)
-    except Exception:
-        LOGGER.exception("session %s: closing failed", session.session_id)
-        return None
-
-
-def _send_reply(conn: multiprocessing.connection.Connection, ok: bool, value: Any) -> None:
-    """Send (ok, value); an error that does not survive pickling goes as a BtError with its
-    text, and a bug's error carries the child's traceback as a note."""
-    if not ok:
-        value = _portable(value)
-    try:
-        conn.send((ok, value))
-    except (OSError, ValueError):  # the app is gone
-        pass
-
-
-def _portable(exc: BaseException) -> BaseException:
-    if not isinstance(exc, BtError):
-        exc.add_note("in the session process:\n" + "".join(traceback.format_exception(exc)))
-    try:
-        pickle.loads(pickle.dumps(exc))
-    except Exception:
-        return BtError(f"{type(exc).__name__}: {exc}")
-    return exc
-
-
-def _exit_on_sigterm(_signum: int, _frame: object) -> None:
-    raise SystemExit(0)
-
-
-def _die_with_parent() -> None:
-    """Get SIGTERM when the forkserver (our parent; it exits with the app) dies (Linux)."""
-    if not sys.platform.startswith("linux"):
-        return
-    from bt_teleop.rerun_proxy import libc
-
-    parent = os.getppid()
-    libc().prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
-    if os.getppid() != parent:  # it died before prctl
-        raise SystemExit(0)

@@ -18,8 +18,9 @@ import pytest
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import BtError, ConfigError, SessionLostError
 from bt_teleop.scene import SceneModel, load_scene
+from bt_teleop.session_child import portable_error
 from bt_teleop.session_config import SessionConfig
-from bt_teleop.session_process import SessionProcess, _portable, open_session
+from bt_teleop.session_process import SessionProcess, open_session
 from bt_teleop.testing import circle_uv, wait_until
 from bt_teleop.tick_stats import BIN_S, Histogram, TickReport, TimedSession
 
@@ -99,9 +100,9 @@ def test_an_error_that_cannot_be_pickled_comes_back_as_a_bt_error_with_its_text(
     class Local(Exception):  # a local class cannot be pickled
         pass
 
-    portable = _portable(Local("boom"))
+    portable = portable_error(Local("boom"))
     assert isinstance(portable, BtError) and "Local: boom" in str(portable)
-    bug = _portable(KeyError("x"))
+    bug = portable_error(KeyError("x"))
     assert isinstance(pickle.loads(pickle.dumps(bug)), KeyError)
     assert "in the session process" in "".join(bug.__notes__)
 
