@@ -127,9 +127,10 @@ class Sampler:
     thread. Columns: t [s], the app's RSS, load, traced, and over the app and every process
     under it (session children, the forkserver, clean jobs): the sum of RSS (counts the pages
     forked children share once per process), of PSS (shared pages split between their users)
-    and of USS (pages only that process maps)."""
+    and of USS (pages only that process maps); and the PSS of the processes that stay (the
+    tree without clean jobs, which come and go: the memory that must stay flat)."""
 
-    COLUMNS = ("t", "app RSS", "load", "traced", "tree RSS", "tree PSS", "tree USS")
+    COLUMNS = ("t", "app RSS", "load", "traced", "tree RSS", "tree PSS", "tree USS", "kept PSS")
 
     def __init__(self, every_s: float) -> None:
         self.rows: list[tuple[float, ...]] = []
@@ -143,14 +144,16 @@ class Sampler:
     def sample(self) -> None:
         rss = self._process.memory_info().rss / 2**20
         traced = tracemalloc.get_traced_memory()[0] / 2**20 if tracemalloc.is_tracing() else np.nan
-        tree = [0.0, 0.0, 0.0]
+        tree = [0.0, 0.0, 0.0, 0.0]
         for process in [self._process, *self._process.children(recursive=True)]:
             try:
                 full = process.memory_full_info()
+                clean_job = "multiprocessing.spawn" in " ".join(process.cmdline())
             except psutil.Error:  # ended meanwhile (a clean job)
                 continue
             for k, value in enumerate((full.rss, full.pss, full.uss)):
                 tree[k] += value / 2**20
+            tree[3] += 0.0 if clean_job else full.pss / 2**20
         self.rows.append((time.monotonic() - self._t0, rss, os.getloadavg()[0], traced, *tree))
 
     def _run(self, every_s: float) -> None:
@@ -389,15 +392,15 @@ def main() -> None:
         f"load average (1 min): min {rows[:, 2].min():.1f}, mean {rows[:, 2].mean():.1f}, "
         f"max {rows[:, 2].max():.1f}"
     )
-    for column in (1, 4, 5, 6):
+    for column in (1, 4, 5, 6, 7):
         print(
             f"memory ({Sampler.COLUMNS[column]}): {rows[0, column]:.0f} MiB at start, "
             f"{rows[-1, column]:.0f} MiB at end, slope over the second half "
             f"{sampler.slope_second_half(column):+.2f} MiB/min"
         )
     print(
-        "  t [s]  app RSS, tree PSS [MiB]  load: "
-        + "; ".join(f"{r[0]:.0f} {r[1]:.0f} {r[5]:.0f} {r[2]:.1f}" for r in rows)
+        "  t [s]  app RSS, tree PSS, kept PSS [MiB]  load: "
+        + "; ".join(f"{r[0]:.0f} {r[1]:.0f} {r[5]:.0f} {r[7]:.0f} {r[2]:.1f}" for r in rows)
     )
     if np.isfinite(rows[:, 3]).any():
         print(
@@ -405,8 +408,8 @@ def main() -> None:
             f"{sampler.slope_second_half(3):+.2f} MiB/min; t [s] MiB: "
             + "; ".join(f"{r[0]:.0f} {r[3]:.1f}" for r in rows if np.isfinite(r[3]))
         )
-    growth = rows[-1, 5] - rows[0, 5]
-    print(f"tree PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}")
+    growth = rows[-1, 7] - rows[0, 7]
+    print(f"kept PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}")
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")

@@ -20,6 +20,7 @@ process group; the app closes its sessions itself).
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import multiprocessing.connection
 import os
@@ -57,6 +58,7 @@ def serve_session(
     session_id: str,
 ) -> None:
     """The child's main thread: make the session, then serve commands until close or EOF."""
+    gc.freeze()  # what the forkserver imported: never traversed here, so its pages stay shared
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the app closes us itself
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
     _die_with_parent()

@@ -35,9 +35,11 @@ import logging
 import math
 import multiprocessing
 import multiprocessing.connection
+import multiprocessing.spawn
 import secrets
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -65,12 +67,37 @@ _context_lock = threading.Lock()
 
 
 def _context() -> Any:
-    """The forkserver context, its server preloaded with MuJoCo, mink and the session code."""
+    """The forkserver context, its server preloaded with MuJoCo, mink and the session code.
+
+    A session child needs nothing of the app's main module, but ``multiprocessing`` makes every
+    child import it again (the script's whole import graph: viser, ... for ~80 MiB of private
+    memory per child in benchmarks/bench_soak.py; CPython 3.11's forkserver cannot preload it,
+    as it asks for a ``main_path`` key the preparation data never has). So the children started
+    here get preparation data without the main module (:func:`_preparation_data`).
+    """
     with _context_lock:
+        if multiprocessing.spawn.get_preparation_data is not _preparation_data:
+            global _stdlib_preparation_data
+            _stdlib_preparation_data = multiprocessing.spawn.get_preparation_data
+            multiprocessing.spawn.get_preparation_data = _preparation_data
         context = multiprocessing.get_context("forkserver")
-        # "__main__": the server imports the main script once (a child skips it then)
-        context.set_forkserver_preload(["__main__", "bt_teleop.tick_stats"])
+        context.set_forkserver_preload(["bt_teleop.session_child"])  # no effect once it runs
         return context
+
+
+_starting = threading.local()
+"""``_starting.session`` is True while this thread starts a session child."""
+_stdlib_preparation_data: Callable[[str], dict[str, Any]] | None = None
+
+
+def _preparation_data(name: str) -> dict[str, Any]:
+    """multiprocessing's data for a new child; without the main module for a session child."""
+    assert _stdlib_preparation_data is not None
+    data = _stdlib_preparation_data(name)
+    if getattr(_starting, "session", False):
+        data.pop("init_main_from_path", None)
+        data.pop("init_main_from_name", None)
+    return data
 
 
 class SessionProcess:
@@ -118,7 +145,11 @@ class SessionProcess:
             name=f"bt-session-{self.session_id}",
             daemon=True,
         )
-        self._process.start()
+        _starting.session = True
+        try:
+            self._process.start()
+        finally:
+            _starting.session = False
         child_end.close()  # only the child holds it now: its death is EOF here
         with self._call_lock:
             self.dt_s: float = self._reply(START_TIMEOUT_S)
