@@ -64,6 +64,7 @@ import psutil
 import bt_teleop.library
 import bt_teleop.library_loader
 from bt_teleop.app import TeleopApp
+from bt_teleop.session_config import SessionConfig
 from bt_teleop.testing import app_factory, circle_uv, reachable, tab_factory, wait_until
 from bt_teleop.tick_stats import TickReport
 from bt_teleop.ui import ClientUI
@@ -296,6 +297,12 @@ def main() -> None:
         action="store_true",
         help="the sessions in the app's process (the app's --no-session-processes): a baseline",
     )
+    parser.add_argument(
+        "--priority-boost",
+        type=int,
+        default=SessionConfig().priority_boost,
+        help="lower the control loops' nice value by this much (0: as the app's threads)",
+    )
     args = parser.parse_args()
     process = psutil.Process()
     loads = Timed()
@@ -309,6 +316,7 @@ def main() -> None:
             clean_epochs=5,
             idle_timeout_s=float("inf"),
             session_processes=not args.in_process,
+            session=SessionConfig(priority_boost=args.priority_boost),
         )
         tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
@@ -369,6 +377,7 @@ def main() -> None:
         f"control ticks: {ticks.n_ticks} ({ticks.n_ticks / wall:.0f}/s of "
         f"{args.sessions / period:.0f}/s intended), period {1e3 * period:.1f} ms"
     )
+    print(f"control threads' nice value: {ticks.nice} (priority boost {args.priority_boost})")
     print(f"largest stall: {1e3 * ticks.largest_stall_s:.1f} ms beyond the period")
     p50, p99, p999 = (1e3 * ticks.gap_percentile(q) for q in (50, 99, 99.9))
     print(
