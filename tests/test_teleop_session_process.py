@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 import pickle
 import signal
+import threading
 import time
 from pathlib import Path
 
@@ -218,3 +219,44 @@ def test_tick_reports_merge_and_give_percentiles_of_their_bins() -> None:
     assert merged.gap_percentile(100) == pytest.approx(0.250)
     assert merged.gaps_above(0.05) == 1
     assert ra.largest_stall_s == pytest.approx(0.001)
+
+
+def _may_raise_priority() -> bool:
+    """Whether this process may lower a thread's nice value (root, CAP_SYS_NICE, ulimit -e)."""
+    result: list[bool] = []
+
+    def probe() -> None:
+        tid = threading.get_native_id()
+        nice = os.getpriority(os.PRIO_PROCESS, tid)
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, nice - 1)
+        except PermissionError:
+            result.append(False)
+        else:
+            result.append(True)
+
+    thread = threading.Thread(target=probe)
+    thread.start()
+    thread.join()
+    return result[0]
+
+
+def test_the_control_loop_raises_its_priority_when_permitted(
+    scene: SceneModel, tmp_path: Path
+) -> None:
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    for boost in (0, 3):
+        config = SessionConfig(priority_boost=boost)
+        with SessionProcess(scene, tmp_path, config=config) as proxy:
+            assert proxy.tick_stats().nice is None  # not started
+            proxy.start()
+            wait_until(lambda p=proxy: p.tick_stats().n_ticks > 10, 30.0, "ticks")
+            nice = proxy.tick_stats().nice
+        raised = boost > 0 and _may_raise_priority()
+        assert nice == (max(-20, base - boost) if raised else base)
+
+
+@pytest.mark.parametrize("boost", [-1, 21, 2.5, True])
+def test_a_priority_boost_out_of_range_is_refused(boost) -> None:
+    with pytest.raises(ConfigError, match="priority_boost"):
+        SessionConfig(priority_boost=boost)
