@@ -11,6 +11,7 @@ import sys
 import time
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import psutil
@@ -149,30 +150,37 @@ def test_a_non_loopback_host_prints_a_warning(monkeypatch, capsys) -> None:
     assert "WARNING" not in capsys.readouterr().err
 
 
-def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
-    """All listening sockets of `bt teleop` (defaults, Rerun serving) and its children; and
-    when the app is killed with SIGKILL (it cannot stop them), its children die too: Rerun's
-    and a tab's session process (bt_teleop/session_process.py)."""
+def _start_bt_teleop(tmp_path: Path, *flags: str, **popen: Any) -> tuple[subprocess.Popen, int]:
+    """`bt teleop --port 0 <flags>` started and serving; (process, port)."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    command = ["teleop", "--port", "0", "--recordings", str(tmp_path / "rec")]
+    command = ["teleop", "--port", "0", "--recordings", str(tmp_path / "rec"), *flags]
     process = subprocess.Popen(
         [sys.executable, "-m", "bt_pipeline", *command],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
         env=env,
+        **popen,
     )
+    assert process.stdout is not None
+    lines = []
+    for line in process.stdout:
+        lines.append(line)
+        if "press Ctrl-C" in line:
+            break
+    urls = [line.split("open http://")[1] for line in lines if "open http://" in line]
+    assert urls, "".join(lines)
+    return process, int(urls[0].split()[0].rstrip("/").rsplit(":", 1)[1])
+
+
+def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
+    """All listening sockets of `bt teleop` (defaults, Rerun serving) and its children; and
+    when the app is killed with SIGKILL (it cannot stop them), its children die too: Rerun's
+    and a tab's session process (bt_teleop/session_process.py)."""
+    process, port = _start_bt_teleop(tmp_path)
     tab: FakeTab | None = None
     try:
-        assert process.stdout is not None
-        lines = []
-        for line in process.stdout:
-            lines.append(line)
-            if "press Ctrl-C" in line:
-                break
-        urls = [line.split("open http://")[1] for line in lines if "open http://" in line]
-        assert urls, "".join(lines)
-        tab = FakeTab(int(urls[0].split()[0].rstrip("/").rsplit(":", 1)[1]))
+        tab = FakeTab(port)
         app = psutil.Process(process.pid)
         wait_until(lambda: _session_processes(app), 60.0, "the tab's session process")
         time.sleep(1.0)  # let Rerun's servers come up
@@ -198,26 +206,12 @@ def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
 def test_ctrl_c_of_bt_teleop_ends_every_session_process(tmp_path) -> None:
     """Ctrl-C in a terminal signals the whole process group: the session processes ignore it
     and the app closes them (a take in progress is settled, tests above); none is left."""
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    command = ["teleop", "--port", "0", "--rerun", "off", "--recordings", str(tmp_path / "rec")]
-    process = subprocess.Popen(
-        [sys.executable, "-m", "bt_pipeline", *command],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=env,
-        start_new_session=True,  # its own process group, as a terminal's foreground job
-    )
+    # its own process group, as a terminal's foreground job
+    process, port = _start_bt_teleop(tmp_path, "--rerun", "off", start_new_session=True)
     tabs: list[FakeTab] = []
     try:
-        assert process.stdout is not None
-        url = ""
-        for line in process.stdout:
-            url = line.split("open http://")[1].strip() if "open http://" in line else url
-            if "press Ctrl-C" in line:
-                break
         app = psutil.Process(process.pid)
-        tabs = [FakeTab(int(url.rstrip("/").rsplit(":", 1)[1])) for _ in range(2)]
+        tabs = [FakeTab(port) for _ in range(2)]
         wait_until(lambda: len(_session_processes(app)) == 2, 60.0, "2 session processes")
         children = app.children(recursive=True)
         os.killpg(process.pid, signal.SIGINT)

@@ -141,14 +141,19 @@ def test_a_hung_child_times_out_is_killed_and_reported(scene: SceneModel, tmp_pa
     proxy.close()
 
 
+def _recording_child(session: SessionProcess, name: str) -> psutil.Process:
+    """Start `session` recording a take by `name` (40 samples in); its child process."""
+    session.start()
+    session.start_recording(name)
+    wait_until(lambda: session.status().n_samples >= 40, 30.0, "samples")
+    assert session.pid is not None
+    return psutil.Process(session.pid)
+
+
 def test_closing_mid_take_saves_it_flagged_incomplete_and_ends_the_child(
     session: SessionProcess,
 ) -> None:
-    session.start()
-    session.start_recording("closer")
-    wait_until(lambda: session.status().n_samples >= 40, 30.0, "samples")
-    assert session.pid is not None
-    child = psutil.Process(session.pid)
+    child = _recording_child(session, "closer")
     path = session.close()
     assert path is not None
     (demo,) = read_recording(path).demos.values()
@@ -162,11 +167,7 @@ def test_a_child_whose_app_vanished_saves_its_take_and_exits(
     session: SessionProcess, tmp_path: Path
 ) -> None:
     """EOF on the pipe (the app was killed): the child settles the take as a closed tab's."""
-    session.start()
-    session.start_recording("orphan")
-    wait_until(lambda: session.status().n_samples >= 40, 30.0, "samples")
-    assert session.pid is not None
-    child = psutil.Process(session.pid)
+    child = _recording_child(session, "orphan")
     session._conn.close()  # what the app's death does to the child's pipe
     child.wait(30.0)
     (path,) = (tmp_path / "wiping").glob("*.hdf5")
