@@ -3,7 +3,7 @@ session, served over a pipe.
 
 ::
 
-    serve_session(conn, task, robot, recordings_dir, config, session_id)    its main thread
+    serve_session(conn, task, robot, recordings_dir, config, session_id, log_level)   main thread
         TimedSession(task, robot)  -> reply (True, dt_s), or (False, the error)
         loop: (name, args) = conn.recv()
             one-way (set_target, set_gripper, set_stay_on_plane): applied, no reply
@@ -56,8 +56,14 @@ def serve_session(
     recordings_dir: Path,
     config: SessionConfig,
     session_id: str,
+    log_level: int = logging.WARNING,
 ) -> None:
-    """The child's main thread: make the session, then serve commands until close or EOF."""
+    """The child's main thread: make the session, then serve commands until close or EOF.
+
+    Its log lines (saved takes, warnings) go to the app's stderr as the app's do, at the app's
+    `log_level`.
+    """
+    logging.basicConfig(level=log_level, format="bt: %(message)s", stream=sys.stderr)
     gc.freeze()  # what the forkserver imported: never traversed here, so its pages stay shared
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the app closes us itself
     signal.signal(signal.SIGTERM, _exit_on_sigterm)

@@ -141,7 +141,7 @@ class SessionProcess:
         args = (child_end, scene.task, scene.robot, self.recordings_dir, self.config)
         self._process = context.Process(
             target=serve_session,
-            args=(*args, self.session_id),
+            args=(*args, self.session_id, LOGGER.getEffectiveLevel()),
             name=f"bt-session-{self.session_id}",
             daemon=True,
         )
@@ -209,7 +209,9 @@ class SessionProcess:
 
     @property
     def recording(self) -> bool:
-        """Whether a demo is being recorded (False once the child is lost)."""
+        """Whether a demo is being recorded (False once the child is lost or closed)."""
+        if self._closed:
+            return False
         try:
             return self._call("recording")
         except SessionLostError:
@@ -230,6 +232,8 @@ class SessionProcess:
     def trail(self) -> FloatArray:
         """End-effector positions of the demo in progress, shape (T, 3) [m] (empty if none or
         lost)."""
+        if self._closed:
+            return np.zeros((0, 3))
         try:
             return self._call("trail")
         except SessionLostError:

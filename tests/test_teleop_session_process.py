@@ -161,6 +161,7 @@ def test_closing_mid_take_saves_it_flagged_incomplete_and_ends_the_child(
     assert not child.is_running() or child.status() == psutil.STATUS_ZOMBIE
     with pytest.raises(ConfigError, match="closed"):
         session.start_recording("again")
+    assert not session.recording and session.trail().shape == (0, 3)  # as a closed Session
 
 
 def test_a_child_whose_app_vanished_saves_its_take_and_exits(
