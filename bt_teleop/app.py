@@ -47,6 +47,7 @@ from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.rerun_live import RERUN_MODES, RerunHub, RerunMode
 from bt_teleop.scene import Robot, parse_robot
 from bt_teleop.session import SessionConfig
+from bt_teleop.session_process import start_forkserver
 from bt_teleop.ui import ClientUI
 from bt_teleop.ui_context import TaskVersions, UiContext
 
@@ -163,6 +164,8 @@ class TeleopApp:
         self._closing: set[ClientUI] = set()  # tabs being closed after a disconnect
         self._refused: set[int] = set()  # refused tabs whose socket is not closed yet
         self._stopping = False
+        if options.session_processes:
+            start_forkserver()  # it imports MuJoCo and mink while the first tab connects
         self.rerun = RerunHub(
             options.rerun,
             options.recordings,

@@ -35,6 +35,7 @@ import logging
 import math
 import multiprocessing
 import multiprocessing.connection
+import multiprocessing.forkserver
 import multiprocessing.spawn
 import secrets
 import threading
@@ -55,7 +56,7 @@ from bt_teleop.session_recording import SavedTake
 from bt_teleop.tick_stats import TickReport, TimedSession
 from bt_teleop.workspace import validate_position, validate_quat
 
-__all__ = ["SessionProcess", "TabSession", "open_session"]
+__all__ = ["SessionProcess", "TabSession", "open_session", "start_forkserver"]
 
 LOGGER = logging.getLogger("bt.teleop")
 START_TIMEOUT_S = 60.0
@@ -83,6 +84,13 @@ def _context() -> Any:
         context = multiprocessing.get_context("forkserver")
         context.set_forkserver_preload(["bt_teleop.session_child"])  # no effect once it runs
         return context
+
+
+def start_forkserver() -> None:
+    """Start the server that forks session children now (it then imports MuJoCo and mink in
+    the background), not when the first session is made; a no-op once it runs."""
+    _context()
+    multiprocessing.forkserver.ensure_running()
 
 
 _starting = threading.local()
@@ -151,6 +159,7 @@ class SessionProcess:
         finally:
             _starting.session = False
         child_end.close()  # only the child holds it now: its death is EOF here
+        self._pid = self._process.pid
         with self._call_lock:
             self.dt_s: float = self._reply(START_TIMEOUT_S)
             """Control period [s]."""
@@ -246,7 +255,7 @@ class SessionProcess:
     @property
     def pid(self) -> int | None:
         """The child's process id."""
-        return self._process.pid
+        return self._pid
 
     @property
     def lost(self) -> str | None:
@@ -267,6 +276,8 @@ class SessionProcess:
             self._process.kill()
             self._process.join(5.0)
         self._conn.close()
+        if self._process.exitcode is not None:
+            self._process.close()  # its sentinel fd (pid and exitcode stay readable here)
         return path
 
     def __enter__(self) -> SessionProcess:
