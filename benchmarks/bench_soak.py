@@ -2,7 +2,7 @@
 
 Each of the 8 tabs is a real viser websocket client (:class:`bt_teleop.testing.FakeTab`) that
 reads everything the server sends; a driver thread per tab does what a person does, through the
-app's own handles: drags the target along a circle (``Session.set_target``, what the gizmo
+app's own handles: drags the target along a circle (``session.set_target``, what the gizmo
 callback calls) at 30 Hz, presses Record, records a take of a few seconds, presses Stop & save,
 and again; every ``--clean-every`` seconds one tab presses Clean (the cleaner then competes for
 the CPU, as in real use).
@@ -10,15 +10,19 @@ the CPU, as in real use).
 Reported:
 
 * the largest control-loop stall over all sessions: the longest wall time between two control
-  ticks minus the tick period (each session's ``_tick`` is wrapped with a timestamp), and the
-  distribution of those gaps (p50, p99, p99.9, max);
+  ticks minus the tick period, and the distribution of those gaps (p50, p99, p99.9, max), as
+  each session keeps them (:mod:`bt_teleop.tick_stats`; read from the session processes, or
+  from the sessions in the app's process with ``--in-process``, the baseline);
 * where the time went (to attribute stalls): the compute time of the ticks themselves, the
-  garbage collector's pauses (``gc.callbacks``), the task-library loads every save triggers
-  (:func:`bt_teleop.library.load_library` as the tabs' shared loader calls it, timed), the
-  process's CPU use in cores;
-* resident memory (psutil) every ``--sample-every`` seconds, and its slope over the second
-  half of the run [MiB/min] (flat: about 0), with the machine's 1-minute load average at the
-  same moments (other jobs share the CPU);
+  app process's garbage-collector pauses (``gc.callbacks``), the task-library loads every save
+  triggers (:func:`bt_teleop.library.load_library` as the tabs' shared loader calls it, timed),
+  the CPU used in cores by the app and its session processes;
+* memory every ``--sample-every`` seconds over the app's whole process tree (the session
+  processes, the forkserver, clean jobs): the sum of RSS (which counts the pages forked
+  children share once per process), of PSS (shared pages split among their users) and of USS,
+  and the app process's own RSS; their slopes over the second half of the run [MiB/min] (flat:
+  about 0), with the machine's 1-minute load average at the same moments (other jobs share the
+  CPU);
 * takes saved vs intended (Stop & save presses; files counted on disk at the end);
 * with ``--discard`` the tabs press Discard instead of Stop & save: the same recording work
   without files, library loads or table updates, a control for the memory measured;
@@ -27,6 +31,11 @@ Reported:
   third). Tracing slows the app down several times, so the starved loops simulate too little
   time for a 2-4 s take: give longer takes (``--take-s 15``) and use such a run to find what
   grows, not for the stall or RSS numbers.
+
+The fake tabs and their drivers run in the benchmark's (the app's) process, as threads: real
+browsers are not in the server's interpreter, so they add load to the app's process that real
+use does not (it is the process the session processes left; their control loops no longer
+share its GIL).
 
 Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes.
 
@@ -55,73 +64,13 @@ import psutil
 import bt_teleop.library
 import bt_teleop.library_loader
 from bt_teleop.app import TeleopApp
+from bt_teleop.session_config import SessionConfig
 from bt_teleop.testing import app_factory, circle_uv, reachable, tab_factory, wait_until
+from bt_teleop.tick_stats import TickReport
 from bt_teleop.ui import ClientUI
 
 REFUSALS = ("Not done", "Error")
 """Titles of the notices a tab shows when an action fails."""
-
-
-class Durations:
-    """A histogram of durations in fixed memory (0.1 ms bins up to 5 s; the max exactly).
-
-    Keeping every tick's time in a list grew the benchmark's own memory by ~1 MiB a minute at
-    8 × 100 Hz, inside the RSS the soak measures; this allocates (and touches) its bins once.
-    """
-
-    BIN_S = 1e-4
-    BINS = 50_000
-
-    def __init__(self) -> None:
-        self.counts = np.ones(self.BINS, dtype=np.int64)  # ones, then zeros: every page touched
-        self.counts[:] = 0
-        self.max_s = 0.0
-
-    def add(self, seconds: float) -> None:
-        self.counts[min(int(seconds / self.BIN_S), self.BINS - 1)] += 1
-        self.max_s = max(self.max_s, seconds)
-
-    @property
-    def n(self) -> int:
-        return int(self.counts.sum())
-
-    def percentile(self, q: float) -> float:
-        """The `q`-th percentile [s] (to the bin's centre)."""
-        cumulative = np.cumsum(self.counts)
-        index = int(np.searchsorted(cumulative, q / 100.0 * cumulative[-1]))
-        return min((index + 0.5) * self.BIN_S, self.max_s)
-
-    def count_above(self, seconds: float) -> int:
-        return int(self.counts[int(seconds / self.BIN_S) + 1 :].sum())
-
-    @staticmethod
-    def merged(parts: list[Durations]) -> Durations:
-        total = Durations()
-        for part in parts:
-            total.counts += part.counts
-            total.max_s = max(total.max_s, part.max_s)
-        return total
-
-
-class TickClock:
-    """Wraps a session's ``_tick`` to keep the gaps between ticks and each tick's own time."""
-
-    def __init__(self, ui: ClientUI) -> None:
-        self.gaps = Durations()
-        self.compute = Durations()
-        self._last: float | None = None
-        session = ui.session
-        tick = session._tick
-
-        def timed() -> None:
-            now = time.perf_counter()
-            if self._last is not None:
-                self.gaps.add(now - self._last)
-            self._last = now
-            tick()
-            self.compute.add(time.perf_counter() - now)
-
-        session._tick = timed  # type: ignore[method-assign]
 
 
 class Timed:
@@ -174,11 +123,18 @@ class GcPauses:
 
 
 class Sampler:
-    """RSS [MiB], the 1-minute load average and, while tracemalloc traces, the Python memory
-    it sees [MiB] (NaN otherwise) every `every_s` seconds, in a thread."""
+    """Memory of the app's process tree [MiB], the 1-minute load average and, while tracemalloc
+    traces, the Python memory it sees [MiB] (NaN otherwise), every `every_s` seconds, in a
+    thread. Columns: t [s], the app's RSS, load, traced, and over the app and every process
+    under it (session children, the forkserver, clean jobs): the sum of RSS (counts the pages
+    forked children share once per process), of PSS (shared pages split between their users)
+    and of USS (pages only that process maps); and the PSS of the processes that stay (the
+    tree without clean jobs, which come and go: the memory that must stay flat)."""
+
+    COLUMNS = ("t", "app RSS", "load", "traced", "tree RSS", "tree PSS", "tree USS", "kept PSS")
 
     def __init__(self, every_s: float) -> None:
-        self.rows: list[tuple[float, float, float, float]] = []  # t [s], RSS, load, traced
+        self.rows: list[tuple[float, ...]] = []
         self._process = psutil.Process()
         self._t0 = time.monotonic()
         self._stop = threading.Event()
@@ -189,7 +145,17 @@ class Sampler:
     def sample(self) -> None:
         rss = self._process.memory_info().rss / 2**20
         traced = tracemalloc.get_traced_memory()[0] / 2**20 if tracemalloc.is_tracing() else np.nan
-        self.rows.append((time.monotonic() - self._t0, rss, os.getloadavg()[0], traced))
+        tree = [0.0, 0.0, 0.0, 0.0]
+        for process in [self._process, *self._process.children(recursive=True)]:
+            try:
+                full = process.memory_full_info()
+                clean_job = "multiprocessing.spawn" in " ".join(process.cmdline())
+            except psutil.Error:  # ended meanwhile (a clean job)
+                continue
+            for k, value in enumerate((full.rss, full.pss, full.uss)):
+                tree[k] += value / 2**20
+            tree[3] += 0.0 if clean_job else full.pss / 2**20
+        self.rows.append((time.monotonic() - self._t0, rss, os.getloadavg()[0], traced, *tree))
 
     def _run(self, every_s: float) -> None:
         while not self._stop.wait(every_s):
@@ -201,13 +167,28 @@ class Sampler:
         self.sample()
 
     def slope_second_half(self, column: int = 1) -> float:
-        """Least-squares slope of RSS (or another column) over the second half of the run
-        [MiB/min]."""
+        """Least-squares slope of a column (default the app's RSS) over the second half of the
+        run [MiB/min]."""
         rows = np.asarray(self.rows)
         half = rows[(rows[:, 0] >= rows[-1, 0] / 2.0) & np.isfinite(rows[:, column])]
         if len(half) < 2:
             return float("nan")
         return float(np.polyfit(half[:, 0] / 60.0, half[:, column], 1)[0])
+
+
+def tree_cpu_s(uis: list[ClientUI]) -> float:
+    """CPU time [s] of the app process and its tabs' session processes so far."""
+    total = psutil.Process().cpu_times()
+    seconds = total.user + total.system
+    for ui in uis:
+        pid = getattr(ui.session, "pid", None)
+        if pid is not None:
+            try:
+                times = psutil.Process(pid).cpu_times()
+            except psutil.Error:
+                continue
+            seconds += times.user + times.system
+    return seconds
 
 
 def deep_size(root: Any) -> tuple[int, int]:
@@ -311,6 +292,17 @@ def main() -> None:
         action="store_true",
         help="press Discard instead of Stop & save (the same work without the files: a control)",
     )
+    parser.add_argument(
+        "--in-process",
+        action="store_true",
+        help="the sessions in the app's process (the app's --no-session-processes): a baseline",
+    )
+    parser.add_argument(
+        "--priority-boost",
+        type=int,
+        default=SessionConfig().priority_boost,
+        help="lower the control loops' nice value by this much (0: as the app's threads)",
+    )
     args = parser.parse_args()
     process = psutil.Process()
     loads = Timed()
@@ -320,16 +312,20 @@ def main() -> None:
         # The drivers act through the app's handles, not the websocket, so every tab looks
         # silent: idle closing (tests/test_connections.py) would end them at the 10-min mark.
         app: TeleopApp = make(
-            max_sessions=args.sessions, clean_epochs=5, idle_timeout_s=float("inf")
+            max_sessions=args.sessions,
+            clean_epochs=5,
+            idle_timeout_s=float("inf"),
+            session_processes=not args.in_process,
+            session=SessionConfig(priority_boost=args.priority_boost),
         )
         tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
-        clocks = [TickClock(ui) for ui in uis]
         refusals = [Refusals(ui) for ui in uis]
         time.sleep(2.0)
         sampler = Sampler(args.sample_every)
         pauses = GcPauses()
-        cpu_start, wall_start = process.cpu_times(), time.monotonic()
+        cpu_start, app_cpu_start = tree_cpu_s(uis), process.cpu_times()
+        wall_start = time.monotonic()
         stop = threading.Event()
         counts = [{"intended": 0} for _ in uis]
         drivers = [
@@ -360,60 +356,69 @@ def main() -> None:
         for ui in uis:
             ui.wait_idle(120.0)  # the last Stop & save may still be queued
         refused = [body for counted in refusals for body in counted.bodies]
+        ticks = TickReport.merged([ui.session.tick_stats() for ui in uis])  # before they close
+        cpu_end, app_cpu_end = tree_cpu_s(uis), process.cpu_times()
         sampler.stop()
         growth_text = ""
         if tracemalloc.is_tracing():
             gc.collect()
             growth_text = top_growth(tracemalloc.take_snapshot())
             tracemalloc.stop()
-        cpu_end, wall = process.cpu_times(), time.monotonic() - wall_start
+        wall = time.monotonic() - wall_start
         received = sum(tab.bytes for tab in tabs)
         saved_ui = sum(ui.takes.saved_count for ui in uis)
         files = len(list((Path(tmp) / "rec" / "wiping").glob("*.hdf5")))
         held = held_by_loader(app, uis)
-    gaps = Durations.merged([c.gaps for c in clocks])
-    compute = Durations.merged([c.compute for c in clocks])
-    period = 1.0 / uis[0].session.config.control_hz
+    period = ticks.period_s
     intended = sum(c["intended"] for c in counts)
-    print(f"{args.sessions} sessions for {args.minutes:g} min, {cleans} Clean presses")
+    where = "in the app's process" if args.in_process else "one child process per session"
+    print(f"{args.sessions} sessions ({where}) for {args.minutes:g} min, {cleans} Clean presses")
     print(
-        f"control ticks: {gaps.n} ({gaps.n / wall:.0f}/s of {args.sessions / period:.0f}/s"
-        f" intended), period {1e3 * period:.1f} ms"
+        f"control ticks: {ticks.n_ticks} ({ticks.n_ticks / wall:.0f}/s of "
+        f"{args.sessions / period:.0f}/s intended), period {1e3 * period:.1f} ms"
     )
-    print(f"largest stall: {1e3 * (gaps.max_s - period):.1f} ms beyond the period")
-    p50, p99, p999 = (1e3 * gaps.percentile(q) for q in (50, 99, 99.9))
+    print(f"control threads' nice value: {ticks.nice} (priority boost {args.priority_boost})")
+    print(f"largest stall: {1e3 * ticks.largest_stall_s:.1f} ms beyond the period")
+    p50, p99, p999 = (1e3 * ticks.gap_percentile(q) for q in (50, 99, 99.9))
     print(
         f"gap p50: {p50:.1f} ms, p99: {p99:.1f} ms, p99.9: {p999:.1f} ms, "
-        f"max {1e3 * gaps.max_s:.0f} ms (0.1 ms bins)"
+        f"max {1e3 * ticks.max_gap_s:.0f} ms (0.1 ms bins)"
     )
-    print(f"stalls > 50 ms: {gaps.count_above(period + 0.05)}")
-    c50, c99 = (1e3 * compute.percentile(q) for q in (50, 99))
-    print(f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * compute.max_s:.0f} ms")
+    print(f"stalls > 50 ms: {ticks.gaps_above(period + 0.05)}")
+    c50, c99 = (1e3 * ticks.compute_percentile(q) for q in (50, 99))
+    print(
+        f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * ticks.max_compute_s:.0f} ms"
+    )
     print(f"gc pauses: {pauses.summary()}")
     print(f"task-library loads (after saves): {loads.summary()}")
-    used = (cpu_end.user + cpu_end.system - cpu_start.user - cpu_start.system) / wall
-    print(f"CPU of the app: {used:.2f} cores of {psutil.cpu_count()}")
+    app_used = app_cpu_end.user + app_cpu_end.system - app_cpu_start.user - app_cpu_start.system
+    print(
+        f"CPU of the app and its sessions: {(cpu_end - cpu_start) / wall:.2f} cores of "
+        f"{psutil.cpu_count()} (the app's process alone: {app_used / wall:.2f})"
+    )
     rows = np.asarray(sampler.rows)
     print(
         f"load average (1 min): min {rows[:, 2].min():.1f}, mean {rows[:, 2].mean():.1f}, "
         f"max {rows[:, 2].max():.1f}"
     )
+    for column in (1, 4, 5, 6, 7):
+        print(
+            f"memory ({Sampler.COLUMNS[column]}): {rows[0, column]:.0f} MiB at start, "
+            f"{rows[-1, column]:.0f} MiB at end, slope over the second half "
+            f"{sampler.slope_second_half(column):+.2f} MiB/min"
+        )
     print(
-        f"memory (RSS): {rows[0, 1]:.0f} MiB at start, {rows[-1, 1]:.0f} MiB at end, "
-        f"slope over the second half {sampler.slope_second_half():+.2f} MiB/min"
-    )
-    print(
-        "  t [s]  RSS [MiB]  load: "
-        + "; ".join(f"{t:.0f} {m:.0f} {la:.1f}" for t, m, la, _ in rows)
+        "  t [s]  app RSS, tree PSS, kept PSS [MiB]  load: "
+        + "; ".join(f"{r[0]:.0f} {r[1]:.0f} {r[5]:.0f} {r[7]:.0f} {r[2]:.1f}" for r in rows)
     )
     if np.isfinite(rows[:, 3]).any():
         print(
             f"Python memory tracemalloc sees: slope over the second half "
             f"{sampler.slope_second_half(3):+.2f} MiB/min; t [s] MiB: "
-            + "; ".join(f"{t:.0f} {m:.1f}" for t, _, _, m in rows if np.isfinite(m))
+            + "; ".join(f"{r[0]:.0f} {r[3]:.1f}" for r in rows if np.isfinite(r[3]))
         )
-    growth = rows[-1, 1] - rows[0, 1]
-    print(f"RSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}")
+    growth = rows[-1, 7] - rows[0, 7]
+    print(f"kept PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}")
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")

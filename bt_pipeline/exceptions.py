@@ -25,3 +25,7 @@ class RecordingError(BtError):
 
 class DemoError(BtError, ValueError):
     """A demonstration cannot be used: too short, degenerate, non-periodic or not finite."""
+
+
+class SessionLostError(BtError):
+    """A worker process (a teleop tab's simulation) died or stopped answering."""

@@ -10,6 +10,10 @@ One concept per module:
 * :mod:`bt_teleop.naming`: safe file names from a demonstrator's name.
 * :mod:`bt_teleop.session`: one session's fixed-rate loop (target -> IK -> actuators -> physics
   -> recorder), in real time in a thread or stepped synchronously.
+* :mod:`bt_teleop.session_process`: a tab's session in a child process of its own (one GIL per
+  control loop), behind the part of the session's API the app uses.
+* :mod:`bt_teleop.session_child`: that child's side: the session, served over a pipe.
+* :mod:`bt_teleop.tick_stats`: the app's sessions time their ticks (gaps, stalls, priority).
 * :mod:`bt_teleop.session_config`: a session's rates and policies, and its status snapshot.
 * :mod:`bt_teleop.session_recording`: a session's recording lifecycle (start, samples, save,
   a closed tab's demo flagged incomplete).

@@ -47,6 +47,7 @@ from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.rerun_live import RERUN_MODES, RerunHub, RerunMode
 from bt_teleop.scene import Robot, parse_robot
 from bt_teleop.session import SessionConfig
+from bt_teleop.session_process import start_forkserver
 from bt_teleop.ui import ClientUI
 from bt_teleop.ui_context import TaskVersions, UiContext
 
@@ -115,6 +116,9 @@ class AppOptions:
     not reach the present sooner in benchmarks/bench_teleop_rerun.py, docs/teleop.md)."""
     session: SessionConfig = field(default_factory=SessionConfig)
     """Control and recording rates of every session."""
+    session_processes: bool = True
+    """Run each tab's simulation (control loop, IK, recorder) in a child process of its own,
+    one GIL per loop (bt_teleop/session_process.py); False: in the app's process."""
     fancy_lighting: bool = False
     """viser's environment map and shadows: pretty with a GPU, but software WebGL (headless
     browsers, GPU-less laptops) needs tens of seconds to prepare them."""
@@ -160,6 +164,8 @@ class TeleopApp:
         self._closing: set[ClientUI] = set()  # tabs being closed after a disconnect
         self._refused: set[int] = set()  # refused tabs whose socket is not closed yet
         self._stopping = False
+        if options.session_processes:
+            start_forkserver()  # it imports MuJoCo and mink while the first tab connects
         self.rerun = RerunHub(
             options.rerun,
             options.recordings,
@@ -188,6 +194,7 @@ class TeleopApp:
             libraries=LibraryLoader(options.recordings, self._background),
             versions=self.versions,
             session_config=options.session,
+            session_processes=options.session_processes,
             publish_hz=options.publish_hz,
             save_incomplete=options.save_incomplete,
             initial_task=options.initial_task,

@@ -27,6 +27,7 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import BtError
 from bt_teleop.library import ReplayTrack, TaskLibrary, TrackKind, library_markdown, load_library
 from bt_teleop.session import Session
+from bt_teleop.session_process import SessionProcess
 from bt_teleop.track_samples import TrackReader, TrackSamples
 
 LOGGER = logging.getLogger("bt.teleop")
@@ -118,7 +119,7 @@ class ReplayPlayer:
 
     def __init__(
         self,
-        session: Session,
+        session: Session | SessionProcess,
         track: ReplayTrack,
         samples: TrackSamples,
         period_s: float = 0.005,

@@ -40,7 +40,7 @@ from typing import IO
 
 from bt_pipeline.exceptions import ConfigError
 
-__all__ = ["RerunProxy", "free_port", "rerun_binary"]
+__all__ = ["RerunProxy", "free_port", "libc", "rerun_binary"]
 
 LOGGER = logging.getLogger("bt.teleop")
 START_TIMEOUT_S = 30.0
@@ -51,7 +51,7 @@ _SPAWNER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-rerun
 
 
 @functools.cache
-def _libc() -> ctypes.CDLL:
+def libc() -> ctypes.CDLL:
     """The C library, loaded once (``find_library`` runs ``ldconfig`` on every call)."""
     return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
 
@@ -61,11 +61,11 @@ def _die_with_parent_hook() -> Callable[[], None] | None:
     None elsewhere). libc is loaded here, in the parent: the hook itself only calls prctl."""
     if not sys.platform.startswith("linux"):
         return None
-    libc = _libc()
+    c_library = libc()
     parent = os.getpid()
 
     def hook() -> None:
-        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        c_library.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
         if os.getppid() != parent:  # the parent died before prctl: nobody will stop us
             os.kill(os.getpid(), signal.SIGTERM)
 

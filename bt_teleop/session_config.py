@@ -28,6 +28,11 @@ class SessionConfig:
     save_incomplete: bool = True
     """What :meth:`Session.close` does with a recording in progress: save it flagged
     incomplete (True) or discard it (False)."""
+    priority_boost: int = 5
+    """The app's real-time loops (:class:`bt_teleop.tick_stats.TimedSession`) lower their
+    thread's nice value by this much (0..20): the CPU serves them before the app's web server
+    and library loads. Needs CAP_SYS_NICE or a ``ulimit -e`` that allows it (Linux); without,
+    the loop keeps its priority (logged)."""
     ik: IkSettings = field(default_factory=IkSettings)
     """IK weights and limits."""
     take_checks: TakeCheckConfig = field(default_factory=TakeCheckConfig)
@@ -40,6 +45,9 @@ class SessionConfig:
                 isinstance(value, int | float) and math.isfinite(value) and value > 0.0
             ):
                 raise ConfigError(f"{name} must be a positive number; got {value!r}")
+        boost = self.priority_boost
+        if isinstance(boost, bool) or not isinstance(boost, int) or not 0 <= boost <= 20:
+            raise ConfigError(f"priority_boost must be a whole number in 0..20; got {boost!r}")
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare fields explicitly

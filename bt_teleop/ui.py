@@ -11,7 +11,7 @@ Data flow (everything a tab does stays in the tab)::
             (grouped with client.atomic(): one scene update per period)
         -> SessionLogger.log_state (Rerun, off this thread's critical path)
         poll: clean job progress, replay progress, library reloads
-    Session thread: fixed-rate IK + physics (bt_teleop.session), never touched by viser
+    Session: fixed-rate IK + physics in a child process (session_process), never touched by viser
 
 Callbacks never block: they store a value or queue a command. The worker is the only thread
 that changes the tab's scene and the only one that swaps its Session (task switch).
@@ -46,7 +46,7 @@ from bt_teleop.library import TaskLibrary
 from bt_teleop.replay import ReplayPlayer, read_replay
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
-from bt_teleop.session import Session
+from bt_teleop.session_process import TabSession, open_session
 from bt_teleop.tab_scene import Frame, TabScene
 from bt_teleop.ui_context import TaskVersions, UiContext
 from bt_teleop.ui_panels import TabControls, clean_done_text, status_markdown
@@ -90,7 +90,7 @@ class ClientUI:
         """Saved takes, their checks' verdict and moderation."""
         self.saved = self.takes.saved
         self.controls.connect(self)
-        self.session: Session = self._new_session(ctx.initial_task)
+        self.session: TabSession = self._new_session(ctx.initial_task)
         self.tab_scene = TabScene(
             client.scene, self.session.scene, self._on_drag, fancy_lighting=ctx.fancy_lighting
         )
@@ -218,13 +218,14 @@ class ClientUI:
 
     # -- scene --------------------------------------------------------------------------------
 
-    def _new_session(self, task: Task) -> Session:
-        scene = load_scene(task, self.ctx.robot)
-        session = Session(
-            scene,
-            self.ctx.recordings_dir,
-            config=self.ctx.session_config,
+    def _new_session(self, task: Task) -> TabSession:
+        ctx = self.ctx  # a child process per tab (session_process.py) unless told otherwise
+        session = open_session(
+            load_scene(task, ctx.robot),
+            ctx.recordings_dir,
+            config=ctx.session_config,
             session_id=self.session_id,
+            in_process=not ctx.session_processes,
         )
         session.set_stay_on_plane(self.controls.plane_input.value)
         session.start()

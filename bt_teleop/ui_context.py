@@ -54,6 +54,8 @@ class UiContext:
     samples: TrackReader = field(default_factory=TrackReader)
     """Reads a track's samples when it is played (the libraries list tracks without them)."""
     session_config: SessionConfig = field(default_factory=SessionConfig)
+    session_processes: bool = True
+    """Each tab's simulation in a child process of its own (False: in the app's process)."""
     publish_hz: float = 30.0
     """Scene updates per second sent to each tab."""
     save_incomplete: bool = True

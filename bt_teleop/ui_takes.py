@@ -26,6 +26,7 @@ from bt_teleop.library import TaskLibrary
 from bt_teleop.moderation import Moderator, token_matches
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.session import Session
+from bt_teleop.session_process import SessionProcess
 from bt_teleop.ui_context import UiContext
 from bt_teleop.ui_panels import TabControls
 
@@ -66,7 +67,7 @@ class TakeDesk:
         self.flagged = None
         self.controls.show_take_check(None)
 
-    def save(self, session: Session) -> Path:
+    def save(self, session: Session | SessionProcess) -> Path:
         """Stop & save `session`'s take; tell the person whether it passed the checks."""
         trail = session.trail()
         take = session.stop_and_check()

@@ -13,6 +13,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 import viser
 
@@ -25,7 +26,9 @@ from bt_teleop.replay import load_library, replay_sync
 from bt_teleop.rerun_live import RerunHub, SessionLogger
 from bt_teleop.script import run_script
 from bt_teleop.session import Session
+from bt_teleop.session_process import SessionProcess
 from bt_teleop.testing import guide_script, wait_until
+from bt_teleop.tick_stats import TimedSession
 from bt_teleop.track_samples import TrackReader
 from bt_teleop.ui import ClientUI
 from bt_teleop.viewer import Trail, guide_loop_world
@@ -60,8 +63,24 @@ def test_server_serves_the_page_on_a_free_port_and_stops_cleanly(make_app, tabs)
         page = response.read().decode()
     assert response.status == 200 and "<html" in page.lower() and "<script" in page.lower()
     tabs(app)
-    only_session(app)
+    session = only_session(app).session
+    assert isinstance(session, SessionProcess)  # the default: a child process per tab
+    assert session.pid is not None and psutil.pid_exists(session.pid)
+    app.stop()
+    assert wait_until(lambda: not bt_threads(), 10.0, "bt threads to end") is True
+    assert not psutil.pid_exists(session.pid)  # ended and reaped
+
+
+def test_sessions_can_stay_in_the_apps_process(make_app, tabs) -> None:
+    app = make_app(session_processes=False)
+    tabs(app)
+    ui = only_session(app)
+    assert isinstance(ui.session, TimedSession)
     assert any(name.startswith("bt-session") for name in bt_threads())
+    goal = ui.session.scene.plane.to_world(np.array([0.05, 0.0]))
+    ui.session.set_target(goal)
+    wait_until(lambda: np.linalg.norm(ui.session.status().ee_pos - goal) < 5e-3, what="goal")
+    assert ui.session.tick_stats().n_ticks > 0
     app.stop()
     assert wait_until(lambda: not bt_threads(), 10.0, "bt threads to end") is True
     with pytest.raises(OSError):

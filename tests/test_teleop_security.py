@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import subprocess
 import sys
 import time
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import psutil
@@ -148,40 +150,89 @@ def test_a_non_loopback_host_prints_a_warning(monkeypatch, capsys) -> None:
     assert "WARNING" not in capsys.readouterr().err
 
 
-def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
-    """All listening sockets of `bt teleop` (defaults, Rerun serving) and its children; and
-    when the app is killed with SIGKILL (it cannot stop them), its Rerun children die too."""
+def _start_bt_teleop(tmp_path: Path, *flags: str, **popen: Any) -> tuple[subprocess.Popen, int]:
+    """`bt teleop --port 0 <flags>` started and serving; (process, port)."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    command = ["teleop", "--port", "0", "--recordings", str(tmp_path / "rec")]
+    command = ["teleop", "--port", "0", "--recordings", str(tmp_path / "rec"), *flags]
     process = subprocess.Popen(
         [sys.executable, "-m", "bt_pipeline", *command],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
         env=env,
+        **popen,
     )
+    assert process.stdout is not None
+    lines = []
+    for line in process.stdout:
+        lines.append(line)
+        if "press Ctrl-C" in line:
+            break
+    urls = [line.split("open http://")[1] for line in lines if "open http://" in line]
+    assert urls, "".join(lines)
+    return process, int(urls[0].split()[0].rstrip("/").rsplit(":", 1)[1])
+
+
+def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
+    """All listening sockets of `bt teleop` (defaults, Rerun serving) and its children; and
+    when the app is killed with SIGKILL (it cannot stop them), its children die too: Rerun's
+    and a tab's session process (bt_teleop/session_process.py)."""
+    process, port = _start_bt_teleop(tmp_path)
+    tab: FakeTab | None = None
     try:
-        assert process.stdout is not None
-        lines = []
-        for line in process.stdout:
-            lines.append(line)
-            if "press Ctrl-C" in line:
-                break
-        assert any("open http://" in line for line in lines), "".join(lines)
+        tab = FakeTab(port)
+        app = psutil.Process(process.pid)
+        wait_until(lambda: _session_processes(app), 60.0, "the tab's session process")
         time.sleep(1.0)  # let Rerun's servers come up
         sockets = listening(process.pid)
         assert sockets, "bt teleop listens on nothing"
         exposed = [s for s in sockets if not is_loopback_address(s[1])]
         assert not exposed, f"sockets on non-loopback interfaces: {exposed}"
-        children = psutil.Process(process.pid).children(recursive=True)
+        children = app.children(recursive=True)
         assert any("rerun" in " ".join(c.cmdline()) for c in children), children
+        sessions = _session_processes(app)
+        assert len(sessions) == 1, sessions
         process.kill()
         process.wait(30)
         _, alive = psutil.wait_procs(children, timeout=10.0)
         assert not alive, f"children outlived a SIGKILL of bt teleop: {alive}"
     finally:
+        if tab is not None:
+            tab.close()
         process.terminate()
         process.wait(30)
+
+
+def test_ctrl_c_of_bt_teleop_ends_every_session_process(tmp_path) -> None:
+    """Ctrl-C in a terminal signals the whole process group: the session processes ignore it
+    and the app closes them (a take in progress is settled, tests above); none is left."""
+    # its own process group, as a terminal's foreground job
+    process, port = _start_bt_teleop(tmp_path, "--rerun", "off", start_new_session=True)
+    tabs: list[FakeTab] = []
+    try:
+        app = psutil.Process(process.pid)
+        tabs = [FakeTab(port) for _ in range(2)]
+        wait_until(lambda: len(_session_processes(app)) == 2, 60.0, "2 session processes")
+        children = app.children(recursive=True)
+        os.killpg(process.pid, signal.SIGINT)
+        assert process.wait(60) == 0
+        _, alive = psutil.wait_procs(children, timeout=10.0)
+        assert not alive, f"children outlived Ctrl-C of bt teleop: {alive}"
+    finally:
+        for tab in tabs:
+            tab.close()
+        process.kill()
+        process.wait(30)
+
+
+def _session_processes(app: psutil.Process) -> list[psutil.Process]:
+    """The app's session processes: the forkserver's children."""
+    return [
+        child
+        for server in app.children()
+        if "multiprocessing.forkserver" in " ".join(server.cmdline())
+        for child in server.children()
+    ]
 
 
 def _now() -> datetime:

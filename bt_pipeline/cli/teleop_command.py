@@ -17,6 +17,7 @@ def teleop(
     idle_timeout_s: float = 600.0,
     operator_token: str | None = None,
     script: Path | None = None,
+    session_processes: bool = True,
 ) -> None:
     """Open the teleoperation web app: drag a target, a simulated FR3 follows; record demos.
 
@@ -37,6 +38,9 @@ def teleop(
             panel may exclude or restore anyone's demo. Without it, a tab moderates only its own
             demos. $BT_OPERATOR_TOKEN is used when the flag is not given.
         script: Run a scripted operator (JSON) without a browser: record, save, print the path.
+        session_processes: Run each tab's simulation (control loop, IK, recorder) in a child
+            process of its own, so the loops keep time beside the web server;
+            --no-session-processes runs them in the app's process (one interpreter).
     """
     if script is not None:
         from bt_teleop.script import run_script
@@ -55,5 +59,6 @@ def teleop(
             max_sessions=max_sessions,
             idle_timeout_s=idle_timeout_s,
             operator_token=operator_token or os.environ.get("BT_OPERATOR_TOKEN") or None,
+            session_processes=session_processes,
         )
     )

@@ -1,0 +1,144 @@
+"""The child process of a :class:`~bt_teleop.session_process.SessionProcess`: one tab's
+session, served over a pipe.
+
+::
+
+    serve_session(conn, task, robot, recordings_dir, config, session_id, log_level)   main thread
+        TimedSession(task, robot)  -> reply (True, dt_s), or (False, the error)
+        loop: (name, args) = conn.recv()
+            one-way (set_target, set_gripper, set_stay_on_plane): applied, no reply
+            request (status, trail, ...): reply (True, value) or (False, error)
+            close: settle the take as asked, reply (True, path), exit
+        EOF (the app died), SIGTERM (its parent, the forkserver, died): the take is settled
+            as a closed tab's (saved flagged incomplete), then exit
+
+The control loop runs in the session's own thread at real time; this process's GIL is shared
+only by it and the command thread. SIGINT is ignored (Ctrl-C reaches the terminal's whole
+process group; the app closes its sessions itself).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import logging
+import multiprocessing.connection
+import os
+import pickle
+import signal
+import sys
+import traceback
+from pathlib import Path
+from typing import Any
+
+from bt_pipeline.exceptions import BtError, ConfigError
+from bt_teleop.rerun_proxy import libc
+from bt_teleop.session_config import SessionConfig
+from bt_teleop.tick_stats import TimedSession
+
+__all__ = ["CALLS", "ONE_WAY", "portable_error", "serve_session"]
+
+LOGGER = logging.getLogger("bt.teleop")
+ONE_WAY = frozenset({"set_target", "set_gripper", "set_stay_on_plane"})
+"""Commands the child applies without a reply."""
+CALLS = frozenset(
+    {"status", "trail", "recording", "start", "stop", "start_recording", "stop_and_check"}
+    | {"discard", "close", "tick_stats", "reset"}
+)
+"""Requests the child answers (methods, or properties read)."""
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def serve_session(
+    conn: multiprocessing.connection.Connection,
+    task: str,
+    robot: str,
+    recordings_dir: Path,
+    config: SessionConfig,
+    session_id: str,
+    log_level: int = logging.WARNING,
+) -> None:
+    """The child's main thread: make the session, then serve commands until close or EOF.
+
+    Its log lines (saved takes, warnings) go to the app's stderr as the app's do, at the app's
+    `log_level`.
+    """
+    logging.basicConfig(level=log_level, format="bt: %(message)s", stream=sys.stderr)
+    gc.freeze()  # what the forkserver imported: never traversed here, so its pages stay shared
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the app closes us itself
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    _die_with_parent()
+    try:
+        session = TimedSession(
+            task, recordings_dir, robot=robot, config=config, session_id=session_id
+        )
+    except BaseException as exc:
+        _send_reply(conn, False, exc)
+        return
+    _send_reply(conn, True, session.dt_s)
+    save_incomplete: bool | None = None  # EOF or SIGTERM: the app is gone; as a closed tab
+    try:
+        while True:
+            name, args = conn.recv()
+            if name == "close":
+                save_incomplete = args[0]
+                break
+            try:
+                attr = getattr(session, name) if name in ONE_WAY | CALLS else None
+                if attr is None:
+                    raise ConfigError(f"unknown session command {name!r}")
+                value = attr(*args) if callable(attr) else attr
+            except Exception as exc:
+                if name not in ONE_WAY:
+                    _send_reply(conn, False, exc)
+                continue
+            if name not in ONE_WAY:
+                _send_reply(conn, True, value)
+    except (EOFError, OSError, SystemExit):
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # let the take be saved
+        path = _close_quietly(session, save_incomplete)
+    _send_reply(conn, True, path)
+
+
+def _close_quietly(session: Any, save_incomplete: bool | None) -> Path | None:
+    try:
+        return session.close(save_incomplete=save_incomplete)
+    except Exception:
+        LOGGER.exception("session %s: closing failed", session.session_id)
+        return None
+
+
+def _send_reply(conn: multiprocessing.connection.Connection, ok: bool, value: Any) -> None:
+    """Send (ok, value), an error made portable first (:func:`portable_error`)."""
+    if not ok:
+        value = portable_error(value)
+    with contextlib.suppress(OSError, ValueError):  # the app is gone
+        conn.send((ok, value))
+
+
+def portable_error(exc: BaseException) -> BaseException:
+    """`exc` ready to send: a bug's error (not a BtError) gets the child's traceback as a note;
+    an error that does not survive pickling is replaced by a BtError with its text."""
+    if not isinstance(exc, BtError):
+        exc.add_note("in the session process:\n" + "".join(traceback.format_exception(exc)))
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:
+        return BtError(f"{type(exc).__name__}: {exc}")
+    return exc
+
+
+def _exit_on_sigterm(_signum: int, _frame: object) -> None:
+    raise SystemExit(0)
+
+
+def _die_with_parent() -> None:
+    """Get SIGTERM when the forkserver (our parent; it exits with the app) dies (Linux)."""
+    if not sys.platform.startswith("linux"):
+        return
+    parent = os.getppid()
+    libc().prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    if os.getppid() != parent:  # it died before prctl
+        raise SystemExit(0)
