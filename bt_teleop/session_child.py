@@ -20,6 +20,7 @@ process group; the app closes its sessions itself).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import gc
 import logging
 import multiprocessing.connection
@@ -34,7 +35,7 @@ from typing import Any
 from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.rerun_proxy import libc
 from bt_teleop.session_config import SessionConfig
-from bt_teleop.tick_stats import TimedSession
+from bt_teleop.tick_stats import TimedSession, raise_priority
 
 __all__ = ["CALLS", "ONE_WAY", "portable_error", "serve_session"]
 
@@ -68,9 +69,17 @@ def serve_session(
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the app closes us itself
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
     _die_with_parent()
+    # The thread serving the app's requests takes the GIL the control loop needs: it runs at the
+    # loop's raised priority too (the loop's thread, started from it, inherits it). At a lower
+    # one, preempted while holding the GIL, it stalled the loop (a priority inversion).
+    raise_priority(config.priority_boost)
     try:
         session = TimedSession(
-            task, recordings_dir, robot=robot, config=config, session_id=session_id
+            task,
+            recordings_dir,
+            robot=robot,
+            config=dataclasses.replace(config, priority_boost=0),
+            session_id=session_id,
         )
     except BaseException as exc:
         _send_reply(conn, False, exc)

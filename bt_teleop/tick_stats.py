@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from bt_teleop.session import Session
 
-__all__ = ["BIN_S", "N_BINS", "Histogram", "TickReport", "TimedSession"]
+__all__ = ["BIN_S", "N_BINS", "Histogram", "TickReport", "TimedSession", "raise_priority"]
 
 LOGGER = logging.getLogger("bt.teleop")
 BIN_S = 1e-4
@@ -102,7 +102,7 @@ class TickReport:
         )
 
 
-def _raise_priority(boost: int) -> int | None:
+def raise_priority(boost: int) -> int | None:
     """Lower this thread's nice value by `boost` if permitted; its nice value (None: unknown)."""
     if not hasattr(os, "getpriority"):
         return None
@@ -138,7 +138,7 @@ class TimedSession(Session):
 
     def _run(self) -> None:
         """The real-time loop, its thread's priority raised by ``config.priority_boost``."""
-        self._nice = _raise_priority(self.config.priority_boost)
+        self._nice = raise_priority(self.config.priority_boost)
         super()._run()
 
     def _tick(self) -> None:
