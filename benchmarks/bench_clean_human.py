@@ -33,7 +33,7 @@ from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.data.synth_human import make_human_set
-from bt_pipeline.data.synth_truth import shape_distance, timing_distance, truth_of
+from bt_pipeline.data.synth_truth import truth_ratios
 from bt_pipeline.data.tasks import TASKS
 
 
@@ -54,16 +54,7 @@ def measure(
     out["wall_s"].append(time.perf_counter() - start)
     out["selected"].append(float(result.best_index == expert))
     for i, record in enumerate(recording.demos.values()):
-        stored = truth_of(record)
-        assert stored is not None
-        truth, on_loop = stored
-        raw_uv, raw_t = demos[i].raw_samples()
-        t, cleaned = result.on_raw_times(i)
-        idx = np.searchsorted(raw_t, t)
-        shape = shape_distance(cleaned, truth[on_loop]) / shape_distance(
-            raw_uv[on_loop], truth[on_loop]
-        )
-        timing = timing_distance(cleaned, truth[idx]) / timing_distance(raw_uv[idx], truth[idx])
+        shape, timing = truth_ratios(record, demos[i].raw_samples(), result.on_raw_times(i))
         kind = "expert" if i == expert else "naive"
         out[f"{kind}_shape"].append(shape)
         out[f"{kind}_timing"].append(timing)

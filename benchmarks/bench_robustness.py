@@ -32,7 +32,7 @@ from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.records import DemoRecord, FloatArray
 from bt_pipeline.data.synth_human import make_human_set
-from bt_pipeline.data.synth_truth import shape_distance, timing_distance, truth_of
+from bt_pipeline.data.synth_truth import truth_of, truth_ratios
 from bt_pipeline.data.tasks import TASKS
 
 
@@ -81,14 +81,7 @@ def measure(task: str, n: int, seed: int, kind: str) -> dict[str, list[float]]:
     result = clean_demos(demos, CleanOptions(seed=seed, progress=False))
     out: dict[str, list[float]] = {"selected": [float(result.best_index == synth.expert_index)]}
     for i, record in enumerate(records.values()):
-        stored = truth_of(record)
-        assert stored is not None
-        truth, on = stored
-        raw_uv, raw_t = demos[i].raw_samples()
-        t, cleaned = result.on_raw_times(i)
-        idx = np.searchsorted(raw_t, t)
-        shape = shape_distance(cleaned, truth[on]) / shape_distance(raw_uv[on], truth[on])
-        timing = timing_distance(cleaned, truth[idx]) / timing_distance(raw_uv[idx], truth[idx])
+        shape, timing = truth_ratios(record, demos[i].raw_samples(), result.on_raw_times(i))
         if i == synth.expert_index:
             out.setdefault("expert", []).append(max(shape, timing))
         else:

@@ -47,3 +47,31 @@ def shape_distance(path: ArrayLike, truth: ArrayLike) -> float:
 def timing_distance(path: ArrayLike, truth: ArrayLike) -> float:
     """Mean distance between two paths sampled at the same times, shape (T, 2) each [m]."""
     return float(np.mean(np.linalg.norm(np.asarray(path) - np.asarray(truth), axis=1)))
+
+
+def truth_ratios(
+    record: DemoRecord,
+    raw: tuple[FloatArray, FloatArray],
+    cleaned: tuple[FloatArray, FloatArray],
+) -> tuple[float, float]:
+    """After/before ratios of a cleaned synthetic demo against its stored truth: (shape, timing).
+
+    Shape: :func:`shape_distance` of the cleaned output, then of the raw demo's true loop part,
+    to the true loop part. Timing: :func:`timing_distance` to the truth at the cleaned output's
+    (raw) sample times, of the output, then of the raw demo at the same times.
+
+    Args:
+        record: The raw synthetic demo (its ``truth_*`` attrs).
+        raw: ``Demo.raw_samples()``: raw task-plane positions (T, 2) [m] and times (T,) [s].
+        cleaned: ``TaskCleanResult.on_raw_times(i)``: the output's times (K,) [s] (raw times
+            inside its span) and positions (K, 2) [m].
+    """
+    stored = truth_of(record)
+    if stored is None:
+        raise ValueError("the demo stores no ground truth (truth_uv, truth_on_loop)")
+    truth, on_loop = stored
+    (raw_uv, raw_t), (t, out) = raw, cleaned
+    idx = np.searchsorted(raw_t, t)
+    shape = shape_distance(out, truth[on_loop]) / shape_distance(raw_uv[on_loop], truth[on_loop])
+    timing = timing_distance(out, truth[idx]) / timing_distance(raw_uv[idx], truth[idx])
+    return shape, timing
