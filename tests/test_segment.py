@@ -209,3 +209,21 @@ def test_expert_span_ends_are_not_biased_into_the_approach() -> None:
             ends.append(segment.end_s - on_times[-1])
     assert abs(float(np.median(starts))) < 0.07, starts
     assert abs(float(np.median(ends))) < 0.07, ends
+
+
+def test_a_loop_that_runs_to_the_recordings_end_keeps_its_last_sample() -> None:
+    """A demo that is all loop (the single-loop style) keeps every raw sample, the last included.
+
+    The analysis clock stops short of the last raw time, so the span used to end one sample
+    early: the expert-like demo, passed through raw, then lost a sample of its loop (shape
+    ratios up to 1.14 against its truth in benchmarks/bench_clean_human.py --styles single).
+    """
+    t = np.sort(np.random.default_rng(0).uniform(0.0, 6.0, 400))
+    phase = 2 * np.pi * t / 6.0
+    uv = similarity_transform(canonical_loop("wiping", 4096), 0.0, 1.0)
+    uv = np.stack(
+        [np.interp(phase, np.linspace(0, 2 * np.pi, 4096), uv[:, d]) for d in range(2)], 1
+    )
+    segment = segment_demo(uv, t, "wiping", theta_deg=0.0, rho=1.0)
+    assert segment.start_s == t[0]
+    assert segment.end_s == t[-1]

@@ -209,6 +209,8 @@ def segment_demo(
     # Snap the span to raw sample times: the first and last raw sample inside it.
     i0 = min(int(np.searchsorted(t, clock[first + a] - 1e-9)), t.size - 2)
     i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
+    if first + b == clock.size - 1:
+        i1 = t.size - 1  # The span runs to the recording's end (the clock stops short of it).
     return Segment(
         start_s=float(t[i0]),
         end_s=float(t[i1]),
