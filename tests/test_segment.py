@@ -8,6 +8,7 @@ import pytest
 from bt_pipeline.clean.guide_fit import PreferenceRange, fit_guide
 from bt_pipeline.clean.segment import segment_demo, track_phase
 from bt_pipeline.data.shapes import canonical_loop, similarity_transform
+from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.data.synth_truth import truth_of
 from bt_pipeline.data.tasks import Task, default_plane
@@ -227,3 +228,30 @@ def test_a_loop_that_runs_to_the_recordings_end_keeps_its_last_sample() -> None:
     segment = segment_demo(uv, t, "wiping", theta_deg=0.0, rho=1.0)
     assert segment.start_s == t[0]
     assert segment.end_s == t[-1]
+
+
+def test_a_recording_cut_mid_loop_keeps_a_bulged_side_at_its_end() -> None:
+    """A single-loop recording (no rest, no retreat) that ends on its bulged (lopsided) side keeps
+    that side: with no rest at the end there is no retreat, and the part after the on-guide run
+    travels on around the loop. It used to be cut (2.2 s of 2.9 s of loop), leaving the
+    cleaned demo half a loop (shape ratio 0.49 against its truth, 0.02 now)."""
+    synth = make_demo_set("weaving", 4, seed=0)
+    record = next(iter(synth.recording.demos.values()))
+    assert "lopsided" in record.ep_meta["synthetic"]["defects"]
+    uv = default_plane("weaving").to_plane(record.ee_pos)
+    segment = segment_demo(uv, record.timestamps, "weaving")
+    assert segment.start_s == record.timestamps[0]
+    assert segment.end_s == record.timestamps[-1]
+
+
+def test_an_approach_beside_the_loop_does_not_loosen_the_on_loop_tolerance() -> None:
+    """An expert-like demo whose approach runs 1-8 mm beside its loop for a second (wiping,
+    seed 7): the tolerance is read from the middle of the on-loop samples, so the span starts
+    where the loop does (0.17 s early), not in the approach (1.0 s early when the approach's
+    distances set the tolerance to 10.9 mm)."""
+    synth = make_human_set("wiping", 4, seed=7)
+    demo = synth.demos[synth.expert_index]
+    uv = default_plane("wiping").to_plane(demo.record.ee_pos)
+    segment = segment_demo(uv, demo.record.timestamps, "wiping", demo.name)
+    on_times = demo.record.timestamps[demo.on_loop]
+    assert abs(segment.start_s - on_times[0]) < 0.3

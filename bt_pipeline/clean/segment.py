@@ -17,6 +17,10 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
 4. **On the loop.** A sample is on the loop when, drift removed, it lies within
    max(8 mm, 4 × the fit's residual, 6 % of the guide's size) of the guide and moves along it
    (|cos| ≥ 0.7 between its velocity and the guide's tangent) or nearly rests (a pause). The
+   tolerance is then tightened to 3 × the 90th percentile of those samples' distances (at least
+   3 mm), counted over the middle 60 % of them in time: an approach or a retreat that runs
+   beside the loop is not a sample of how closely this hand follows it (an expert-like demo's
+   tolerance read 10.9 mm with them, 3.4 mm without, and its span took in 1 s of approach). The
    kept span runs from the start of the first run of on-loop samples lasting ≥ 0.4 s to the end
    of the last such run, extended over neighbours within twice that distance; pauses inside it
    are kept (they are the demonstrator's timing).
@@ -26,7 +30,11 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    loop). The slow end of an approach near the guide, a rest on the loop and the slow start of
    a retreat fall out; pauses between loops stay. A loop that starts or ends slowly keeps its
    ramp: the span grows back over samples within the tight tolerance that move along the
-   guide's tangent (|cos| ≥ 0.9); an approach's slow end comes in from the side.
+   guide's tangent (|cos| ≥ 0.9); an approach's slow end comes in from the side. A recording
+   that starts (ends) with the hand already (still) moving has no approach (retreat) there: the
+   part before (after) the span is kept when it travels on around the loop (80 % of it along
+   the guide, in the span's direction, at ≥ 30 % of its phase rate): a bulged side or a drifted
+   end of a loop drawn from the first sample to the last.
 6. **Preference.** The guide is fitted again to the kept span with its drift removed (on the path
    smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops); that fit's
    θ/ρ are the demo's estimate. A lopsided loop is fitted by consensus (:func:`fit_guide`).
@@ -46,6 +54,15 @@ from numpy.typing import ArrayLike
 from scipy.ndimage import gaussian_filter1d
 
 from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, fit_guide
+from bt_pipeline.clean.guide_track import (
+    along_guide,
+    drift_along,
+    nearest_distance,
+    nearest_index,
+    runs_of,
+    tangential,
+    track_phase,
+)
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import DemoError
@@ -55,17 +72,19 @@ _SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
 _EDGE_TRIM_S = 0.04  # Span ends that meet an approach or a retreat move in by this [s].
 _FIT_SMOOTH_S = 0.03  # Gaussian σ of the path θ/ρ are fitted to [s].
 _REST_M = 0.010  # A hand within this of its rest pose still rests [m].
+_LOOSE = 2.0  # The span grows over neighbours within this many tolerances.
+_CONTINUE_ALONG = 0.8  # A part beyond a recording-edge span end that moves along the guide
+_CONTINUE_RATE = 0.3  # this much, at this share of the span's phase rate, is loop (kept).
 _MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
 _DRIFT_MAX_DEGREE = 4  # Highest degree of the drift polynomial (one per loop beyond the first).
-_DRIFT_SCALE_M = 0.003  # Cauchy scale of the drift fit's reweighting [m].
 _TRACK_POINTS = 512  # Guide points for the distance and the phase track.
 _TIGHT = 3.0  # On-loop tolerance: this many times the 90th percentile of the on-loop distances,
+_CORE_CUT = 0.2  # The tight tolerance ignores this share of the on-loop samples at each end.
 _TIGHT_MIN_M = 0.003  # but at least this [m] (and at most the loose tolerance).
 _SPEED_SMOOTH_S = 0.05  # Gaussian σ of the phase before its speed is read [s].
 _TRAVEL_SHARE = 0.45  # The span travels faster than this share of its typical phase speed,
 _TRAVEL_MIN_SHARE = 0.2  # or than this share where the slower edge travels more than
 _TRAVEL_MAX_TRIM = 0.15  # this many loops (a hesitant loop, not an approach).
-_MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
 
 
 @dataclass(frozen=True)
@@ -142,31 +161,33 @@ def segment_demo(
     guide = fit.guide(task, _TRACK_POINTS)
 
     # Distance to the guide with a slow drift removed (a running median of the offsets).
-    nearest = _nearest(guide, moving)
+    nearest = nearest_index(guide, moving)
     offset = moving - guide[nearest]
     tolerance = max(0.008, 4.0 * fit.residual_m, 0.06 * fit.size_m)
     # The drift may change by one degree per loop, so a scale or shape error (periodic) is not
     # mistaken for drift (slow): loops in the moving part from a first phase track.
     loops = abs(float(np.ptp(track_phase(moving, guide)))) / guide.shape[0]
     near = np.linalg.norm(offset, axis=1) <= 2.0 * tolerance
-    drift = _drift(moving, guide, near, min(_DRIFT_MAX_DEGREE, int(loops + 0.5) - 1))
-    nearest = _nearest(guide, moving - drift)
+    drift = drift_along(moving, guide, near, min(_DRIFT_MAX_DEGREE, int(loops + 0.5) - 1))
+    nearest = nearest_index(guide, moving - drift)
     distance = np.linalg.norm(moving - drift - guide[nearest], axis=1)
-    along = _along(moving, guide, nearest)
+    along = along_guide(moving, guide, nearest)
     on = (distance <= tolerance) & along
     # Tighten the tolerance to how closely this hand follows the guide on its loops: a steady
     # hand's approach that runs beside the loop is then not taken for it.
     if on.any():
+        core = np.flatnonzero(on)
+        core = core[int(_CORE_CUT * core.size) : max(1, int((1.0 - _CORE_CUT) * core.size))]
         tolerance = float(
-            np.clip(_TIGHT * np.percentile(distance[on], 90), _TIGHT_MIN_M, tolerance)
+            np.clip(_TIGHT * np.percentile(distance[core], 90), _TIGHT_MIN_M, tolerance)
         )
         on = (distance <= tolerance) & along
-    runs = _runs(on, int(_MIN_RUN_S * _CLOCK_HZ))
+    runs = runs_of(on, int(_MIN_RUN_S * _CLOCK_HZ))
     if runs:
         a, b = runs[0][0], runs[-1][1]
         # Extend over neighbours within twice the tolerance (a drift the median still lags);
         # the travel test below drops what does not move along the loop.
-        loose = distance <= 2.0 * tolerance
+        loose = distance <= _LOOSE * tolerance
         while a > 0 and loose[a - 1]:
             a -= 1
         while b < loose.size - 1 and loose[b + 1]:
@@ -179,13 +200,25 @@ def segment_demo(
     # A loop that starts (or ends) slowly on the guide keeps that ramp: walk back over samples
     # that lie within the tight tolerance and move along the guide's tangent (an approach's
     # slow end comes in from the side).
-    ramp = (distance[a : b + 1] <= tolerance) & _tangential(span, guide)
+    ramp = (distance[a : b + 1] <= tolerance) & tangential(span, guide)
     while head > 0 and ramp[head - 1]:
         head -= 1
     while tail < span.shape[0] - 1 and ramp[tail + 1]:
         tail += 1
     if tail > head:
         phase, span, a, b = phase[head : tail + 1], span[head : tail + 1], a + head, a + tail
+    # A recording that starts (ends) with the hand already (still) moving has no rest there, so
+    # no approach (retreat) either: a part before (after) the span that travels on around the
+    # loop is the loop drawn off the guide (a bulged side, a drifted end), and is kept.
+    clear = moving - drift
+    whole = (a, b)
+    if first == 0 and a > 0 and _continues(clear[: a + 1], span, along[:a], guide):
+        a = 0
+    if last == smooth.shape[0] - 1 and _continues(clear[b:], span, along[b + 1 :], guide):
+        b = moving.shape[0] - 1
+    if (a, b) != whole:
+        span = clear[a : b + 1]
+        phase = track_phase(span, guide)
     # The span was found on the path smoothed with σ = 0.08 s, which blurs where the hand joins
     # and leaves the loop: it reaches into the approach and the retreat (median 0.09 s at each
     # end on benchmarks/bench_segment.py). An end that is not the recording's own moves in by
@@ -217,42 +250,23 @@ def segment_demo(
         cycles=round(cycles, 2),
         guide=fit,
         drift_m=float(np.max(np.ptp(drift[a : b + 1], axis=0))),
-        misfit_m=float(np.percentile(_nearest_distance(fit.guide(task, _TRACK_POINTS), span), 90)),
+        misfit_m=float(np.percentile(nearest_distance(fit.guide(task, _TRACK_POINTS), span), 90)),
     )
 
 
-def track_phase(
-    points: ArrayLike, loop: ArrayLike, max_step: float = _MAX_PHASE_STEP
-) -> FloatArray:
-    """Continuous phase of each point along a closed loop, by nearest point near the last one.
-
-    The first point takes its nearest loop point; each next point the nearest within
-    ±`max_step` loops of the previous phase, so where a loop crosses itself (a figure-eight)
-    the track stays on its branch. One pass, bounded by the number of points.
-
-    Args:
-        points: Path, shape (T, 2), in [m].
-        loop: Closed loop sampled once round (endpoint excluded), shape (P, 2), in [m].
-        max_step: Most phase change between consecutive points, in loops.
-
-    Returns:
-        Unwrapped phase, shape (T,), in loop samples (P per loop; the sign follows the
-        direction of travel).
-    """
-    x = np.asarray(points, dtype=np.float64)
-    ring = np.asarray(loop, dtype=np.float64)
-    p = ring.shape[0]
-    reach = max(1, int(max_step * p))
-    offsets = np.arange(-reach, reach + 1)
-    phase = np.empty(x.shape[0])
-    current = float(np.argmin(np.sum((ring - x[0]) ** 2, axis=1)))
-    phase[0] = current
-    for k in range(1, x.shape[0]):
-        candidates = round(current) + offsets
-        d2 = np.sum((ring[candidates % p] - x[k]) ** 2, axis=1)
-        current = float(candidates[int(np.argmin(d2))])
-        phase[k] = current
-    return phase
+def _continues(piece: FloatArray, span: FloatArray, along: np.ndarray, guide: FloatArray) -> bool:
+    """Whether `piece` (samples before or after the span, in time order) travels on around the
+    loop: it moves along the guide (80 % of its samples) in the span's direction, at least 30 %
+    as fast in phase as the span does on average."""
+    if piece.shape[0] < 3 or along.size == 0 or float(np.mean(along)) < _CONTINUE_ALONG:
+        return False
+    p = guide.shape[0]
+    span_phase = track_phase(span, guide)
+    direction = 1.0 if span_phase[-1] >= span_phase[0] else -1.0
+    span_rate = abs(float(span_phase[-1] - span_phase[0])) / (p * span.shape[0])
+    piece_phase = track_phase(piece, guide)
+    piece_rate = direction * float(piece_phase[-1] - piece_phase[0]) / (p * piece.shape[0])
+    return piece_rate >= _CONTINUE_RATE * span_rate
 
 
 def _travel(phase: FloatArray, p: int) -> tuple[int, int]:
@@ -305,92 +319,10 @@ def _moving_part(smooth: FloatArray) -> tuple[int, int]:
     return first, last
 
 
-def _drift(path: FloatArray, guide: FloatArray, on: np.ndarray, degree: int) -> FloatArray:
-    """Slow drift: a smooth translation of the guide over time that best fits the samples.
-
-    The drift is a polynomial in time of `degree` (loops − 1, at most 4; none for one loop,
-    which cannot tell a drift from a shape error), fitted by
-    point-to-tangent least squares: each sample pulls the guide along the normal at its nearest
-    guide point, so a hand that drifts sideways is followed in every direction. Three
-    reweighted passes (Cauchy weights, scale 3 mm; nearest points found again each time) make
-    the samples that do not follow the loop (approach, retreat, excursions) count little, and
-    only samples within twice the tolerance (`on`) take part at all.
-
-    Returns:
-        The drift of each sample, shape (T, 2), in [m].
-    """
-    drift = np.zeros_like(path)
-    if int(on.sum()) < 8 or degree < 1:
-        return drift
-    u = np.linspace(-1.0, 1.0, path.shape[0])
-    basis = np.polynomial.legendre.legvander(u, degree)  # (T, K)
-    p = guide.shape[0]
-    weight = on.astype(np.float64)
-    for _ in range(3):
-        nearest = _nearest(guide, path - drift)
-        tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
-        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
-        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-15
-        target = np.sum(normal * (path - guide[nearest]), axis=1)
-        rows = (basis[:, :, None] * normal[:, None, :]).reshape(path.shape[0], -1)  # (T, 2K)
-        w = weight / (1.0 + ((target - np.sum(normal * drift, axis=1)) / _DRIFT_SCALE_M) ** 2)
-        gram = rows.T @ (w[:, None] * rows) + 1e-6 * np.eye(rows.shape[1])
-        coef = np.linalg.solve(gram, rows.T @ (w * target))
-        drift = basis @ coef.reshape(-1, 2)
-    return drift
-
-
-def _along(path: FloatArray, guide: FloatArray, nearest: np.ndarray) -> np.ndarray:
-    """Whether each sample moves along the guide (|cos| ≥ 0.7 to its tangent) or nearly rests."""
-    velocity = np.gradient(path, axis=0)
-    p = guide.shape[0]
-    tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
-    speed = np.linalg.norm(velocity, axis=1)
-    cos = np.abs(np.sum(velocity * tangent, axis=1)) / (
-        speed * np.linalg.norm(tangent, axis=1) + 1e-12
-    )
-    slow = speed < 0.2 * float(np.median(speed))
-    return slow | (cos >= 0.7)
-
-
-def _tangential(path: FloatArray, guide: FloatArray) -> np.ndarray:
-    """Whether each sample moves along the guide's tangent (|cos| ≥ 0.9) at more than 5 % of
-    the path's median speed (a resting hand's jitter has no direction)."""
-    nearest = _nearest(guide, path)
-    velocity = np.gradient(gaussian_filter1d(path, 1.0, axis=0, mode="nearest"), axis=0)
-    p = guide.shape[0]
-    tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
-    speed = np.linalg.norm(velocity, axis=1)
-    cos = np.abs(np.sum(velocity * tangent, axis=1)) / (
-        speed * np.linalg.norm(tangent, axis=1) + 1e-12
-    )
-    return (cos >= 0.9) & (speed > 0.05 * float(np.median(speed)))
-
-
 def _rest_speed(speed: FloatArray, moving: float) -> float:
     """3x the median speed of a rest, or 0 when the hand never rested there (it set off at once)."""
     rest = float(np.median(speed))
     return 3.0 * rest if rest < 3.0 * moving else 0.0
-
-
-def _nearest_distance(ring: FloatArray, points: FloatArray) -> FloatArray:
-    from scipy.spatial import KDTree
-
-    return KDTree(ring).query(points)[0]
-
-
-def _nearest(ring: FloatArray, points: FloatArray) -> np.ndarray:
-    from scipy.spatial import KDTree
-
-    return np.asarray(KDTree(ring).query(points)[1], dtype=np.intp)
-
-
-def _runs(flags: np.ndarray, min_length: int) -> list[tuple[int, int]]:
-    """(first, last) index of each run of True at least `min_length` long."""
-    padded = np.concatenate([[False], flags, [False]]).astype(np.int8)
-    edges = np.diff(padded)
-    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
-    return [(int(s), int(e)) for s, e in zip(starts, ends, strict=True) if e - s + 1 >= min_length]
 
 
 def span_times(times_s: ArrayLike, segment: Segment) -> np.ndarray:

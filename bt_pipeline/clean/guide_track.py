@@ -1,0 +1,146 @@
+"""Following a demo along its fitted guide: phase track, nearest points, drift, direction.
+
+The primitives :mod:`bt_pipeline.clean.segment` builds the kept span from, each relative to a
+closed guide loop sampled once round (P points, endpoint excluded) in task coordinates [m]:
+
+* :func:`track_phase`: the continuous phase of each sample along the loop;
+* :func:`nearest_index` / :func:`nearest_distance`: each sample's nearest guide point;
+* :func:`drift_along`: a slow translation of the guide over time that fits the samples;
+* :func:`along_guide` / :func:`tangential`: whether each sample moves along the guide;
+* :func:`runs_of`: runs of flagged samples.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.ndimage import gaussian_filter1d
+from scipy.spatial import KDTree
+
+from bt_pipeline.data.records import FloatArray
+
+_DRIFT_SCALE_M = 0.003  # Cauchy scale of the drift fit's reweighting [m].
+_MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
+
+
+def track_phase(
+    points: ArrayLike, loop: ArrayLike, max_step: float = _MAX_PHASE_STEP
+) -> FloatArray:
+    """Continuous phase of each point along a closed loop, by nearest point near the last one.
+
+    The first point takes its nearest loop point; each next point the nearest within
+    ±`max_step` loops of the previous phase, so where a loop crosses itself (a figure-eight)
+    the track stays on its branch. One pass, bounded by the number of points.
+
+    Args:
+        points: Path, shape (T, 2), in [m].
+        loop: Closed loop sampled once round (endpoint excluded), shape (P, 2), in [m].
+        max_step: Most phase change between consecutive points, in loops.
+
+    Returns:
+        Unwrapped phase, shape (T,), in loop samples (P per loop; the sign follows the
+        direction of travel).
+    """
+    x = np.asarray(points, dtype=np.float64)
+    ring = np.asarray(loop, dtype=np.float64)
+    p = ring.shape[0]
+    reach = max(1, int(max_step * p))
+    offsets = np.arange(-reach, reach + 1)
+    phase = np.empty(x.shape[0])
+    current = float(np.argmin(np.sum((ring - x[0]) ** 2, axis=1)))
+    phase[0] = current
+    for k in range(1, x.shape[0]):
+        candidates = round(current) + offsets
+        d2 = np.sum((ring[candidates % p] - x[k]) ** 2, axis=1)
+        current = float(candidates[int(np.argmin(d2))])
+        phase[k] = current
+    return phase
+
+
+def drift_along(path: FloatArray, guide: FloatArray, on: np.ndarray, degree: int) -> FloatArray:
+    """Slow drift: a smooth translation of the guide over time that best fits the samples.
+
+    The drift is a polynomial in time of `degree` (loops − 1, at most 4; none for one loop,
+    which cannot tell a drift from a shape error), fitted by
+    point-to-tangent least squares: each sample pulls the guide along the normal at its nearest
+    guide point, so a hand that drifts sideways is followed in every direction. Three
+    reweighted passes (Cauchy weights, scale 3 mm; nearest points found again each time) make
+    the samples that do not follow the loop (approach, retreat, excursions) count little, and
+    only samples within twice the tolerance (`on`) take part at all.
+
+    Returns:
+        The drift of each sample, shape (T, 2), in [m].
+    """
+    drift = np.zeros_like(path)
+    if int(on.sum()) < 8 or degree < 1:
+        return drift
+    u = np.linspace(-1.0, 1.0, path.shape[0])
+    basis = np.polynomial.legendre.legvander(u, degree)  # (T, K)
+    p = guide.shape[0]
+    weight = on.astype(np.float64)
+    for _ in range(3):
+        nearest = nearest_index(guide, path - drift)
+        tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-15
+        target = np.sum(normal * (path - guide[nearest]), axis=1)
+        rows = (basis[:, :, None] * normal[:, None, :]).reshape(path.shape[0], -1)  # (T, 2K)
+        w = weight / (1.0 + ((target - np.sum(normal * drift, axis=1)) / _DRIFT_SCALE_M) ** 2)
+        gram = rows.T @ (w[:, None] * rows) + 1e-6 * np.eye(rows.shape[1])
+        coef = np.linalg.solve(gram, rows.T @ (w * target))
+        drift = basis @ coef.reshape(-1, 2)
+    return drift
+
+
+def along_guide(path: FloatArray, guide: FloatArray, nearest: np.ndarray) -> np.ndarray:
+    """Whether each sample moves along the guide (|cos| ≥ 0.7 to its tangent) or nearly rests."""
+    velocity = np.gradient(path, axis=0)
+    p = guide.shape[0]
+    tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
+    speed = np.linalg.norm(velocity, axis=1)
+    cos = np.abs(np.sum(velocity * tangent, axis=1)) / (
+        speed * np.linalg.norm(tangent, axis=1) + 1e-12
+    )
+    slow = speed < 0.2 * float(np.median(speed))
+    return slow | (cos >= 0.7)
+
+
+def tangential(path: FloatArray, guide: FloatArray) -> np.ndarray:
+    """Whether each sample moves along the guide's tangent (|cos| ≥ 0.9) at more than 5 % of
+    the path's median speed (a resting hand's jitter has no direction)."""
+    nearest = nearest_index(guide, path)
+    velocity = np.gradient(gaussian_filter1d(path, 1.0, axis=0, mode="nearest"), axis=0)
+    p = guide.shape[0]
+    tangent = guide[(nearest + 1) % p] - guide[(nearest - 1) % p]
+    speed = np.linalg.norm(velocity, axis=1)
+    cos = np.abs(np.sum(velocity * tangent, axis=1)) / (
+        speed * np.linalg.norm(tangent, axis=1) + 1e-12
+    )
+    return (cos >= 0.9) & (speed > 0.05 * float(np.median(speed)))
+
+
+def nearest_distance(ring: FloatArray, points: FloatArray) -> FloatArray:
+    return KDTree(ring).query(points)[0]
+
+
+def nearest_index(ring: FloatArray, points: FloatArray) -> np.ndarray:
+    return np.asarray(KDTree(ring).query(points)[1], dtype=np.intp)
+
+
+def runs_of(flags: np.ndarray, min_length: int) -> list[tuple[int, int]]:
+    """(first, last) index of each run of True at least `min_length` long."""
+    padded = np.concatenate([[False], flags, [False]]).astype(np.int8)
+    edges = np.diff(padded)
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return [(int(s), int(e)) for s, e in zip(starts, ends, strict=True) if e - s + 1 >= min_length]
+
+
+__all__ = [
+    "along_guide",
+    "drift_along",
+    "nearest_distance",
+    "nearest_index",
+    "runs_of",
+    "tangential",
+    "track_phase",
+]
