@@ -6,8 +6,9 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
 (T, 2) at raw times:
 
 1. **Motion.** The path is read on a uniform 50 Hz clock and smoothed (Gaussian, σ = 0.08 s).
-   The hand moves from the first sample that is more than 10 mm from where it rested until the
-   last sample more than 10 mm from where it comes to rest (walked back to where it set off).
+   The hand moves from the first sample that is more than 10 mm (or 4 × the path's sample
+   noise, for a jittery hand) from where it rested (the median of the first 0.2 s) until the
+   last sample as far from where it comes to rest (walked back to where it set off).
 2. **Guide.** The task's guide is fitted to the moving part (:func:`fit_guide`: a trimmed
    similarity fit, so approach and retreat do not pull it).
 3. **Drift.** The guide's translation is fitted again over a sliding window of about one loop
@@ -47,6 +48,7 @@ part and is reported with cycles from the same phase track.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,7 +73,9 @@ _CLOCK_HZ = 50.0  # Analysis clock [Hz].
 _SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
 _EDGE_TRIM_S = 0.04  # Span ends that meet an approach or a retreat move in by this [s].
 _FIT_SMOOTH_S = 0.03  # Gaussian σ of the path θ/ρ are fitted to [s].
-_REST_M = 0.010  # A hand within this of its rest pose still rests [m].
+_REST_M = 0.010  # A hand within this of its rest pose still rests [m],
+_REST_NOISE = 4.0  # or within this many times its sample noise;
+_REST_WINDOW_S = 0.2  # its rest pose: the median of its first (last) this many seconds.
 _LOOSE = 2.0  # The span grows over neighbours within this many tolerances.
 _CONTINUE_ALONG = 0.8  # A part beyond a recording-edge span end that moves along the guide
 _CONTINUE_RATE = 0.3  # this much, at this share of the span's phase rate, is loop (kept).
@@ -153,7 +157,7 @@ def segment_demo(
     path = np.stack([np.interp(clock, t, x[:, d]) for d in range(2)], axis=1)
     smooth = gaussian_filter1d(path, _SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
 
-    first, last = _moving_part(smooth)
+    first, last = _moving_part(smooth, path)
     if last - first < 8:
         raise DemoError(f"{name} does not move more than {1e3 * _REST_M:.0f} mm from its rest pose")
     moving = smooth[first : last + 1]
@@ -298,12 +302,17 @@ def _travel(phase: FloatArray, p: int) -> tuple[int, int]:
     return head, tail
 
 
-def _moving_part(smooth: FloatArray) -> tuple[int, int]:
+def _moving_part(smooth: FloatArray, path: FloatArray) -> tuple[int, int]:
     """First and last index of the motion between the rests (step 1 of the module doc)."""
-    from_start = np.linalg.norm(smooth - smooth[0], axis=1)
-    from_end = np.linalg.norm(smooth - smooth[-1], axis=1)
-    away = np.flatnonzero(from_start > _REST_M)
-    back = np.flatnonzero(from_end > _REST_M)
+    # Where it rests: the median of its first (last) 0.2 s; how far counts as away from it:
+    # 10 mm, or 4 x the path's sample noise (a jittery hand's rest wanders further).
+    edge = max(1, round(_REST_WINDOW_S * _CLOCK_HZ))
+    noise = 1.4826 * float(np.median(np.abs(path - smooth))) * math.sqrt(2.0)
+    away_m = max(_REST_M, _REST_NOISE * noise)
+    from_start = np.linalg.norm(smooth - np.median(smooth[:edge], axis=0), axis=1)
+    from_end = np.linalg.norm(smooth - np.median(smooth[-edge:], axis=0), axis=1)
+    away = np.flatnonzero(from_start > away_m)
+    back = np.flatnonzero(from_end > away_m)
     if away.size == 0 or back.size == 0:
         return 0, 0
     first, last = int(away[0]), int(back[-1])
