@@ -177,71 +177,34 @@ def segment_demo(
     distance = np.linalg.norm(moving - drift - guide[nearest], axis=1)
     along = along_guide(moving, guide, nearest)
     on = (distance <= tolerance) & along
-    # Tighten the tolerance to how closely this hand follows the guide on its loops: a steady
-    # hand's approach that runs beside the loop is then not taken for it.
-    if on.any():
-        core = np.flatnonzero(on)
-        core = core[int(_CORE_CUT * core.size) : max(1, int((1.0 - _CORE_CUT) * core.size))]
-        tolerance = float(
-            np.clip(_TIGHT * np.percentile(distance[core], 90), _TIGHT_MIN_M, tolerance)
-        )
-        on = (distance <= tolerance) & along
-    runs = runs_of(on, int(_MIN_RUN_S * _CLOCK_HZ))
-    if runs:
-        a, b = runs[0][0], runs[-1][1]
-        # Extend over neighbours within twice the tolerance (a drift the median still lags);
-        # the travel test below drops what does not move along the loop.
-        loose = distance <= _LOOSE * tolerance
-        while a > 0 and loose[a - 1]:
-            a -= 1
-        while b < loose.size - 1 and loose[b + 1]:
-            b += 1
-    else:
-        a, b = 0, moving.shape[0] - 1
-    span = moving[a : b + 1] - drift[a : b + 1]
-    phase = track_phase(span, guide)
-    head, tail = _travel(phase, guide.shape[0])
-    # A loop that starts (or ends) slowly on the guide keeps that ramp: walk back over samples
-    # that lie within the tight tolerance and move along the guide's tangent (an approach's
-    # slow end comes in from the side).
-    ramp = (distance[a : b + 1] <= tolerance) & tangential(span, guide)
-    while head > 0 and ramp[head - 1]:
-        head -= 1
-    while tail < span.shape[0] - 1 and ramp[tail + 1]:
-        tail += 1
-    if tail > head:
-        phase, span, a, b = phase[head : tail + 1], span[head : tail + 1], a + head, a + tail
-    # A recording that starts (ends) with the hand already (still) moving has no rest there, so
-    # no approach (retreat) either: a part before (after) the span that travels on around the
-    # loop is the loop drawn off the guide (a bulged side, a drifted end), and is kept.
     clear = moving - drift
-    whole = (a, b)
-    if first == 0 and a > 0 and _continues(clear[: a + 1], span, along[:a], guide):
-        a = 0
-    if last == smooth.shape[0] - 1 and _continues(clear[b:], span, along[b + 1 :], guide):
-        b = moving.shape[0] - 1
-    if (a, b) != whole:
-        span = clear[a : b + 1]
-        phase = track_phase(span, guide)
-    # The span was found on the path smoothed with σ = 0.08 s, which blurs where the hand joins
-    # and leaves the loop: it reaches into the approach and the retreat (median 0.09 s at each
-    # end on benchmarks/bench_segment.py). An end that is not the recording's own moves in by
-    # _EDGE_TRIM_S (0.04 s: the median error halves; a full σ cost the naive demos' ratios).
-    trim = round(_EDGE_TRIM_S * _CLOCK_HZ)
-    if b - a > 4 * trim:
-        if first + a > 0:
-            a += trim
-            phase, span = phase[trim:], span[trim:]
-        if first + b < smooth.shape[0] - 1:
-            b -= trim
-            phase, span = phase[:-trim], span[:-trim]
+    at_start, at_end = first == 0, last == smooth.shape[0] - 1
+    # Tighten the tolerance to how closely this hand follows the guide on its loops, read over
+    # the middle of the on-loop samples: a steady hand's approach that runs beside the loop is
+    # then not taken for it. θ/ρ are fitted over the span the tolerance read over all of them
+    # finds, when that is longer: the trimmed fit is not pulled by a bit of approach, and more of
+    # the loop constrains it (a partial arc fits a wrong θ/ρ closely).
+    tight = wide = tolerance
+    if on.any():
+        found = np.flatnonzero(on)
+        core = found[int(_CORE_CUT * found.size) : max(1, int((1.0 - _CORE_CUT) * found.size))]
+        tight, wide = (
+            float(np.clip(_TIGHT * np.percentile(distance[k], 90), _TIGHT_MIN_M, tolerance))
+            for k in (core, found)
+        )
+    a, b = _kept_span(clear, distance, along, tight, guide, at_start, at_end)
+    fa, fb = (a, b)
+    if wide > tight:
+        fa, fb = _kept_span(clear, distance, along, wide, guide, at_start, at_end)
+    phase = track_phase(clear[a : b + 1], guide)
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     # θ/ρ from the kept span with its drift removed: approach, retreat and drift no longer bias
     # them (the same bounded fit, started from the first one).
     # Fitted on a lightly smoothed path (σ = 0.03 s): the analysis path's smoothing shrinks
     # a loop (by ~1 % at a 3 s period), which would bias ρ low.
     light = gaussian_filter1d(path, _FIT_SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
-    fspan = light[first + a : first + b + 1] - drift[a : b + 1]
+    fa, fb = min(a, fa), max(b, fb)
+    fspan = light[first + fa : first + fb + 1] - drift[fa : fb + 1]
     fit = fit_guide(fspan, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit)
     # Snap the span to raw sample times: the first and last raw sample inside it.
     i0 = min(int(np.searchsorted(t, clock[first + a] - 1e-9)), t.size - 2)
@@ -254,8 +217,71 @@ def segment_demo(
         cycles=round(cycles, 2),
         guide=fit,
         drift_m=float(np.max(np.ptp(drift[a : b + 1], axis=0))),
-        misfit_m=float(np.percentile(nearest_distance(fit.guide(task, _TRACK_POINTS), span), 90)),
+        misfit_m=float(
+            np.percentile(nearest_distance(fit.guide(task, _TRACK_POINTS), clear[a : b + 1]), 90)
+        ),
     )
+
+
+def _kept_span(
+    clear: FloatArray,
+    distance: FloatArray,
+    along: np.ndarray,
+    tolerance: float,
+    guide: FloatArray,
+    at_start: bool,
+    at_end: bool,
+) -> tuple[int, int]:
+    """First and last index of the kept span in the moving part (steps 4-5 of the module doc).
+
+    Args:
+        clear: The moving part with its drift removed, shape (T, 2) [m].
+        distance: Each sample's distance to the guide, drift removed, shape (T,) [m].
+        along: Whether each sample moves along the guide (or nearly rests), shape (T,).
+        tolerance: The on-loop tolerance [m].
+        guide: The fitted guide, one loop, shape (P, 2) [m].
+        at_start: The moving part starts at the recording's first sample (no rest before it).
+        at_end: The moving part ends at the recording's last sample (no rest after it).
+    """
+    last = clear.shape[0] - 1
+    runs = runs_of((distance <= tolerance) & along, int(_MIN_RUN_S * _CLOCK_HZ))
+    a, b = (runs[0][0], runs[-1][1]) if runs else (0, last)
+    if runs:
+        # Extend over neighbours within twice the tolerance (a drift the polynomial still
+        # lags); the travel test below drops what does not move along the loop.
+        loose = distance <= _LOOSE * tolerance
+        while a > 0 and loose[a - 1]:
+            a -= 1
+        while b < last and loose[b + 1]:
+            b += 1
+    span = clear[a : b + 1]
+    head, tail = _travel(track_phase(span, guide), guide.shape[0])
+    # A loop that starts (or ends) slowly on the guide keeps that ramp: walk back over samples
+    # that lie within the tight tolerance and move along the guide's tangent (an approach's
+    # slow end comes in from the side).
+    ramp = (distance[a : b + 1] <= tolerance) & tangential(span, guide)
+    while head > 0 and ramp[head - 1]:
+        head -= 1
+    while tail < span.shape[0] - 1 and ramp[tail + 1]:
+        tail += 1
+    if tail > head:
+        a, b = a + head, a + tail
+    # A recording that starts (ends) with the hand already (still) moving has no rest there, so
+    # no approach (retreat) either: a part before (after) the span that travels on around the
+    # loop is the loop drawn off the guide (a bulged side, a drifted end), and is kept.
+    span = clear[a : b + 1]
+    start_kept = at_start and a > 0 and _continues(clear[: a + 1], span, along[:a], guide)
+    end_kept = at_end and b < last and _continues(clear[b:], span, along[b + 1 :], guide)
+    a, b = (0 if start_kept else a), (last if end_kept else b)
+    # The span was found on the path smoothed with σ = 0.08 s, which blurs where the hand joins
+    # and leaves the loop: it reaches into the approach and the retreat (median 0.09 s at each
+    # end on benchmarks/bench_segment.py). An end that is not the recording's own moves in by
+    # _EDGE_TRIM_S (0.04 s: the median error halves; a full σ cost the naive demos' ratios).
+    trim = round(_EDGE_TRIM_S * _CLOCK_HZ)
+    if b - a > 4 * trim:
+        a += trim if (a > 0 or not at_start) else 0
+        b -= trim if (b < last or not at_end) else 0
+    return a, b
 
 
 def _continues(piece: FloatArray, span: FloatArray, along: np.ndarray, guide: FloatArray) -> bool:
