@@ -5,8 +5,10 @@ demonstrators has one demo, nothing to pool) and n = 20 (D2: five demos each), s
 the three tasks, it runs the cleaner's own steps, :func:`bt_pipeline.clean.periodic.segment_all`
 and :func:`bt_pipeline.clean.periodic.pool_preferences`, and reports the share of demos whose θ
 is within 5° of ``truth_theta_deg`` and ρ within 0.05 of ``truth_rho`` (issue 9's aim: ≥ 90 %),
-over all demos, the lopsided ones (one side drawn 20-35 % bigger) and the others. Truth comes
-from the files' attrs, never from the fit. More seeds than bench_clean_human's two: the share
+over all demos, the lopsided ones (one side drawn 20-35 % bigger) and the others, and how many
+of the misses (and of the hits) the cleaner reports as uncertain (confidence below 0.5: the
+note ``bt clean`` prints and the ``preference_confidence`` attr). Truth comes from the files'
+attrs, never from the fit. More seeds than bench_clean_human's two: the share
 is a count over few demos per set.
 
     python benchmarks/bench_preferences.py --seeds 16 --sizes 4,20
@@ -19,7 +21,7 @@ import time
 
 import numpy as np
 
-from bt_pipeline.clean.periodic import pool_preferences, segment_all
+from bt_pipeline.clean.periodic import UNCERTAIN, pool_preferences, segment_all
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.data.tasks import TASKS
@@ -30,12 +32,15 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=16)
     parser.add_argument("--sizes", default="4,20", help="demos per set, comma-separated")
     args = parser.parse_args()
-    print("| task | demos per set | sets | demos | within 5° and 0.05 | lopsided | others | time |")
-    print("|---|---|---|---|---|---|---|---|")
+    print(
+        "| task | demos per set | sets | demos | within 5° and 0.05 | lopsided | others | "
+        "misses reported uncertain | hits reported uncertain | time |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n in (int(v) for v in args.sizes.split(",")):
         for task in TASKS:
             start = time.perf_counter()
-            ok, lopsided = [], []
+            ok, lopsided, doubt = [], [], []
             for seed in range(args.seeds):
                 synth = make_human_set(task, n, seed, hidden=True)
                 demos = demos_from_recording(synth.recording)
@@ -47,10 +52,12 @@ def main() -> None:
                         and abs(estimate.rho - attrs["truth_rho"]) < 0.05
                     )
                     lopsided.append("lopsided" in human.defects)
-            hit, lop = np.array(ok), np.array(lopsided)
+                    doubt.append(estimate.confidence < UNCERTAIN)
+            hit, lop, unsure = np.array(ok), np.array(lopsided), np.array(doubt)
             print(
                 f"| {task} | {n} | {args.seeds} | {hit.size} | {_share(hit)} | "
                 f"{_share(hit[lop])} ({lop.sum()}) | {_share(hit[~lop])} ({(~lop).sum()}) | "
+                f"{_share(unsure[~hit])} | {_share(unsure[hit])} | "
                 f"{time.perf_counter() - start:.0f} s |",
                 flush=True,
             )

@@ -292,3 +292,32 @@ def test_theta_rho_are_fitted_over_the_wider_reading_of_the_loop() -> None:
     for (_, human), preference in zip(pairs, preferences, strict=True):
         assert abs(preference.rho - human.rho) < 0.05
         assert abs(preference.theta_deg - human.theta_deg) < 5.0
+
+
+def test_confidence_is_how_much_agreeing_evidence_backs_the_estimate() -> None:
+    """Three good fits agree and three misshapen demos' fits (large misfit) scatter: the pooled
+    estimate is confident (it was the mean quality over all six, 0.49: uncertain). Two
+    equally good fits that disagree: uncertain. One demo: its own quality."""
+    from bt_pipeline.clean.guide_fit import GuideFit
+    from bt_pipeline.clean.periodic import UNCERTAIN, pool_preferences
+    from bt_pipeline.clean.segment import Segment
+    from bt_pipeline.data.demo import Demo
+
+    def demo(k: int, who: str) -> Demo:
+        positions = canonical_loop("wiping", 64)
+        return Demo(positions, "wiping", "", f"d{k}", who, None, None, default_plane("wiping"))
+
+    def segment(theta: float, rho: float, misfit: float) -> Segment:
+        return Segment(0.0, 1.0, 1.0, GuideFit(theta, rho, np.zeros(2), 1e-3, 0.24), 0.0, misfit)
+
+    fits = [(0.0, 1.0, 0.001), (0.5, 1.01, 0.001), (-0.5, 0.99, 0.001)]
+    fits += [(9.0, 1.2, 0.03), (-12.0, 0.8, 0.03), (20.0, 1.5, 0.03)]  # Misfit 6 x 2 % of size.
+    fits += [(0.0, 1.0, 0.001), (10.0, 1.2, 0.001)]  # Two good fits that disagree.
+    fits += [(3.0, 1.1, 0.0012)]  # One demo.
+    who = ["ann"] * 6 + ["bob"] * 2 + ["cy"]
+    demos = [demo(k, w) for k, w in enumerate(who)]
+    estimates = pool_preferences(demos, [segment(*f) for f in fits])
+    assert all(e.confidence > UNCERTAIN for e in estimates[:6])
+    assert all(e.confidence < UNCERTAIN for e in estimates[6:8])
+    quality = 1.0 / (1.0 + (0.0012 / (0.02 * 0.24)) ** 2)
+    assert estimates[8].confidence == pytest.approx(quality)
