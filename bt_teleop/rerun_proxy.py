@@ -7,7 +7,7 @@ starts, each in a process group of its own (stopping the app stops them and noth
     rerun --serve-web --bind <host> --port <grpc> --web-viewer-port <web>    the web viewer page
     rerun --serve-grpc --bind <host> --port <free> --server-memory-limit <limit>   one per tab
 
-and waits until each gRPC port answers. On Linux each child also dies with the app, even when
+and waits until each of its ports answers. On Linux each child also dies with the app, even when
 the app is killed with SIGKILL and cannot stop it: it is started with ``PR_SET_PDEATHSIG``
 (SIGTERM when its parent thread ends), from one long-lived spawner thread, since the signal
 fires when the *thread* that started the child ends, and tabs open on short-lived threads.
@@ -207,16 +207,21 @@ class RerunProxy:
         self._log.close()
 
     def _wait_ready(self) -> None:
+        """Until the gRPC port and, when served, the web viewer's port answer: the rerun binary
+        opens the web viewer's port after the proxy's, and a link handed out in between was
+        refused (seen under load)."""
         deadline = time.monotonic() + START_TIMEOUT_S
-        address = (url_host(self.host), self.grpc_port)
-        while time.monotonic() < deadline:
+        waiting = [p for p in (self.grpc_port, self.web_port) if p is not None]
+        while waiting and time.monotonic() < deadline:
             if self.process.poll() is not None:
                 break
             try:
-                with socket.create_connection(address, timeout=0.5):
-                    return
+                with socket.create_connection((url_host(self.host), waiting[0]), timeout=0.5):
+                    waiting.pop(0)
             except OSError:
                 time.sleep(0.1)
+        if not waiting:
+            return
         self._log.seek(0)
         tail = self._log.read()[-400:].decode("utf-8", "replace").strip()
-        raise ConfigError(f"Rerun's proxy did not start on {self.host}:{self.grpc_port}: {tail}")
+        raise ConfigError(f"Rerun's proxy did not start on {self.host}:{waiting[0]}: {tail}")
