@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import os
 import shutil
 import sys
 import tempfile
@@ -60,11 +59,13 @@ from typing import Any
 
 import numpy as np
 import psutil
+from soak_memory import Sampler
 
 import bt_teleop.library
 import bt_teleop.library_loader
 from bt_teleop.app import TeleopApp
 from bt_teleop.session_config import SessionConfig
+from bt_teleop.session_process import SessionProcess
 from bt_teleop.testing import app_factory, circle_uv, reachable, tab_factory, wait_until
 from bt_teleop.tick_stats import TickReport
 from bt_teleop.ui import ClientUI
@@ -122,60 +123,6 @@ class GcPauses:
         return "; ".join(parts)
 
 
-class Sampler:
-    """Memory of the app's process tree [MiB], the 1-minute load average and, while tracemalloc
-    traces, the Python memory it sees [MiB] (NaN otherwise), every `every_s` seconds, in a
-    thread. Columns: t [s], the app's RSS, load, traced, and over the app and every process
-    under it (session children, the forkserver, clean jobs): the sum of RSS (counts the pages
-    forked children share once per process), of PSS (shared pages split between their users)
-    and of USS (pages only that process maps); and the PSS of the processes that stay (the
-    tree without clean jobs, which come and go: the memory that must stay flat)."""
-
-    COLUMNS = ("t", "app RSS", "load", "traced", "tree RSS", "tree PSS", "tree USS", "kept PSS")
-
-    def __init__(self, every_s: float) -> None:
-        self.rows: list[tuple[float, ...]] = []
-        self._process = psutil.Process()
-        self._t0 = time.monotonic()
-        self._stop = threading.Event()
-        self.sample()
-        self._thread = threading.Thread(target=self._run, args=(every_s,), daemon=True)
-        self._thread.start()
-
-    def sample(self) -> None:
-        rss = self._process.memory_info().rss / 2**20
-        traced = tracemalloc.get_traced_memory()[0] / 2**20 if tracemalloc.is_tracing() else np.nan
-        tree = [0.0, 0.0, 0.0, 0.0]
-        for process in [self._process, *self._process.children(recursive=True)]:
-            try:
-                full = process.memory_full_info()
-                clean_job = "multiprocessing.spawn" in " ".join(process.cmdline())
-            except psutil.Error:  # ended meanwhile (a clean job)
-                continue
-            for k, value in enumerate((full.rss, full.pss, full.uss)):
-                tree[k] += value / 2**20
-            tree[3] += 0.0 if clean_job else full.pss / 2**20
-        self.rows.append((time.monotonic() - self._t0, rss, os.getloadavg()[0], traced, *tree))
-
-    def _run(self, every_s: float) -> None:
-        while not self._stop.wait(every_s):
-            self.sample()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
-        self.sample()
-
-    def slope_second_half(self, column: int = 1) -> float:
-        """Least-squares slope of a column (default the app's RSS) over the second half of the
-        run [MiB/min]."""
-        rows = np.asarray(self.rows)
-        half = rows[(rows[:, 0] >= rows[-1, 0] / 2.0) & np.isfinite(rows[:, column])]
-        if len(half) < 2:
-            return float("nan")
-        return float(np.polyfit(half[:, 0] / 60.0, half[:, column], 1)[0])
-
-
 def tree_cpu_s(uis: list[ClientUI]) -> float:
     """CPU time [s] of the app process and its tabs' session processes so far."""
     total = psutil.Process().cpu_times()
@@ -189,6 +136,15 @@ def tree_cpu_s(uis: list[ClientUI]) -> float:
                 continue
             seconds += times.user + times.system
     return seconds
+
+
+def session_heaps(uis: list[ClientUI]) -> list[tuple[int, Any]]:
+    """(pid, C heap) of each tab's session child (none with the sessions in process)."""
+    return [
+        (session.pid, session.heap_info())
+        for session in (ui.session for ui in uis)
+        if isinstance(session, SessionProcess) and session.pid is not None
+    ]
 
 
 def deep_size(root: Any) -> tuple[int, int]:
@@ -293,6 +249,9 @@ def main() -> None:
         help="press Discard instead of Stop & save (the same work without the files: a control)",
     )
     parser.add_argument(
+        "--memory-log", type=Path, help="append each memory sample to this file (JSON lines)"
+    )
+    parser.add_argument(
         "--in-process",
         action="store_true",
         help="the sessions in the app's process (the app's --no-session-processes): a baseline",
@@ -322,7 +281,7 @@ def main() -> None:
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
         refusals = [Refusals(ui) for ui in uis]
         time.sleep(2.0)
-        sampler = Sampler(args.sample_every)
+        sampler = Sampler(args.sample_every, lambda: session_heaps(uis), args.memory_log)
         pauses = GcPauses()
         cpu_start, app_cpu_start = tree_cpu_s(uis), process.cpu_times()
         wall_start = time.monotonic()
@@ -417,6 +376,7 @@ def main() -> None:
             f"{sampler.slope_second_half(3):+.2f} MiB/min; t [s] MiB: "
             + "; ".join(f"{r[0]:.0f} {r[3]:.1f}" for r in rows if np.isfinite(r[3]))
         )
+    print(sampler.kind_report())
     growth = rows[-1, 7] - rows[0, 7]
     print(f"kept PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}")
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
