@@ -63,7 +63,7 @@ from soak_memory import Sampler
 
 import bt_teleop.library
 import bt_teleop.library_loader
-from bt_teleop.app import TeleopApp
+from bt_teleop.app import AppOptions, TeleopApp
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.session_process import SessionProcess
 from bt_teleop.testing import app_factory, circle_uv, reachable, tab_factory, wait_until
@@ -249,6 +249,12 @@ def main() -> None:
         help="press Discard instead of Stop & save (the same work without the files: a control)",
     )
     parser.add_argument(
+        "--trim-heap-every-s",
+        type=float,
+        default=AppOptions().trim_heap_every_s,
+        help="the app's malloc_trim period [s] (inf: never)",
+    )
+    parser.add_argument(
         "--memory-log", type=Path, help="append each memory sample to this file (JSON lines)"
     )
     parser.add_argument(
@@ -275,6 +281,7 @@ def main() -> None:
             clean_epochs=5,
             idle_timeout_s=float("inf"),
             session_processes=not args.in_process,
+            trim_heap_every_s=args.trim_heap_every_s,
             session=SessionConfig(priority_boost=args.priority_boost),
         )
         tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
@@ -349,6 +356,11 @@ def main() -> None:
         f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * ticks.max_compute_s:.0f} ms"
     )
     print(f"gc pauses: {pauses.summary()}")
+    trimmer = app.heap_trimmer
+    print(
+        f"heap trims (every {trimmer.every_s:g} s): {trimmer.calls}, "
+        f"{1e3 * trimmer.seconds / max(trimmer.calls, 1):.1f} ms each on average"
+    )
     print(f"task-library loads (after saves): {loads.summary()}")
     app_used = app_cpu_end.user + app_cpu_end.system - app_cpu_start.user - app_cpu_start.system
     print(

@@ -10,7 +10,9 @@ session children, clean jobs, others such as multiprocessing's resource tracker)
   arenas, thread stacks) and file-backed mappings (code, data of shared libraries);
 * the C heap as glibc's ``mallinfo2`` sees it (:mod:`bt_teleop.native_memory`): bytes in use
   and bytes free but kept (fragmentation), for the app (in process) and the session children
-  (asked over their pipe).
+  (asked over their pipe);
+* for the app, Python's small-object allocator (``sys._debugmallocstats``): the memory of its
+  arenas against the bytes of the blocks allocated in them (the rest is its fragmentation).
 
 A kind whose PSS grows while its C heap's ``in_use`` stays flat and ``free`` grows is
 fragmenting; ``in_use`` growing is memory some native library holds.
@@ -21,7 +23,11 @@ from __future__ import annotations
 import contextlib
 import itertools
 import json
+import math
 import os
+import re
+import sys
+import tempfile
 import threading
 import time
 import tracemalloc
@@ -35,7 +41,11 @@ import psutil
 from bt_teleop.native_memory import HeapInfo, heap_info
 
 KINDS = ("app", "forkserver", "session", "clean", "other")
-FIELDS = ("rss", "pss", "uss", "pss_heap", "pss_anon", "pss_file", "heap_in_use", "heap_free")
+FIELDS = (
+    *("rss", "pss", "uss", "pss_heap", "pss_anon", "pss_file", "heap_in_use", "heap_free"),
+    "heap_mmapped",
+    *("py_arenas", "py_blocks"),
+)
 MIB = 2**20
 
 
@@ -51,6 +61,28 @@ def kind_of(process: psutil.Process, app_pid: int, session_pids: set[int]) -> st
     if "multiprocessing.spawn" in command:
         return "clean"
     return "other"
+
+
+def pymalloc_mib() -> tuple[float, float]:
+    """(arenas, allocated blocks) [MiB] of Python's small-object allocator in this process,
+    parsed from ``sys._debugmallocstats`` (which writes to the C stderr: redirected meanwhile,
+    so another thread's stderr line may be lost)."""
+    with tempfile.TemporaryFile("w+") as out:
+        saved = os.dup(2)
+        try:
+            os.dup2(out.fileno(), 2)
+            sys._debugmallocstats()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        out.seek(0)
+        text = out.read()
+    arenas = re.search(r"(\d+) arenas \* (\d+) bytes/arena", text)
+    blocks = re.search(r"# bytes in allocated blocks\s+=\s+([\d,]+)", text)
+    if arenas is None or blocks is None:
+        return (math.nan, math.nan)
+    total = int(arenas.group(1)) * int(arenas.group(2))
+    return (total / MIB, int(blocks.group(1).replace(",", "")) / MIB)
 
 
 def smaps_pss(pid: int) -> dict[str, float]:
@@ -134,10 +166,13 @@ class Sampler:
                 row[name] += value / MIB
             for name, value in mapped.items():
                 row[name] += value
+            if kind == "app":
+                row["py_arenas"], row["py_blocks"] = pymalloc_mib()
             heap = heaps.get(process.pid)
             if heap is not None:
                 row["heap_in_use"] += heap.in_use / MIB
                 row["heap_free"] += heap.free / MIB
+                row["heap_mmapped"] += heap.mmapped / MIB
         tree = [sum(kinds[k][name] for k in KINDS) for name in ("rss", "pss", "uss")]
         kept = tree[1] - kinds["clean"]["pss"]
         self.rows.append((t, rss, os.getloadavg()[0], traced, *tree, kept))

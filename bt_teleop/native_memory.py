@@ -14,9 +14,15 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import functools
+import math
+import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
-__all__ = ["HeapInfo", "heap_info", "trim_heap"]
+from bt_pipeline.exceptions import ConfigError
+
+__all__ = ["HeapInfo", "HeapTrimmer", "heap_info", "trim_heap"]
 
 
 class _Mallinfo2(ctypes.Structure):
@@ -79,3 +85,44 @@ def trim_heap() -> bool | None:
     if library is None:
         return None
     return bool(library.malloc_trim(0))
+
+
+class HeapTrimmer:
+    """Calls :func:`trim_heap` every `every_s` seconds in a daemon thread, until :meth:`stop`.
+
+    Args:
+        every_s: Period [s]; ``inf`` starts no thread (never trims).
+        trim: What to call (tests); :func:`trim_heap` by default.
+    """
+
+    def __init__(self, every_s: float, trim: Callable[[], object] = trim_heap) -> None:
+        if not every_s > 0.0:
+            raise ConfigError(f"the heap trim period must be > 0 s (inf: never); got {every_s}")
+        self.every_s = float(every_s)
+        self.calls = 0
+        """Trims done so far."""
+        self.seconds = 0.0
+        """Time spent in them [s] (each holds every malloc arena's lock while it walks it)."""
+        self._trim = trim
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        if math.isfinite(self.every_s):
+            self._thread = threading.Thread(target=self._run, name="bt-heap-trim", daemon=True)
+            self._thread.start()
+
+    def trim_now(self) -> None:
+        """Trim once (also what the thread does every period)."""
+        start = time.perf_counter()
+        self._trim()
+        self.seconds += time.perf_counter() - start
+        self.calls += 1
+
+    def stop(self) -> None:
+        """Stop the thread (a trim under way finishes first)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.every_s):
+            self.trim_now()
