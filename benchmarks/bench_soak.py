@@ -372,15 +372,17 @@ def main() -> None:
         f"load average (1 min): min {rows[:, 2].min():.1f}, mean {rows[:, 2].mean():.1f}, "
         f"max {rows[:, 2].max():.1f}"
     )
-    for column in (1, 4, 5, 6, 7):
+    for column in (1, 4, 5, 6, 7, 8):
         print(
             f"memory ({Sampler.COLUMNS[column]}): {rows[0, column]:.0f} MiB at start, "
             f"{rows[-1, column]:.0f} MiB at end, slope over the second half "
             f"{sampler.slope_second_half(column):+.2f} MiB/min"
         )
     print(
-        "  t [s]  app RSS, tree PSS, kept PSS [MiB]  load: "
-        + "; ".join(f"{r[0]:.0f} {r[1]:.0f} {r[5]:.0f} {r[7]:.0f} {r[2]:.1f}" for r in rows)
+        "  t [s]  app RSS, tree PSS, kept PSS, kept anon PSS [MiB]  load: "
+        + "; ".join(
+            f"{r[0]:.0f} {r[1]:.0f} {r[5]:.0f} {r[7]:.0f} {r[8]:.0f} {r[2]:.1f}" for r in rows
+        )
     )
     if np.isfinite(rows[:, 3]).any():
         print(
@@ -389,8 +391,10 @@ def main() -> None:
             + "; ".join(f"{r[0]:.0f} {r[3]:.1f}" for r in rows if np.isfinite(r[3]))
         )
     print(sampler.kind_report())
-    growth = rows[-1, 7] - rows[0, 7]
-    print(f"kept PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}")
+    growth = rows[-1, 8] - rows[0, 8]
+    print(
+        f"kept anon PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}"
+    )
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")

@@ -114,7 +114,11 @@ class Sampler:
     traces, the Python memory it sees [MiB] (NaN otherwise), every `every_s` seconds, in a
     thread. Columns of :attr:`rows`: t [s], the app's RSS, load, traced, and over the app and
     every process under it: the sums of RSS, PSS and USS, and the PSS of the processes that
-    stay (the tree without clean jobs, which come and go: the memory that must stay flat).
+    stay (the tree without clean jobs, which come and go), and of their anonymous mappings
+    only (heap and anon): the memory that must stay flat. The kept PSS of file-backed mappings
+    (the shared libraries' pages) jumps by 10-25 MiB whenever a clean job maps the same
+    libraries or ends (their pages are then split among more or fewer processes), so the kept
+    PSS's slope over a few minutes says more about when clean jobs ran than about growth.
     :attr:`by_kind` holds, per sample, :data:`FIELDS` summed per kind of process (module doc).
 
     Args:
@@ -123,7 +127,10 @@ class Sampler:
         log: A file to append each sample to as a JSON line as it is taken (None: none).
     """
 
-    COLUMNS = ("t", "app RSS", "load", "traced", "tree RSS", "tree PSS", "tree USS", "kept PSS")
+    COLUMNS = (
+        *("t", "app RSS", "load", "traced", "tree RSS", "tree PSS", "tree USS", "kept PSS"),
+        "kept anon PSS",
+    )
 
     def __init__(
         self,
@@ -175,7 +182,8 @@ class Sampler:
                 row["heap_mmapped"] += heap.mmapped / MIB
         tree = [sum(kinds[k][name] for k in KINDS) for name in ("rss", "pss", "uss")]
         kept = tree[1] - kinds["clean"]["pss"]
-        self.rows.append((t, rss, os.getloadavg()[0], traced, *tree, kept))
+        kept_anon = sum(kinds[k]["pss_heap"] + kinds[k]["pss_anon"] for k in KINDS if k != "clean")
+        self.rows.append((t, rss, os.getloadavg()[0], traced, *tree, kept, kept_anon))
         self.by_kind.append(kinds)
         if self._log is not None:
             with self._log.open("a") as out:
