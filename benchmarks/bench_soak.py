@@ -20,9 +20,12 @@ Reported:
 * memory every ``--sample-every`` seconds over the app's whole process tree (the session
   processes, the forkserver, clean jobs): the sum of RSS (which counts the pages forked
   children share once per process), of PSS (shared pages split among their users) and of USS,
-  and the app process's own RSS; their slopes over the second half of the run [MiB/min] (flat:
-  about 0), with the machine's 1-minute load average at the same moments (other jobs share the
-  CPU);
+  the app process's own RSS, and the PSS of the anonymous memory of the processes that stay
+  ("kept anon PSS": the measure that must stay flat; clean jobs move the file-backed part);
+  their slopes over the second half of the run [MiB/min] (flat: about 0), with the machine's
+  1-minute load average at the same moments (other jobs share the CPU); and the same per kind
+  of process, with its C heap (in use, free) and slopes per quarter of the run
+  (:mod:`soak_memory`; ``--memory-log FILE`` appends every sample as a JSON line);
 * takes saved vs intended (Stop & save presses; files counted on disk at the end);
 * with ``--discard`` the tabs press Discard instead of Stop & save: the same recording work
   without files, library loads or table updates, a control for the memory measured;
@@ -37,7 +40,8 @@ browsers are not in the server's interpreter, so they add load to the app's proc
 use does not (it is the process the session processes left; their control loops no longer
 share its GIL).
 
-Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes.
+Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes. The app trims its C heap every
+``--trim-heap-every-s`` (the app's default, 60 s; ``inf``: never, the code before that change).
 
     nice -n 10 .venv/bin/python benchmarks/bench_soak.py --minutes 10
     nice -n 10 .venv/bin/python benchmarks/bench_soak.py --minutes 4 --sessions 4 \
