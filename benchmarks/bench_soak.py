@@ -20,9 +20,12 @@ Reported:
 * memory every ``--sample-every`` seconds over the app's whole process tree (the session
   processes, the forkserver, clean jobs): the sum of RSS (which counts the pages forked
   children share once per process), of PSS (shared pages split among their users) and of USS,
-  and the app process's own RSS; their slopes over the second half of the run [MiB/min] (flat:
-  about 0), with the machine's 1-minute load average at the same moments (other jobs share the
-  CPU);
+  the app process's own RSS, and the PSS of the anonymous memory of the processes that stay
+  ("kept anon PSS": the measure that must stay flat; clean jobs move the file-backed part);
+  their slopes over the second half of the run [MiB/min] (flat: about 0), with the machine's
+  1-minute load average at the same moments (other jobs share the CPU); and the same per kind
+  of process, with its C heap (in use, free) and slopes per quarter of the run
+  (:mod:`soak_memory`; ``--memory-log FILE`` appends every sample as a JSON line);
 * takes saved vs intended (Stop & save presses; files counted on disk at the end);
 * with ``--discard`` the tabs press Discard instead of Stop & save: the same recording work
   without files, library loads or table updates, a control for the memory measured;
@@ -37,7 +40,8 @@ browsers are not in the server's interpreter, so they add load to the app's proc
 use does not (it is the process the session processes left; their control loops no longer
 share its GIL).
 
-Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes.
+Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes. The app trims its C heap every
+``--trim-heap-every-s`` (the app's default, 60 s; ``inf``: never, the code before that change).
 
     nice -n 10 .venv/bin/python benchmarks/bench_soak.py --minutes 10
     nice -n 10 .venv/bin/python benchmarks/bench_soak.py --minutes 4 --sessions 4 \
@@ -48,7 +52,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import os
 import shutil
 import sys
 import tempfile
@@ -60,11 +63,13 @@ from typing import Any
 
 import numpy as np
 import psutil
+from soak_memory import Sampler
 
 import bt_teleop.library
 import bt_teleop.library_loader
-from bt_teleop.app import TeleopApp
+from bt_teleop.app import AppOptions, TeleopApp
 from bt_teleop.session_config import SessionConfig
+from bt_teleop.session_process import SessionProcess
 from bt_teleop.testing import app_factory, circle_uv, reachable, tab_factory, wait_until
 from bt_teleop.tick_stats import TickReport
 from bt_teleop.ui import ClientUI
@@ -122,60 +127,6 @@ class GcPauses:
         return "; ".join(parts)
 
 
-class Sampler:
-    """Memory of the app's process tree [MiB], the 1-minute load average and, while tracemalloc
-    traces, the Python memory it sees [MiB] (NaN otherwise), every `every_s` seconds, in a
-    thread. Columns: t [s], the app's RSS, load, traced, and over the app and every process
-    under it (session children, the forkserver, clean jobs): the sum of RSS (counts the pages
-    forked children share once per process), of PSS (shared pages split between their users)
-    and of USS (pages only that process maps); and the PSS of the processes that stay (the
-    tree without clean jobs, which come and go: the memory that must stay flat)."""
-
-    COLUMNS = ("t", "app RSS", "load", "traced", "tree RSS", "tree PSS", "tree USS", "kept PSS")
-
-    def __init__(self, every_s: float) -> None:
-        self.rows: list[tuple[float, ...]] = []
-        self._process = psutil.Process()
-        self._t0 = time.monotonic()
-        self._stop = threading.Event()
-        self.sample()
-        self._thread = threading.Thread(target=self._run, args=(every_s,), daemon=True)
-        self._thread.start()
-
-    def sample(self) -> None:
-        rss = self._process.memory_info().rss / 2**20
-        traced = tracemalloc.get_traced_memory()[0] / 2**20 if tracemalloc.is_tracing() else np.nan
-        tree = [0.0, 0.0, 0.0, 0.0]
-        for process in [self._process, *self._process.children(recursive=True)]:
-            try:
-                full = process.memory_full_info()
-                clean_job = "multiprocessing.spawn" in " ".join(process.cmdline())
-            except psutil.Error:  # ended meanwhile (a clean job)
-                continue
-            for k, value in enumerate((full.rss, full.pss, full.uss)):
-                tree[k] += value / 2**20
-            tree[3] += 0.0 if clean_job else full.pss / 2**20
-        self.rows.append((time.monotonic() - self._t0, rss, os.getloadavg()[0], traced, *tree))
-
-    def _run(self, every_s: float) -> None:
-        while not self._stop.wait(every_s):
-            self.sample()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
-        self.sample()
-
-    def slope_second_half(self, column: int = 1) -> float:
-        """Least-squares slope of a column (default the app's RSS) over the second half of the
-        run [MiB/min]."""
-        rows = np.asarray(self.rows)
-        half = rows[(rows[:, 0] >= rows[-1, 0] / 2.0) & np.isfinite(rows[:, column])]
-        if len(half) < 2:
-            return float("nan")
-        return float(np.polyfit(half[:, 0] / 60.0, half[:, column], 1)[0])
-
-
 def tree_cpu_s(uis: list[ClientUI]) -> float:
     """CPU time [s] of the app process and its tabs' session processes so far."""
     total = psutil.Process().cpu_times()
@@ -189,6 +140,15 @@ def tree_cpu_s(uis: list[ClientUI]) -> float:
                 continue
             seconds += times.user + times.system
     return seconds
+
+
+def session_heaps(uis: list[ClientUI]) -> list[tuple[int, Any]]:
+    """(pid, C heap) of each tab's session child (none with the sessions in process)."""
+    return [
+        (session.pid, session.heap_info())
+        for session in (ui.session for ui in uis)
+        if isinstance(session, SessionProcess) and session.pid is not None
+    ]
 
 
 def deep_size(root: Any) -> tuple[int, int]:
@@ -293,6 +253,15 @@ def main() -> None:
         help="press Discard instead of Stop & save (the same work without the files: a control)",
     )
     parser.add_argument(
+        "--trim-heap-every-s",
+        type=float,
+        default=AppOptions().trim_heap_every_s,
+        help="the app's malloc_trim period [s] (inf: never)",
+    )
+    parser.add_argument(
+        "--memory-log", type=Path, help="append each memory sample to this file (JSON lines)"
+    )
+    parser.add_argument(
         "--in-process",
         action="store_true",
         help="the sessions in the app's process (the app's --no-session-processes): a baseline",
@@ -316,13 +285,14 @@ def main() -> None:
             clean_epochs=5,
             idle_timeout_s=float("inf"),
             session_processes=not args.in_process,
+            trim_heap_every_s=args.trim_heap_every_s,
             session=SessionConfig(priority_boost=args.priority_boost),
         )
         tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
         refusals = [Refusals(ui) for ui in uis]
         time.sleep(2.0)
-        sampler = Sampler(args.sample_every)
+        sampler = Sampler(args.sample_every, lambda: session_heaps(uis), args.memory_log)
         pauses = GcPauses()
         cpu_start, app_cpu_start = tree_cpu_s(uis), process.cpu_times()
         wall_start = time.monotonic()
@@ -390,6 +360,11 @@ def main() -> None:
         f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * ticks.max_compute_s:.0f} ms"
     )
     print(f"gc pauses: {pauses.summary()}")
+    trimmer = app.heap_trimmer
+    print(
+        f"heap trims (every {trimmer.every_s:g} s): {trimmer.calls}, "
+        f"{1e3 * trimmer.seconds / max(trimmer.calls, 1):.1f} ms each on average"
+    )
     print(f"task-library loads (after saves): {loads.summary()}")
     app_used = app_cpu_end.user + app_cpu_end.system - app_cpu_start.user - app_cpu_start.system
     print(
@@ -401,15 +376,17 @@ def main() -> None:
         f"load average (1 min): min {rows[:, 2].min():.1f}, mean {rows[:, 2].mean():.1f}, "
         f"max {rows[:, 2].max():.1f}"
     )
-    for column in (1, 4, 5, 6, 7):
+    for column in (1, 4, 5, 6, 7, 8):
         print(
             f"memory ({Sampler.COLUMNS[column]}): {rows[0, column]:.0f} MiB at start, "
             f"{rows[-1, column]:.0f} MiB at end, slope over the second half "
             f"{sampler.slope_second_half(column):+.2f} MiB/min"
         )
     print(
-        "  t [s]  app RSS, tree PSS, kept PSS [MiB]  load: "
-        + "; ".join(f"{r[0]:.0f} {r[1]:.0f} {r[5]:.0f} {r[7]:.0f} {r[2]:.1f}" for r in rows)
+        "  t [s]  app RSS, tree PSS, kept PSS, kept anon PSS [MiB]  load: "
+        + "; ".join(
+            f"{r[0]:.0f} {r[1]:.0f} {r[5]:.0f} {r[7]:.0f} {r[8]:.0f} {r[2]:.1f}" for r in rows
+        )
     )
     if np.isfinite(rows[:, 3]).any():
         print(
@@ -417,8 +394,11 @@ def main() -> None:
             f"{sampler.slope_second_half(3):+.2f} MiB/min; t [s] MiB: "
             + "; ".join(f"{r[0]:.0f} {r[3]:.1f}" for r in rows if np.isfinite(r[3]))
         )
-    growth = rows[-1, 7] - rows[0, 7]
-    print(f"kept PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}")
+    print(sampler.kind_report())
+    growth = rows[-1, 8] - rows[0, 8]
+    print(
+        f"kept anon PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}"
+    )
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")

@@ -44,6 +44,7 @@ from bt_pipeline.exceptions import ConfigError
 from bt_teleop.cleaning import CleanRunner
 from bt_teleop.connections import ConnectionWatch
 from bt_teleop.library_loader import LibraryLoader
+from bt_teleop.native_memory import HeapTrimmer
 from bt_teleop.rerun_live import RERUN_MODES, RerunHub, RerunMode
 from bt_teleop.scene import Robot, parse_robot
 from bt_teleop.session import SessionConfig
@@ -119,6 +120,9 @@ class AppOptions:
     session_processes: bool = True
     """Run each tab's simulation (control loop, IK, recorder) in a child process of its own,
     one GIL per loop (bt_teleop/session_process.py); False: in the app's process."""
+    trim_heap_every_s: float = 60.0
+    """Give the C heap's free pages back to the system this often [s] (``inf``: never); the
+    app's threads fragment glibc's arenas (docs/security.md, soak; bt_teleop/native_memory.py)."""
     fancy_lighting: bool = False
     """viser's environment map and shadows: pretty with a GPU, but software WebGL (headless
     browsers, GPU-less laptops) needs tens of seconds to prepare them."""
@@ -129,6 +133,10 @@ class AppOptions:
         if not self.idle_timeout_s > 0.0:
             raise ConfigError(
                 f"--idle-timeout-s must be > 0 (inf: never); got {self.idle_timeout_s}"
+            )
+        if not self.trim_heap_every_s > 0.0:
+            raise ConfigError(
+                f"trim_heap_every_s must be > 0 (inf: never); got {self.trim_heap_every_s}"
             )
         if self.max_sessions < 1:
             raise ConfigError(f"--max-sessions must be ≥ 1; got {self.max_sessions}")
@@ -209,6 +217,7 @@ class TeleopApp:
         )
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
+        self.heap_trimmer = HeapTrimmer(options.trim_heap_every_s)
 
     @property
     def port(self) -> int:
@@ -255,6 +264,7 @@ class TeleopApp:
             uis = [*self._uis.values(), *self._closing]
             self._uis.clear()
         self.connections.stop()
+        self.heap_trimmer.stop()
         for ui in uis:
             path = ui.close()
             if path is not None:

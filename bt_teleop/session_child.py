@@ -33,11 +33,12 @@ from pathlib import Path
 from typing import Any
 
 from bt_pipeline.exceptions import BtError, ConfigError
+from bt_teleop.native_memory import heap_info
 from bt_teleop.rerun_proxy import libc
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.tick_stats import TimedSession, raise_priority
 
-__all__ = ["CALLS", "ONE_WAY", "portable_error", "serve_session"]
+__all__ = ["CALLS", "ONE_WAY", "PROCESS_CALLS", "portable_error", "serve_session"]
 
 LOGGER = logging.getLogger("bt.teleop")
 ONE_WAY = frozenset({"set_target", "set_gripper", "set_stay_on_plane"})
@@ -47,6 +48,8 @@ CALLS = frozenset(
     | {"discard", "close", "tick_stats", "reset"}
 )
 """Requests the child answers (methods, or properties read)."""
+PROCESS_CALLS = {"heap_info": heap_info}
+"""Requests about the child process itself, not its session (its C heap, for benchmarks)."""
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
@@ -93,7 +96,9 @@ def serve_session(
                 save_incomplete = args[0]
                 break
             try:
-                attr = getattr(session, name) if name in ONE_WAY | CALLS else None
+                attr = PROCESS_CALLS.get(name) or (
+                    getattr(session, name) if name in ONE_WAY | CALLS else None
+                )
                 if attr is None:
                     raise ConfigError(f"unknown session command {name!r}")
                 value = attr(*args) if callable(attr) else attr

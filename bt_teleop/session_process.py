@@ -49,6 +49,7 @@ from numpy.typing import ArrayLike
 
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError, SessionLostError
+from bt_teleop.native_memory import HeapInfo
 from bt_teleop.scene import SceneModel
 from bt_teleop.session_child import serve_session
 from bt_teleop.session_config import SessionConfig, SessionStatus
@@ -251,6 +252,10 @@ class SessionProcess:
     def tick_stats(self) -> TickReport:
         """The control loop's tick timing so far (gaps, stalls; :mod:`bt_teleop.tick_stats`)."""
         return self._call("tick_stats")
+
+    def heap_info(self) -> HeapInfo | None:
+        """The child's C heap (:func:`bt_teleop.native_memory.heap_info`)."""
+        return self._call("heap_info")
 
     @property
     def pid(self) -> int | None:

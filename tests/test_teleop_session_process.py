@@ -18,6 +18,7 @@ import pytest
 
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import BtError, ConfigError, SessionLostError
+from bt_teleop.native_memory import HeapInfo, heap_info
 from bt_teleop.scene import SceneModel, load_scene
 from bt_teleop.session_child import portable_error
 from bt_teleop.session_config import SessionConfig
@@ -78,6 +79,15 @@ def test_a_take_recorded_in_the_child_is_saved_and_reads_back(
     assert demo.demonstrator == "Zoë <b>" and demo.rho == pytest.approx(1.2)
     assert demo.num_samples >= len(trail)  # the trail was read before the last samples
     np.testing.assert_allclose(demo.ee_pos[: len(trail)], trail)
+
+
+def test_the_child_reports_its_own_c_heap(session: SessionProcess) -> None:
+    """heap_info is the child's (MuJoCo's model and data live there), not this process's."""
+    here, child = heap_info(), session.heap_info()
+    if here is None:
+        pytest.skip("needs glibc's mallinfo2")
+    assert isinstance(child, HeapInfo) and child.in_use > 0
+    assert child != heap_info()
 
 
 def test_errors_of_the_child_are_raised_here_with_their_class_and_message(
