@@ -24,21 +24,15 @@ def _rss() -> int:
         return int(statm.read().split()[1]) * 4096
 
 
-def _fragment(n_blocks: int, block: int, keep_every: int) -> list[int]:
-    """malloc `n_blocks` blocks of `block` bytes, touch them, free all but every
-    `keep_every`-th (which pin the heap: no free() can shrink it); the kept pointers."""
+def _allocate(n_blocks: int, block: int) -> list[int]:
+    """malloc `n_blocks` blocks of `block` bytes and touch them (resident); their pointers."""
     libc = ctypes.CDLL("libc.so.6")
     libc.malloc.restype = ctypes.c_void_p
     libc.malloc.argtypes = [ctypes.c_size_t]
-    libc.free.argtypes = [ctypes.c_void_p]
     pointers = [libc.malloc(block) for _ in range(n_blocks)]
     for pointer in pointers:
         ctypes.memset(pointer, 1, block)
-    kept = pointers[::keep_every]
-    for k, pointer in enumerate(pointers):
-        if k % keep_every:
-            libc.free(pointer)
-    return kept
+    return pointers
 
 
 def _free_all(pointers: list[int]) -> None:
@@ -50,15 +44,23 @@ def _free_all(pointers: list[int]) -> None:
 
 @glibc
 def test_heap_info_sees_native_allocations_and_trim_returns_free_pages() -> None:
-    """96 MiB in 4 KiB blocks, 31 of every 32 freed: mallinfo2 counts them free, the pages stay
-    resident until malloc_trim(0) gives them back."""
+    """96 MiB in 4 KiB blocks, then 31 of every 32 freed (the rest pin the heap: no free() can
+    shrink it): mallinfo2 counts them in use, then free, and the pages stay resident until
+    malloc_trim(0) gives them back. Each step is compared with the one just before it: a heap
+    that already has free holes fills them first, so the free bytes before the allocation say
+    nothing (a run of the whole suite had 136 MiB free at the start)."""
     before = heap_info()
     assert before is not None
-    kept = _fragment(n_blocks=24_576, block=4096, keep_every=32)
+    pointers = _allocate(n_blocks=24_576, block=4096)
+    kept = pointers[::32]
     try:
+        allocated = heap_info()
+        assert allocated is not None
+        assert allocated.in_use - before.in_use > 90 * MIB  # malloc'ed by native code
+        _free_all([p for k, p in enumerate(pointers) if k % 32])
         fragmented = heap_info()
         assert fragmented is not None
-        assert fragmented.free - before.free > 80 * MIB  # freed, but kept by malloc
+        assert fragmented.free - allocated.free > 80 * MIB  # freed, but kept by malloc
         resident = _rss()
         assert trim_heap() is True
         assert resident - _rss() > 60 * MIB  # most of the 93 MiB freed left the process
