@@ -173,11 +173,11 @@ def segment_demo(
     loops = abs(float(np.ptp(track_phase(moving, guide)))) / guide.shape[0]
     near = np.linalg.norm(offset, axis=1) <= 2.0 * tolerance
     drift = drift_along(moving, guide, near, min(_DRIFT_MAX_DEGREE, int(loops + 0.5) - 1))
-    nearest = nearest_index(guide, moving - drift)
-    distance = np.linalg.norm(moving - drift - guide[nearest], axis=1)
+    clear = moving - drift
+    nearest = nearest_index(guide, clear)
+    distance = np.linalg.norm(clear - guide[nearest], axis=1)
     along = along_guide(moving, guide, nearest)
     on = (distance <= tolerance) & along
-    clear = moving - drift
     at_start, at_end = first == 0, last == smooth.shape[0] - 1
     # Tighten the tolerance to how closely this hand follows the guide on its loops, read over
     # the middle of the on-loop samples: a steady hand's approach that runs beside the loop is
@@ -269,10 +269,13 @@ def _kept_span(
     # A recording that starts (ends) with the hand already (still) moving has no rest there, so
     # no approach (retreat) either: a part before (after) the span that travels on around the
     # loop is the loop drawn off the guide (a bulged side, a drifted end), and is kept.
-    span = clear[a : b + 1]
-    start_kept = at_start and a > 0 and _continues(clear[: a + 1], span, along[:a], guide)
-    end_kept = at_end and b < last and _continues(clear[b:], span, along[b + 1 :], guide)
-    a, b = (0 if start_kept else a), (last if end_kept else b)
+    if (at_start and a > 0) or (at_end and b < last):
+        phase = track_phase(clear[a : b + 1], guide)  # Once, for both ends.
+        rate = float(phase[-1] - phase[0]) / (guide.shape[0] * phase.size)  # Loops per sample.
+        if at_start and a > 0 and _continues(clear[: a + 1], along[:a], guide, rate):
+            a = 0
+        if at_end and b < last and _continues(clear[b:], along[b + 1 :], guide, rate):
+            b = last
     # The span was found on the path smoothed with σ = 0.08 s, which blurs where the hand joins
     # and leaves the loop: it reaches into the approach and the retreat (median 0.09 s at each
     # end on benchmarks/bench_segment.py). An end that is not the recording's own moves in by
@@ -284,19 +287,16 @@ def _kept_span(
     return a, b
 
 
-def _continues(piece: FloatArray, span: FloatArray, along: np.ndarray, guide: FloatArray) -> bool:
+def _continues(piece: FloatArray, along: np.ndarray, guide: FloatArray, rate: float) -> bool:
     """Whether `piece` (samples before or after the span, in time order) travels on around the
     loop: it moves along the guide (80 % of its samples) in the span's direction, at least 30 %
-    as fast in phase as the span does on average."""
+    as fast in phase as the span does on average (`rate`: the span's loops per sample, signed by
+    its direction)."""
     if piece.shape[0] < 3 or along.size == 0 or float(np.mean(along)) < _CONTINUE_ALONG:
         return False
-    p = guide.shape[0]
-    span_phase = track_phase(span, guide)
-    direction = 1.0 if span_phase[-1] >= span_phase[0] else -1.0
-    span_rate = abs(float(span_phase[-1] - span_phase[0])) / (p * span.shape[0])
-    piece_phase = track_phase(piece, guide)
-    piece_rate = direction * float(piece_phase[-1] - piece_phase[0]) / (p * piece.shape[0])
-    return piece_rate >= _CONTINUE_RATE * span_rate
+    phase = track_phase(piece, guide)
+    piece_rate = float(phase[-1] - phase[0]) / (guide.shape[0] * piece.shape[0])
+    return (1.0 if rate >= 0.0 else -1.0) * piece_rate >= _CONTINUE_RATE * abs(rate)
 
 
 def _travel(phase: FloatArray, p: int) -> tuple[int, int]:
