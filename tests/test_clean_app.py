@@ -109,3 +109,29 @@ def test_scripted_operator_three_loops_from_home(tmp_path: Path) -> None:
     assert 2.7 <= segment.cycles <= 3.3
     assert segment.start_s >= times[0] + 0.5 * DRIVE_S  # the drive from home is trimmed
     _check_not_worse(result, demos, i)
+
+
+def test_browser_takes_theta_rho_estimated_when_the_file_lacks_them() -> None:
+    """Real app takes with θ/ρ removed (as files from other tools arrive): the guide fit reads
+    each demonstrator's θ within 5° and ρ within 0.05, and carol's loop, whose 69 mm corner
+    excursion leaves her ρ unsure, is reported uncertain rather than trusted."""
+    import dataclasses
+
+    from bt_pipeline.clean.periodic import UNCERTAIN, pool_preferences, segment_all
+
+    if not TAKES.is_dir():
+        pytest.skip(f"browser takes not found at {TAKES}")
+    names = ("alice_", "bob_", "carol_", "dave_")
+    files = sorted(p for p in TAKES.glob("*.hdf5") if p.name.startswith(names))
+    given = load_demos(files)
+    assert len(given) == 4
+    hidden = [dataclasses.replace(d, theta_deg=None, rho=None) for d in given]
+    estimates = pool_preferences(hidden, segment_all(hidden))
+    for demo, estimate in zip(given, estimates, strict=True):
+        assert demo.theta_deg is not None and demo.rho is not None
+        assert estimate.estimated, demo.label
+        close = abs(estimate.theta_deg - demo.theta_deg) < 5.0
+        close = close and abs(estimate.rho - demo.rho) < 0.05
+        assert close or estimate.confidence < UNCERTAIN, (demo.label, estimate)
+        if demo.demonstrator != "carol":
+            assert close, (demo.label, estimate)
