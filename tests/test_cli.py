@@ -137,3 +137,41 @@ def test_python_dash_m_runs_the_same_cli() -> None:
     )
     for command in ("score", "synth", "clean"):
         assert command in result.stdout
+
+
+def test_clean_reads_hidden_theta_rho_within_the_given_range(capsys, tmp_path) -> None:
+    """--theta-max/--rho-min/--rho-max bound what is read from files that lack θ/ρ (NaN)."""
+    import math
+
+    path = tmp_path / "human.hdf5"
+    # Seed 0's wiping set hides θ/ρ; its demonstrators' truth: θ 7.7, -18.2, 5.9, -9.9 deg,
+    # ρ 1.24, 1.19, 1.09, 1.21.
+    main(["synth", "--style", "human", "--seed", "0", "--out", str(path)])
+    raw = read_recording(path)
+    assert all(math.isnan(d.theta_deg) for d in raw.demos.values())
+    truth = {name: d.attrs["truth_theta_deg"] for name, d in raw.demos.items()}
+    assert min(truth.values()) < -10.0  # the range below must bind
+    code, _, _ = run(
+        capsys, "clean", str(path), "--out", str(tmp_path / "out"), "--epochs", "2", "--no-rrd",
+        "--theta-max", "10", "--rho-min", "0.9", "--rho-max", "1.15", "--executor", "local",
+    )  # fmt: skip
+    assert code == 0
+    cleaned = read_recording(tmp_path / "out" / "wiping.cleaned.hdf5")
+    for name, demo in cleaned.demos.items():
+        assert demo.attrs["preference_estimated"]
+        assert -10.0 - 1e-9 <= demo.theta_deg <= 10.0 + 1e-9, name
+        assert 0.9 - 1e-9 <= demo.rho <= 1.15 + 1e-9, name
+    (low,) = [name for name, theta in truth.items() if theta < -10.0]
+    assert cleaned.demos[low].theta_deg == pytest.approx(-10.0)  # held at the bound
+
+
+def test_clean_refuses_an_empty_preference_range(capsys, wiping_file, tmp_path) -> None:
+    code, out, err = run(
+        capsys, "clean", str(wiping_file), "--out", str(tmp_path / "out"),
+        "--rho-min", "1.5", "--rho-max", "1.2",
+    )  # fmt: skip
+    assert code == 2
+    assert out == ""
+    assert "rho range" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()

@@ -112,6 +112,9 @@ def clean(
     strict: bool = False,
     json: bool = False,
     max_distance: float = 10.0,
+    theta_max: float = 45.0,
+    rho_min: float = 0.5,
+    rho_max: float = 2.0,
 ) -> None:
     """Clean every task's demos (paper Algorithm 1) and write DIR/<task>.cleaned.hdf5.
 
@@ -136,8 +139,12 @@ def clean(
         json: Print one JSON summary on stdout instead of tables.
         max_distance: Largest distance [m] of a sample from its task plane's origin; farther is
             an error naming the demo.
+        theta_max: Largest |θ| [deg] read from a demo whose file lacks θ/ρ (NaN).
+        rho_min: Smallest ρ read from such a demo.
+        rho_max: Largest ρ read from such a demo.
     """
     from bt_pipeline.clean.driver import clean_paths
+    from bt_pipeline.clean.guide_fit import PreferenceRange
     from bt_pipeline.clean.pipeline import CleanOptions
     from bt_pipeline.data.limits import ReadLimits
     from bt_pipeline.viz.tables import clean_json, print_clean_summary
@@ -151,6 +158,7 @@ def clean(
         workers=workers,
         strict=strict,
         chunk_size=chunk_size,
+        preference_range=PreferenceRange(theta_max, rho_min, rho_max),
     )
     summaries = clean_paths(
         paths,
