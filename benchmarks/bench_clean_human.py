@@ -9,8 +9,9 @@ style) it cleans the set and reports, for naive demos, the after/before ratios o
 - **timing**: mean distance, at each output sample time, to the intended path at the demo's
   own timing; "before" is the raw demo at the same times;
 
-plus the expert-like demo's ratios, the share of sets whose best demo is the expert, and the
-share of hidden-θ/ρ demos estimated within 5° and 0.05.
+plus the expert-like demo's ratios, the share of sets whose best demo is the expert, the
+share of hidden-θ/ρ demos estimated within 5° and 0.05, and the naive ratios over the sets whose
+θ/ρ are hidden alone (what a user whose files lack θ/ρ can expect).
 
 Truth comes from the files' own attrs (bt_pipeline.data.synth_truth), not from the cleaner.
 
@@ -58,6 +59,9 @@ def measure(
         kind = "expert" if i == expert else "naive"
         out[f"{kind}_shape"].append(shape)
         out[f"{kind}_timing"].append(timing)
+        if hidden and kind == "naive":  # What a user whose files lack θ/ρ can expect.
+            out["hidden_naive_shape"].append(shape)
+            out["hidden_naive_timing"].append(timing)
         if hidden:
             p = result.preferences[i]
             theta, rho = record.attrs["truth_theta_deg"], record.attrs["truth_rho"]
@@ -80,9 +84,10 @@ def main() -> None:
     print(
         "| style | task | set | naive shape (mean / worst) | naive timing (mean / worst) | "
         "expert shape (worst) | expert timing (worst) | best = expert | hidden θ within 5° | "
-        "hidden θ within 5° and ρ within 0.05 |" + (" K | clean wall [s] |" if with_k else "")
+        "hidden θ within 5° and ρ within 0.05 | naive shape / timing, θ/ρ hidden (mean) |"
+        + (" K | clean wall [s] |" if with_k else "")
     )
-    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if with_k else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if with_k else ""))
     for style in args.styles.split(","):
         for task in args.tasks.split(","):
             for preset, chunk_size in ((p, k) for p in args.presets.split(",") for k in chunks):
@@ -100,11 +105,18 @@ def main() -> None:
                 def share(key: str, runs: dict[str, list[float]] = runs) -> str:
                     return f"{100 * np.mean(runs[key]):.0f}%" if runs[key] else "—"
 
+                hidden_means = (
+                    f"{np.mean(runs['hidden_naive_shape']):.2f} / "
+                    f"{np.mean(runs['hidden_naive_timing']):.2f}"
+                    if runs["hidden_naive_shape"]
+                    else "—"
+                )
+
                 print(
                     f"| {style} | {task} | {preset} | {pair('naive_shape')} | "
                     f"{pair('naive_timing')} | {np.max(runs['expert_shape']):.2f} | "
                     f"{np.max(runs['expert_timing']):.2f} | {share('selected')} | "
-                    f"{share('hidden_theta_ok')} | {share('hidden_ok')} |{extra}",
+                    f"{share('hidden_theta_ok')} | {share('hidden_ok')} | {hidden_means} |{extra}",
                     flush=True,
                 )
 
