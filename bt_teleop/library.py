@@ -16,6 +16,7 @@ tab shows, escaping every text a browser typed (:mod:`bt_teleop.escape`).
 
 from __future__ import annotations
 
+import heapq
 import logging
 import math
 from collections.abc import Callable
@@ -43,6 +44,7 @@ __all__ = [
     "library_markdown",
     "load_library",
     "plural",
+    "ranked",
 ]
 
 LOGGER = logging.getLogger("bt.teleop")
@@ -193,6 +195,17 @@ def plural(n: int, noun: str) -> str:
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
+def _order(track: ReplayTrack) -> tuple[int, float]:
+    group = 0 if track.usable else (1 if not track.excluded else 2)
+    return group, -(track.utility if track.utility is not None else -1.0)
+
+
+def ranked(library: TaskLibrary, limit: int) -> list[ReplayTrack]:
+    """The first `limit` raw demos in the table's order: usable by Ũ (best first), flagged,
+    excluded (``sorted(...)[:limit]`` without sorting them all)."""
+    return heapq.nsmallest(limit, library.raw, key=_order)
+
+
 def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
     """A Markdown table of the task's raw demos, and a line on the cleaned ones.
 
@@ -203,14 +216,8 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
     if not library.raw:
         return f"No {library.task} recordings yet: press **Record**."
     best = library.best
-
-    def order(track: ReplayTrack) -> tuple[int, float]:
-        group = 0 if track.usable else (1 if not track.excluded else 2)
-        return group, -(track.utility if track.utility is not None else -1.0)
-
-    ranked = sorted(library.raw, key=order)
     rows = ["| | who | θ, ρ | s | Ũ | note |", "|---|---|---|---|---|---|"]
-    for track in ranked[:max_rows]:
+    for track in ranked(library, max_rows):
         mark = ("★" if track is best else "") + ("⚠" if track.flags or track.warnings else "")
         if track.excluded:
             mark = "⊘"
@@ -227,8 +234,8 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
     n_usable = sum(t.usable for t in library.raw)
     head = f"{plural(len(library.raw), 'demo')} of {library.task}, {n_usable} usable"
     lines = [f"{head} (★ best, ⚠ flagged or worth a look, ⊘ excluded)", "", *rows]
-    if len(ranked) > max_rows:
-        lines.append(f"… and {len(ranked) - max_rows} more")
+    if len(library.raw) > max_rows:
+        lines.append(f"… and {len(library.raw) - max_rows} more")
     if library.cleaned and library.cleaned_stale:
         lines += ["", "The recordings changed since the last Clean: press **Clean** again."]
     elif library.cleaned:
