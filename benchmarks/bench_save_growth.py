@@ -7,8 +7,10 @@ in a ``GuiUpdateMessage`` each time they change. This benchmark builds a task of
 files on disk, their tracks served from a cache as the loader's cache serves unchanged files,
 so no HDF5 is read) and measures, for each N:
 
-* the load (:func:`bt_teleop.library.load_library` with cached reads): the bytes Python
-  allocates during it (tracemalloc peak) and the size of the library it returns;
+* the load after one more take was saved (:func:`bt_teleop.library.load_library` with cached
+  reads and the last library, as the loader runs it): the bytes Python allocates during it
+  (tracemalloc peak) and the new bytes it still holds with the last library alive, beside the
+  same load without the last library (the code before the reuse: a new object per take);
 * a tab's view of it (:func:`bt_teleop.library_view.library_view`): the length of the table's
   Markdown, the number of keys each picker offers, and the size of the messages that carry
   them (msgpack, as viser encodes them), with the view the code before that module built
@@ -29,7 +31,7 @@ from pathlib import Path
 
 import msgspec
 
-from bt_teleop.library import load_library
+from bt_teleop.library import TaskLibrary, load_library
 from bt_teleop.library_view import DEFAULT_LISTED, library_view
 from bt_teleop.testing import synthetic_task_files
 
@@ -40,28 +42,37 @@ def message_bytes(uuid: str, options: list[str]) -> int:
     return len(msgspec.msgpack.encode(message))
 
 
+def _load_held(root: Path, cache: dict, previous: TaskLibrary | None) -> tuple[TaskLibrary, float, float]:
+    """A load of the task: the library, the bytes it allocated and still holds [KiB] (the
+    previous library stays alive, as the tabs hold it), and the peak allocated [KiB]."""
+    tracemalloc.start()
+    library = load_library(root, "wiping", read=lambda path, kind: cache[path], previous=previous)
+    held, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return library, held / 1024, peak / 1024
+
+
 def measure(n: int, listed: int) -> dict[str, float]:
     """The costs above for a task of `n` takes."""
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        cache = synthetic_task_files(root, "wiping", n)
+        cache = synthetic_task_files(root, "wiping", n - 1)
+        first, _, _ = _load_held(root, cache, None)
+        cache = synthetic_task_files(root, "wiping", n)  # one more take saved
+        _, held_fresh, _ = _load_held(root, cache, None)
+        library, held, peak = _load_held(root, cache, first)
         tracemalloc.start()
-        before = tracemalloc.get_traced_memory()[0]
-        tracemalloc.reset_peak()
-        library = load_library(root, "wiping", read=lambda path, kind: cache[path])
-        held, peak = tracemalloc.get_traced_memory()
-        tracemalloc.reset_peak()
-        start = tracemalloc.get_traced_memory()[0]
         view = library_view(library, listed)
-        view_peak = tracemalloc.get_traced_memory()[1] - start
+        view_peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
     all_raw = [t.key for t in library.raw]
     all_keys = [t.key for t in library.tracks]
     uuid = "0" * 22
     return {
         "takes": n,
-        "load: peak allocated [KiB]": (peak - before) / 1024,
-        "load: library held [KiB]": (held - before) / 1024,
+        "load: peak allocated [KiB]": peak,
+        "load after a save: new, held [KiB]": held,
+        "before: the same, no reuse [KiB]": held_fresh,
         "view: built, peak [KiB]": view_peak / 1024,
         "table [bytes]": len(view.markdown.encode()),
         "replay keys": len(view.replay_keys),
