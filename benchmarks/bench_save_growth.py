@@ -28,6 +28,7 @@ import argparse
 import tempfile
 import tracemalloc
 from pathlib import Path
+from typing import Any
 
 import msgspec
 
@@ -42,7 +43,9 @@ def message_bytes(uuid: str, options: list[str]) -> int:
     return len(msgspec.msgpack.encode(message))
 
 
-def _load_held(root: Path, cache: dict, previous: TaskLibrary | None) -> tuple[TaskLibrary, float, float]:
+def _load_held(
+    root: Path, cache: dict[Path, Any], previous: TaskLibrary | None
+) -> tuple[TaskLibrary, float, float]:
     """A load of the task: the library, the bytes it allocated and still holds [KiB] (the
     previous library stays alive, as the tabs hold it), and the peak allocated [KiB]."""
     tracemalloc.start()
@@ -90,7 +93,7 @@ def measure(n: int, listed: int) -> dict[str, float]:
 
 def main() -> None:
     """Print one row per N."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
     parser.add_argument("--takes", type=int, nargs="+", default=[100, 1000, 2000])
     parser.add_argument("--listed", type=int, default=DEFAULT_LISTED)
     args = parser.parse_args()

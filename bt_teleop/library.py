@@ -183,9 +183,7 @@ def _utilities(metrics: list[RawMetrics]) -> FloatArray:
     return normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
 
 
-def _scored(
-    files: list[FileTracks], before: dict[str, ReplayTrack]
-) -> tuple[ReplayTrack, ...]:
+def _scored(files: list[FileTracks], before: dict[str, ReplayTrack]) -> tuple[ReplayTrack, ...]:
     """The raw tracks of `files`, marked excluded (moderation) and scored among the usable ones.
 
     A track listed in `before` (key -> track) from the same file version, with the same Ũ and
