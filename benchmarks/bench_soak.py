@@ -29,6 +29,9 @@ Reported:
 * takes saved vs intended (Stop & save presses; files counted on disk at the end);
 * with ``--discard`` the tabs press Discard instead of Stop & save: the same recording work
   without files, library loads or table updates, a control for the memory measured;
+* with ``--no-library-loads`` the takes are saved as usual but the tabs' library loads list
+  nothing (no file is read or scored, tables and pickers stay empty): a control that tells the
+  memory of saving a take from the memory of listing the task's takes;
 * with ``--tracemalloc N``: what was allocated after a third of the run and is still held at
   its end, by the Python lines that allocated it (N frames of traceback; tracing starts at the
   third). Tracing slows the app down several times, so the starved loops simulate too little
@@ -67,6 +70,7 @@ from soak_memory import Sampler
 
 import bt_teleop.library
 import bt_teleop.library_loader
+from bt_pipeline.data.tasks import parse_task
 from bt_teleop.app import AppOptions, TeleopApp
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.session_process import SessionProcess
@@ -235,6 +239,11 @@ def drive(
         time.sleep(float(rng.uniform(0.2, 1.0)))
 
 
+def empty_library(recordings_dir: Any, task: str, **_: Any) -> bt_teleop.library.TaskLibrary:
+    """``--no-library-loads``: the task's library as if it had no demos (nothing is read)."""
+    return bt_teleop.library.TaskLibrary(parse_task(task), (), ())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--minutes", type=float, default=10.0)
@@ -272,10 +281,17 @@ def main() -> None:
         default=SessionConfig().priority_boost,
         help="lower the control loops' nice value by this much (0: as the app's threads)",
     )
+    parser.add_argument(
+        "--no-library-loads",
+        action="store_true",
+        help="the tabs' library loads list nothing (no file read, scored or listed, empty "
+        "tables and pickers) while the takes are saved as usual: a control for the memory",
+    )
     args = parser.parse_args()
     process = psutil.Process()
     loads = Timed()
-    bt_teleop.library_loader.load_library = loads.wrap(bt_teleop.library.load_library)
+    load = empty_library if args.no_library_loads else bt_teleop.library.load_library
+    bt_teleop.library_loader.load_library = loads.wrap(load)
     tmp = tempfile.mkdtemp(prefix="bt-soak-")
     with app_factory(Path(tmp) / "rec") as make, tab_factory() as open_tab:
         # The drivers act through the app's handles, not the websocket, so every tab looks
