@@ -134,3 +134,18 @@ def test_cleaned_demos_of_offered_takes_and_the_best_cleaned_are_replayable(
 def test_listed_must_be_positive(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="listed"):
         library_view(task_library(tmp_path, 3), listed=0)
+
+
+def test_listed_demos_reaches_the_app_from_bt_teleop(monkeypatch) -> None:
+    import bt_teleop.app as app_module
+    from bt_pipeline.cli.teleop_command import teleop
+    from bt_pipeline.exceptions import ConfigError
+    from bt_teleop.app import AppOptions
+
+    seen: list[AppOptions] = []
+    monkeypatch.setattr(app_module, "serve", seen.append)  # do not bind
+    teleop(listed_demos=7)
+    assert seen[0].listed_demos == 7
+    assert AppOptions().listed_demos == 50
+    with pytest.raises(ConfigError, match="--listed-demos"):
+        AppOptions(listed_demos=0)
