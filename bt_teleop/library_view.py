@@ -4,10 +4,12 @@ Every Stop & save makes every tab on the task show the new library: the recordin
 (:func:`bt_teleop.library.library_markdown`: the counts over all takes, then the best
 ``table_rows`` demos by Ũ) and two pickers, Replay and Demo (exclude / restore), whose option
 lists viser sends to each browser whenever they change. The pickers used to offer every take
-of the task, so each save sent every tab two messages listing all of them (about 40 bytes a
-take: 100 KiB for 1,271 takes after a 20-minute soak), each a little larger than the last,
-and the app's allocator kept the freed, too-small blocks (docs/security.md, "Where the native
-memory went"). :func:`library_view` offers a bounded set instead:
+of the task, so each reload sent every tab two messages listing all of them (about 38 bytes a
+take each: 74 KiB for 1,000 takes, ``benchmarks/bench_save_growth.py``), each a little larger
+than the last. That was suspected of fragmenting the app's heap; an A/B soak showed no
+measurable change in the app's memory when bounded (docs/security.md, "What a save costs the
+app"), but what a save sends no longer grows with the task, and a picker of thousands of
+entries is of no use to a person. :func:`library_view` offers a bounded set instead:
 
 * the ``listed`` newest raw takes (by file modification time: when they were saved), newest
   first;
