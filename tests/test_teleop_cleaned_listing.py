@@ -21,7 +21,7 @@ def cleaned_file(path: Path, n: int = 6) -> Path:
     recording = make_demo_set("wiping", n_demos=n, seed=3).recording
     demos = {}
     for i, (name, demo) in enumerate(recording.demos.items()):
-        attrs = {"utility_cleaned": 0.1 * i} if i != 2 else {}  # one unscored
+        attrs: dict[str, object] = {"utility_cleaned": 0.1 * i} if i != 2 else {}  # one unscored
         if i != 4:  # one without its source: listed by its own name
             source_demo = "demo_3" if i == 1 else "demo_0"  # one of a multi-demo raw file
             attrs["cleaned_from"] = f"/rec/wiping/tab {i}_x.hdf5:{source_demo}"
