@@ -29,6 +29,10 @@ Reported:
 * takes saved vs intended (Stop & save presses; files counted on disk at the end);
 * with ``--discard`` the tabs press Discard instead of Stop & save: the same recording work
   without files, library loads or table updates, a control for the memory measured;
+* with ``--library-loads none`` the takes are saved as usual but the tabs' library loads list
+  nothing (no file is read or scored, tables and pickers stay empty), and with ``read-new``
+  they read and score each new file as the app does and list nothing: controls that tell the
+  memory of saving a take, of reading it, and of listing the task's takes apart;
 * with ``--tracemalloc N``: what was allocated after a third of the run and is still held at
   its end, by the Python lines that allocated it (N frames of traceback; tracing starts at the
   third). Tracing slows the app down several times, so the starved loops simulate too little
@@ -67,7 +71,10 @@ from soak_memory import Sampler
 
 import bt_teleop.library
 import bt_teleop.library_loader
+from bt_pipeline.data.tasks import parse_task
+from bt_pipeline.exceptions import BtError
 from bt_teleop.app import AppOptions, TeleopApp
+from bt_teleop.cleaning import task_dir
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.session_process import SessionProcess
 from bt_teleop.testing import app_factory, circle_uv, reachable, tab_factory, wait_until
@@ -235,6 +242,26 @@ def drive(
         time.sleep(float(rng.uniform(0.2, 1.0)))
 
 
+def empty_library(recordings_dir: Any, task: str, **_: Any) -> bt_teleop.library.TaskLibrary:
+    """``--library-loads none``: the task's library as if it had no demos (nothing is read)."""
+    return bt_teleop.library.TaskLibrary(parse_task(task), (), ())
+
+
+def read_new_files(
+    recordings_dir: Any, task: str, read: Any = None, **_: Any
+) -> bt_teleop.library.TaskLibrary:
+    """``--library-loads read-new``: every file of the task through the loader's `read` (so
+    each new file is read and scored once, as the app does), then an empty library (nothing
+    listed, scored over the task, or shown)."""
+    folder = task_dir(recordings_dir, parse_task(task))
+    for path in bt_teleop.library.task_files(folder) if folder.is_dir() else []:
+        try:
+            read(path, "raw")
+        except BtError:
+            continue
+    return empty_library(recordings_dir, task)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--minutes", type=float, default=10.0)
@@ -272,10 +299,23 @@ def main() -> None:
         default=SessionConfig().priority_boost,
         help="lower the control loops' nice value by this much (0: as the app's threads)",
     )
+    parser.add_argument(
+        "--library-loads",
+        choices=("full", "none", "read-new"),
+        default="full",
+        help="what the tabs' library loads do: full (the app's), none (list nothing: no file "
+        "read, scored or listed; empty tables and pickers) or read-new (read and score each "
+        "new file as the app does, list nothing); the takes are saved as usual: controls",
+    )
     args = parser.parse_args()
     process = psutil.Process()
     loads = Timed()
-    bt_teleop.library_loader.load_library = loads.wrap(bt_teleop.library.load_library)
+    load = {
+        "full": bt_teleop.library.load_library,
+        "none": empty_library,
+        "read-new": read_new_files,
+    }[args.library_loads]
+    bt_teleop.library_loader.load_library = loads.wrap(load)
     tmp = tempfile.mkdtemp(prefix="bt-soak-")
     with app_factory(Path(tmp) / "rec") as make, tab_factory() as open_tab:
         # The drivers act through the app's handles, not the websocket, so every tab looks

@@ -124,6 +124,7 @@ class TeleopApp:
             publish_hz=options.publish_hz,
             save_incomplete=options.save_incomplete,
             initial_task=options.initial_task,
+            listed_demos=options.listed_demos,
             operator_token=options.operator_token,
             fancy_lighting=options.fancy_lighting,
             event_loop=self.server.get_event_loop(),

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import ConfigError
+from bt_teleop.library_view import DEFAULT_LISTED
 from bt_teleop.rerun_live import RERUN_MODES, RerunMode
 from bt_teleop.scene import Robot, parse_robot
 from bt_teleop.session import SessionConfig
@@ -62,6 +63,9 @@ class AppOptions:
     trim_heap_every_s: float = 60.0
     """Give the C heap's free pages back to the system this often [s] (``inf``: never); the
     app's threads fragment glibc's arenas (docs/security.md, soak; bt_teleop/native_memory.py)."""
+    listed_demos: int = DEFAULT_LISTED
+    """Newest takes of a task that each tab's Demo and Replay pickers offer (besides the table's
+    demos): what a save sends every tab stays bounded however many takes the task has."""
     fancy_lighting: bool = False
     """viser's environment map and shadows: pretty with a GPU, but software WebGL (headless
     browsers, GPU-less laptops) needs tens of seconds to prepare them."""
@@ -77,6 +81,8 @@ class AppOptions:
             raise ConfigError(
                 f"trim_heap_every_s must be > 0 (inf: never); got {self.trim_heap_every_s}"
             )
+        if self.listed_demos < 1:
+            raise ConfigError(f"--listed-demos must be ≥ 1; got {self.listed_demos}")
         if self.max_sessions < 1:
             raise ConfigError(f"--max-sessions must be ≥ 1; got {self.max_sessions}")
         if self.rerun not in RERUN_MODES:

@@ -16,8 +16,10 @@ tab shows, escaping every text a browser typed (:mod:`bt_teleop.escape`).
 
 from __future__ import annotations
 
+import heapq
 import logging
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -26,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from bt_pipeline.data.moderation import is_excluded
+from bt_pipeline.data.paths import RECORDING_SUFFIXES
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError, ConfigError
@@ -43,6 +46,8 @@ __all__ = [
     "library_markdown",
     "load_library",
     "plural",
+    "ranked",
+    "task_files",
 ]
 
 LOGGER = logging.getLogger("bt.teleop")
@@ -93,7 +98,10 @@ ReadTracks = Callable[[Path, TrackKind], FileTracks]
 
 
 def load_library(
-    recordings_dir: str | Path, task: str, read: ReadTracks | None = None
+    recordings_dir: str | Path,
+    task: str,
+    read: ReadTracks | None = None,
+    previous: TaskLibrary | None = None,
 ) -> TaskLibrary:
     """List `task`'s raw and cleaned demos (unreadable files are skipped with a warning).
 
@@ -104,25 +112,23 @@ def load_library(
             :class:`bt_teleop.library_loader.LibraryLoader`); :func:`read_file_tracks` when None.
             Ũ is then normalised over the task's usable demos (Eqs. 7-8), exactly as
             :func:`~bt_pipeline.score.utility.score_demos` does.
+        previous: The task's last library (from the same `read`): a raw demo whose file, Ũ
+            and exclusion did not change is listed by that library's very object, so a load
+            allocates new tracks only for what changed (Ũ is min-max normalised, Eq. 7: a new
+            take changes the others' Ũ only when it moves a metric's min or max).
     """
-    from bt_pipeline.data.paths import expand_paths
-
     read = read or read_file_tracks
     parsed = parse_task(task)
     folder = task_dir(recordings_dir, parsed)
     files: list[FileTracks] = []
     if folder.is_dir():
-        try:
-            paths = expand_paths([folder])
-        except BtError:  # an empty folder
-            paths = []
-        for path in paths:
+        for path in task_files(folder):
             try:
                 files.append(read(path, "raw"))
             except BtError as exc:
                 LOGGER.warning("skipping %s", exc)
     files = [f for f in files if f.task == parsed]
-    raw = _scored(files)
+    raw = _scored(files, {t.key: t for t in previous.raw} if previous is not None else {})
     cleaned: tuple[ReplayTrack, ...] = ()
     stale = False
     cleaned_file = cleaned_path(recordings_dir, parsed)
@@ -135,6 +141,22 @@ def load_library(
             cleaned = cleaned_tracks.tracks
             stale = _newest_change_ns(files) > cleaned_tracks.stamp.mtime_ns
     return TaskLibrary(parsed, raw, cleaned, cleaned_stale=stale)
+
+
+def task_files(folder: Path) -> list[Path]:
+    """The recordings under `folder`, sorted: what :func:`bt_pipeline.data.paths.expand_paths`
+    gives for a folder (``*.hdf5`` and ``*.h5`` below it, hidden files and folders skipped),
+    from one directory scan without a stat or a resolve per file (a load after every save:
+    expand_paths allocated 0.8 MiB for 1,000 takes, ``bench_save_growth.py``)."""
+    found: list[Path] = []
+    for directory, subdirs, names in os.walk(folder):
+        subdirs[:] = sorted(d for d in subdirs if not d.startswith("."))
+        found.extend(
+            Path(directory, name)
+            for name in names
+            if name.endswith(RECORDING_SUFFIXES) and not name.startswith(".")
+        )
+    return sorted(found)
 
 
 def _newest_change_ns(files: list[FileTracks]) -> int:
@@ -161,36 +183,61 @@ def _utilities(metrics: list[RawMetrics]) -> FloatArray:
     return normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
 
 
-def _scored(files: list[FileTracks]) -> tuple[ReplayTrack, ...]:
+def _scored(files: list[FileTracks], before: dict[str, ReplayTrack]) -> tuple[ReplayTrack, ...]:
     """The raw tracks of `files`, marked excluded (moderation) and scored among the usable ones.
 
-    A usable demo whose raw metrics could not be computed stays unscored (Ũ None); the others
-    are normalised without it.
+    A track listed in `before` (key -> track) from the same file version, with the same Ũ and
+    exclusion, is that very object: no new object for a demo that did not change. A usable
+    demo whose raw metrics could not be computed stays unscored (Ũ None); the others are
+    normalised without it.
     """
-    tracks: list[ReplayTrack] = []
+    listed: list[tuple[ReplayTrack, bool]] = []
     scored: list[tuple[int, RawMetrics]] = []
     for file in files:
         excluded = is_excluded(file.path)
         for track, metrics in zip(file.tracks, file.metrics, strict=True):
-            track = replace(track, excluded=excluded) if excluded else track
-            if track.usable and metrics is not None:
-                scored.append((len(tracks), metrics))
+            if not track.flags and not excluded and metrics is not None:
+                scored.append((len(listed), metrics))
+            listed.append((track, excluded))
+    utilities: dict[int, float] = {}
+    if scored:
+        try:
+            values = _utilities([metrics for _, metrics in scored])
+        except BtError as exc:
+            LOGGER.warning("cannot score the raw demos: %s", exc)
+        else:
+            utilities = {i: float(u) for (i, _), u in zip(scored, values, strict=True)}
+    tracks: list[ReplayTrack] = []
+    for index, (track, excluded) in enumerate(listed):
+        utility = utilities.get(index)
+        old = before.get(track.key)
+        if (
+            old is not None
+            and (old.file, old.demo, old.stamp) == (track.file, track.demo, track.stamp)
+            and (old.excluded, old.utility) == (excluded, utility)
+        ):
+            tracks.append(old)  # the same file version: the same fields
+        elif excluded or utility is not None:
+            tracks.append(replace(track, excluded=excluded, utility=utility))
+        else:
             tracks.append(track)
-    if not scored:
-        return tuple(tracks)
-    try:
-        utilities = _utilities([metrics for _, metrics in scored])
-    except BtError as exc:
-        LOGGER.warning("cannot score the raw demos: %s", exc)
-        return tuple(tracks)
-    for (index, _), utility in zip(scored, utilities, strict=True):
-        tracks[index] = replace(tracks[index], utility=float(utility))
     return tuple(tracks)
 
 
 def plural(n: int, noun: str) -> str:
     """``1 demo``, ``2 demos``, ``0 demos``."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def _order(track: ReplayTrack) -> tuple[int, float]:
+    group = 0 if track.usable else (1 if not track.excluded else 2)
+    return group, -(track.utility if track.utility is not None else -1.0)
+
+
+def ranked(library: TaskLibrary, limit: int) -> list[ReplayTrack]:
+    """The first `limit` raw demos in the table's order: usable by Ũ (best first), flagged,
+    excluded (``sorted(...)[:limit]`` without sorting them all)."""
+    return heapq.nsmallest(limit, library.raw, key=_order)
 
 
 def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
@@ -203,14 +250,8 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
     if not library.raw:
         return f"No {library.task} recordings yet: press **Record**."
     best = library.best
-
-    def order(track: ReplayTrack) -> tuple[int, float]:
-        group = 0 if track.usable else (1 if not track.excluded else 2)
-        return group, -(track.utility if track.utility is not None else -1.0)
-
-    ranked = sorted(library.raw, key=order)
     rows = ["| | who | θ, ρ | s | Ũ | note |", "|---|---|---|---|---|---|"]
-    for track in ranked[:max_rows]:
+    for track in ranked(library, max_rows):
         mark = ("★" if track is best else "") + ("⚠" if track.flags or track.warnings else "")
         if track.excluded:
             mark = "⊘"
@@ -227,8 +268,8 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
     n_usable = sum(t.usable for t in library.raw)
     head = f"{plural(len(library.raw), 'demo')} of {library.task}, {n_usable} usable"
     lines = [f"{head} (★ best, ⚠ flagged or worth a look, ⊘ excluded)", "", *rows]
-    if len(ranked) > max_rows:
-        lines.append(f"… and {len(ranked) - max_rows} more")
+    if len(library.raw) > max_rows:
+        lines.append(f"… and {len(library.raw) - max_rows} more")
     if library.cleaned and library.cleaned_stale:
         lines += ["", "The recordings changed since the last Clean: press **Clean** again."]
     elif library.cleaned:

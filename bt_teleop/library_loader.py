@@ -21,6 +21,11 @@ machine (a load then takes seconds of wall time) the reader thread still leaves 
 GIL to the control loops most of the time; the table then lags the saves by that much (the save
 notice itself is immediate).
 
+Each load also reuses the last library's track objects for the demos that did not change
+(same file version, same Ũ, same exclusion): a save then allocates objects for its own take and
+for the demos whose Ũ it moved, not for every take of the task (:func:`load_library`'s
+``previous``; ``bench_save_growth.py``).
+
 The cache holds, per file, what the tabs' libraries list (:class:`~bt_teleop.tracks.FileTracks`:
 names, flags, durations, raw metrics, the file's identity; about 1 KiB a take), never its samples;
 the entries of files that are gone are dropped at each load.
@@ -76,6 +81,8 @@ class LibraryLoader:
         self._lock = threading.Lock()
         self._queued: dict[str, tuple[object, concurrent.futures.Future[TaskLibrary]]] = {}
         self._files: dict[Path, FileTracks] = {}
+        self._last: dict[str, TaskLibrary] = {}
+        """Each task's last library: its unchanged tracks are reused by the next load."""
         self.loads = 0
         """Loads run so far."""
         self.files_read = 0
@@ -115,9 +122,12 @@ class LibraryLoader:
             seen.add(path)
             return self._read(path, kind)
 
-        library = load_library(self.recordings_dir, task, read=read)
+        with self._lock:
+            previous = self._last.get(task)
+        library = load_library(self.recordings_dir, task, read=read, previous=previous)
         ended = self._clock()
         with self._lock:
+            self._last[task] = library
             self.loads += 1
             pause = max(self.min_interval_s, self.duty * (ended - started))
             self._next_start[task] = ended + pause

@@ -8,6 +8,7 @@
     wait_until(condition, timeout_s, what)         poll until truthy; TimeoutError otherwise
     circle_uv(t_s)                                 a reachable circle in task-plane coordinates
     reachable(root)                                every object a record holds (memory checks)
+    synthetic_task_files(root, task, n)            n takes on disk as the library loader caches them
 
 :class:`FakeTab` is a browser tab as the server sees it: it connects with viser's protocol
 version, sends the first camera message (what makes viser call ``on_client_connect``), reads
@@ -52,6 +53,7 @@ __all__ = [
     "guide_script",
     "reachable",
     "shared_dir",
+    "synthetic_task_files",
     "tab_factory",
     "wait_until",
 ]
@@ -282,3 +284,51 @@ def reachable(root: object) -> Iterator[object]:
             names = [n for cls in type(item).__mro__ for n in getattr(cls, "__slots__", ())]
             stack += [getattr(item, n) for n in names if hasattr(item, n)]
             stack += list(getattr(item, "__dict__", {}).values())
+
+
+def synthetic_task_files(root: Path, task: str, n: int, seed: int = 0) -> dict[Path, Any]:
+    """`n` takes of `task` under `root`, as the library loader's cache holds them.
+
+    The files are empty (no HDF5 is written: thousands of takes in a second); each has one
+    demo, saved a second after the one before (its mtime), by one of 8 demonstrators, with
+    random raw metrics. Returns file -> :class:`~bt_teleop.tracks.FileTracks`, to serve as
+    ``load_library(root, task, read=lambda path, kind: files[path])``.
+    """
+    import os
+
+    from bt_pipeline.score.utility import RawMetrics
+    from bt_teleop.naming import demo_path
+    from bt_teleop.tracks import FileTracks, ReplayTrack, file_stamp
+
+    rng = np.random.default_rng(seed)
+    start = 1_795_000_000  # 2026-11-18, seconds since the epoch
+    files: dict[Path, Any] = {}
+    for i in range(n):
+        who = f"tab {i % 8}"
+        when = time.gmtime(start + i)
+        path = demo_path(root, task, who, _utc(when), suffix=f"{i:06x}")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.touch()
+        os.utime(path, ns=((start + i) * 10**9, (start + i) * 10**9))
+        stamp = file_stamp(path)
+        track = ReplayTrack(
+            key=f"raw · {path.stem}",
+            kind="raw",
+            file=path,
+            demo="demo_0",
+            stamp=stamp,
+            num_samples=300,
+            duration_s=3.0,
+            demonstrator=who,
+            theta_deg=0.0,
+            rho=1.0,
+        )
+        metrics = RawMetrics(*(float(v) for v in rng.uniform(0.1, 1.0, 4)))
+        files[path] = FileTracks(path, stamp, task, (track,), (metrics,))  # type: ignore[arg-type]
+    return files
+
+
+def _utc(when: time.struct_time) -> Any:
+    from datetime import UTC, datetime
+
+    return datetime(*when[:6], tzinfo=UTC)

@@ -135,7 +135,8 @@ class FileTracks:
 
 
 def read_file_tracks(path: Path, kind: TrackKind) -> FileTracks:
-    """Read `path` and keep its demos' tracks (and, for raw demos, their raw metrics).
+    """Read `path` and keep its demos' tracks (and, for raw demos, their raw metrics); a cleaned
+    file's samples are not read (:mod:`bt_teleop.cleaned_listing`).
 
     Args:
         path: A raw take file, or a task's cleaned file.
@@ -146,14 +147,18 @@ def read_file_tracks(path: Path, kind: TrackKind) -> FileTracks:
             was read.
     """
     from bt_pipeline.data.recording import read_recording
+    from bt_teleop.cleaned_listing import read_cleaned_listing
 
     for _attempt in range(3):
         stamp = file_stamp(path)
+        if kind == "cleaned":  # its attributes only: the task's every demo, samples not read
+            tracks = read_cleaned_listing(path, stamp)
+            if file_stamp(path) == stamp:
+                return tracks
+            continue
         recording = read_recording(path)
         if file_stamp(path) == stamp:  # not replaced while it was read
-            if kind == "raw":
-                return _raw_file(recording, path, stamp)
-            return FileTracks(path, stamp, recording.task, _cleaned_tracks(recording, stamp))
+            return _raw_file(recording, path, stamp)
     raise RecordingError(f"{path}: the file kept changing while it was read; try again later")
 
 
@@ -205,6 +210,8 @@ def _metrics_or_none(demo: Demo, name: str) -> RawMetrics | None:
 
 
 def _cleaned_tracks(recording: Recording, stamp: FileStamp) -> tuple[ReplayTrack, ...]:
+    """The tracks of a cleaned file read in full (the reference that
+    :func:`bt_teleop.cleaned_listing.read_cleaned_listing` is tested against)."""
     assert recording.path is not None
     tracks = []
     for name, record in recording.demos.items():

@@ -12,6 +12,7 @@ from pathlib import Path
 from bt_pipeline.data.tasks import Task
 from bt_teleop.cleaning import CleanRunner
 from bt_teleop.library_loader import LibraryLoader
+from bt_teleop.library_view import DEFAULT_LISTED
 from bt_teleop.rerun_live import RerunHub
 from bt_teleop.scene import Robot
 from bt_teleop.session_config import SessionConfig
@@ -61,6 +62,8 @@ class UiContext:
     save_incomplete: bool = True
     """A closed tab's recording in progress: save it flagged incomplete (True) or discard it."""
     initial_task: Task = "wiping"
+    listed_demos: int = DEFAULT_LISTED
+    """Newest takes of a task the Demo and Replay pickers offer (bt_teleop/library_view.py)."""
     event_loop: asyncio.AbstractEventLoop | None = None
     """viser's event loop (where async GUI callbacks run)."""
     operator_token: str | None = None

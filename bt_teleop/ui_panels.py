@@ -26,7 +26,8 @@ import viser
 from bt_pipeline.data.tasks import TASKS, Task
 from bt_teleop.cleaning import CleanProgress
 from bt_teleop.escape import html_text, markdown_text
-from bt_teleop.library import TaskLibrary, library_markdown
+from bt_teleop.library import TaskLibrary
+from bt_teleop.library_view import library_view
 from bt_teleop.recorder import RHO_RANGE, THETA_RANGE_DEG
 from bt_teleop.replay import ReplayPlayer
 from bt_teleop.session_config import SessionStatus
@@ -108,6 +109,7 @@ class TabControls:
         self._rho = 1.0
         self._status_shown = ""
         self._moderation: tuple[list[str], set[str]] = ([], set())
+        self._listed = ctx.listed_demos
         link = ctx.rerun.session_url(session_id)
         if link is not None:
             gui.add_html(
@@ -196,11 +198,13 @@ class TabControls:
         self.discard_button.disabled = not status.recording
 
     def show_library(self, library: TaskLibrary) -> None:
-        """The recordings table, the replay picker and the moderation picker of a task."""
-        self.library_text.content = library_markdown(library)
-        self.show_replay_keys([track.key for track in library.tracks])
-        excluded = {t.key for t in library.raw if t.excluded}
-        self.show_moderation_keys([t.key for t in library.raw], excluded)
+        """The recordings table, the replay picker and the moderation picker of a task, each
+        bounded however many takes it has (:func:`bt_teleop.library_view.library_view`)."""
+        view = library_view(library, self._listed)
+        if self.library_text.content != view.markdown:
+            self.library_text.content = view.markdown
+        self.show_replay_keys(view.replay_keys)
+        self.show_moderation_keys(view.moderation_keys, view.excluded)
 
     def show_take_check(self, reasons: list[str] | None) -> None:
         """Say why the last take was flagged and offer to discard it (None: hide both)."""
@@ -243,12 +247,13 @@ class TabControls:
 
 
 def _offer(dropdown: viser.GuiDropdownHandle[str], keys: list[str]) -> None:
-    """Set a picker's options, keeping its choice if still offered (a placeholder if none)."""
+    """Set a picker's options, keeping its choice if still offered, else the first (the newest
+    demo; a placeholder if none)."""
     keys = keys or [NO_DEMOS]
     current = dropdown.value
     if tuple(dropdown.options) != tuple(keys):
         dropdown.options = keys
-    new = current if current in keys else keys[-1]
+    new = current if current in keys else keys[0]
     if dropdown.value != new:
         dropdown.value = new
 

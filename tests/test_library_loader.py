@@ -115,3 +115,39 @@ def test_close_ends_the_wait_of_a_spaced_load(tmp_path) -> None:
         waiting = loader.request("wiping")  # due in an hour
         loader.close()
         assert len(waiting.result(60).raw) == 1
+
+
+def test_a_load_reuses_the_tracks_of_unchanged_demos(tmp_path) -> None:
+    """After a save, only the new take and the demos whose Ũ moved are new objects (a load's
+    allocations do not grow with the takes that did not change); the library equals a fresh
+    load, also after an exclusion."""
+    from bt_pipeline.data.moderation import exclude
+    from bt_teleop.testing import synthetic_task_files
+
+    files = synthetic_task_files(tmp_path, "wiping", 200)
+    first = load_library(tmp_path, "wiping", read=lambda path, kind: files[path])
+    files = synthetic_task_files(tmp_path, "wiping", 201)  # the same 200 (new objects), +1
+    second = load_library(tmp_path, "wiping", read=lambda path, kind: files[path], previous=first)
+    assert second.raw == load_library(tmp_path, "wiping", read=lambda path, kind: files[path]).raw
+    before = {t.key: t for t in first.raw}
+    same = [t.key in before and before[t.key].utility == t.utility for t in second.raw]
+    reused = [before.get(t.key) is t for t in second.raw]
+    assert reused == same and sum(reused) >= 190  # the new take moved no min or max here
+    exclude(second.raw[5].file, reason="test", by="test")
+    third = load_library(tmp_path, "wiping", read=lambda path, kind: files[path], previous=second)
+    assert third.raw == load_library(tmp_path, "wiping", read=lambda path, kind: files[path]).raw
+    assert third.raw[5].excluded and third.raw[5] is not second.raw[5]
+
+
+def test_task_files_lists_what_expand_paths_lists(tmp_path) -> None:
+    from bt_pipeline.data.paths import expand_paths
+    from bt_teleop.library import task_files
+    from bt_teleop.testing import synthetic_task_files
+
+    synthetic_task_files(tmp_path, "wiping", 30)
+    folder = tmp_path / "wiping"
+    for name in ("sub/x.h5", ".hidden/y.h5", ".z.hdf5", "notes.txt", "sub/.w.hdf5", "a.hdf5.tmp"):
+        (folder / name).parent.mkdir(exist_ok=True)
+        (folder / name).touch()
+    assert task_files(folder) == expand_paths([folder])
+    assert len(task_files(folder)) == 31

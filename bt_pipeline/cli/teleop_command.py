@@ -18,6 +18,7 @@ def teleop(
     operator_token: str | None = None,
     script: Path | None = None,
     session_processes: bool = True,
+    listed_demos: int = 50,
 ) -> None:
     """Open the teleoperation web app: drag a target, a simulated FR3 follows; record demos.
 
@@ -41,6 +42,8 @@ def teleop(
         session_processes: Run each tab's simulation (control loop, IK, recorder) in a child
             process of its own, so the loops keep time beside the web server;
             --no-session-processes runs them in the app's process (one interpreter).
+        listed_demos: The newest takes of a task each tab's Demo and Replay pickers offer,
+            besides the table's best demos (the table's counts cover every take).
     """
     if script is not None:
         from bt_teleop.script import run_script
@@ -60,5 +63,6 @@ def teleop(
             idle_timeout_s=idle_timeout_s,
             operator_token=operator_token or os.environ.get("BT_OPERATOR_TOKEN") or None,
             session_processes=session_processes,
+            listed_demos=listed_demos,
         )
     )
