@@ -13,6 +13,9 @@ Reported:
   ticks minus the tick period, and the distribution of those gaps (p50, p99, p99.9, max), as
   each session keeps them (:mod:`bt_teleop.tick_stats`; read from the session processes, or
   from the sessions in the app's process with ``--in-process``, the baseline);
+* the late ticks attributed (:mod:`soak_late`): for each tick later than ``--late-ms``, what
+  its session process did meanwhile (run-queue wait, collections, requests, the tick's phases:
+  :mod:`bt_teleop.late_ticks`) and the app's heap trims, Clean presses and library loads;
 * where the time went (to attribute stalls): the compute time of the ticks themselves, the
   app process's garbage-collector pauses (``gc.callbacks``), the task-library loads every save
   triggers (:func:`bt_teleop.library.load_library` as the tabs' shared loader calls it, timed),
@@ -63,6 +66,8 @@ from typing import Any
 
 import numpy as np
 import psutil
+from soak_late import AppEvents
+from soak_late import report as late_report
 from soak_memory import Sampler
 
 import bt_teleop.library
@@ -272,10 +277,15 @@ def main() -> None:
         default=SessionConfig().priority_boost,
         help="lower the control loops' nice value by this much (0: as the app's threads)",
     )
+    parser.add_argument(
+        "--late-ms", type=float, default=50.0, help="attribute ticks this late [ms] and more"
+    )
     args = parser.parse_args()
     process = psutil.Process()
-    loads = Timed()
-    bt_teleop.library_loader.load_library = loads.wrap(bt_teleop.library.load_library)
+    loads, events = Timed(), AppEvents()
+    bt_teleop.library_loader.load_library = loads.wrap(
+        events.wrap("library load", bt_teleop.library.load_library)
+    )
     tmp = tempfile.mkdtemp(prefix="bt-soak-")
     with app_factory(Path(tmp) / "rec") as make, tab_factory() as open_tab:
         # The drivers act through the app's handles, not the websocket, so every tab looks
@@ -286,8 +296,11 @@ def main() -> None:
             idle_timeout_s=float("inf"),
             session_processes=not args.in_process,
             trim_heap_every_s=args.trim_heap_every_s,
-            session=SessionConfig(priority_boost=args.priority_boost),
+            session=SessionConfig(
+                priority_boost=args.priority_boost, late_tick_s=args.late_ms / 1e3
+            ),
         )
+        app.heap_trimmer._trim = events.wrap("heap trim", app.heap_trimmer._trim)
         tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
         refusals = [Refusals(ui) for ui in uis]
@@ -317,6 +330,7 @@ def main() -> None:
                 tracemalloc.start(args.tracemalloc)
             if next_clean is not None and time.monotonic() >= next_clean:
                 uis[cleans % len(uis)].controls.clean_button.value = True
+                events.mark("clean press")
                 cleans += 1
                 next_clean += args.clean_every
         stop.set()
@@ -359,7 +373,8 @@ def main() -> None:
     print(
         f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * ticks.max_compute_s:.0f} ms"
     )
-    print(f"gc pauses: {pauses.summary()}")
+    print(late_report(ticks.late, events, args.late_ms / 1e3, shown=15))
+    print(f"gc pauses (the app's process): {pauses.summary()}")
     trimmer = app.heap_trimmer
     print(
         f"heap trims (every {trimmer.every_s:g} s): {trimmer.calls}, "

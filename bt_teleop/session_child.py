@@ -87,6 +87,7 @@ def serve_session(
     except BaseException as exc:
         _send_reply(conn, False, exc)
         return
+    session.late_probe.watch_peer()  # this thread shares the loop's GIL: a late tick reads it
     _send_reply(conn, True, session.dt_s)
     save_incomplete: bool | None = None  # EOF or SIGTERM: the app is gone; as a closed tab
     try:
@@ -101,7 +102,8 @@ def serve_session(
                 )
                 if attr is None:
                     raise ConfigError(f"unknown session command {name!r}")
-                value = attr(*args) if callable(attr) else attr
+                with session.late_probe.serving(name):
+                    value = attr(*args) if callable(attr) else attr
             except Exception as exc:
                 if name not in ONE_WAY:
                     _send_reply(conn, False, exc)

@@ -33,6 +33,10 @@ class SessionConfig:
     thread's nice value by this much (0..20): the CPU serves them before the app's web server
     and library loads. Needs CAP_SYS_NICE or a ``ulimit -e`` that allows it (Linux); without,
     the loop keeps its priority (logged)."""
+    late_tick_s: float = 0.05
+    """A control tick later than this beyond the period [s] is attributed (what the loop's
+    thread and process did meanwhile: :mod:`bt_teleop.late_ticks`); ``inf``: never (the probe
+    then reads nothing)."""
     ik: IkSettings = field(default_factory=IkSettings)
     """IK weights and limits."""
     take_checks: TakeCheckConfig = field(default_factory=TakeCheckConfig)
@@ -45,6 +49,9 @@ class SessionConfig:
                 isinstance(value, int | float) and math.isfinite(value) and value > 0.0
             ):
                 raise ConfigError(f"{name} must be a positive number; got {value!r}")
+        late = self.late_tick_s
+        if isinstance(late, bool) or not (isinstance(late, int | float) and late > 0.0):
+            raise ConfigError(f"late_tick_s must be a positive number or inf; got {late!r}")
         boost = self.priority_boost
         if isinstance(boost, bool) or not isinstance(boost, int) or not 0 <= boost <= 20:
             raise ConfigError(f"priority_boost must be a whole number in 0..20; got {boost!r}")

@@ -1,0 +1,73 @@
+"""The late control ticks of a soak run, attributed (bench_soak.py; bt_teleop/late_ticks.py).
+
+Each session keeps, for every tick later than ``SessionConfig.late_tick_s`` (``--late-ms``),
+what overlapped its gap in its own process: the control thread's run-queue wait and CPU time,
+the command thread's, the garbage collections, the requests served and the phases of the tick
+before. This module adds what happened meanwhile in the app's process (its heap trims, Clean
+presses) by wall clock, counts the causes and prints the latest ticks in full.
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from typing import Any
+
+from bt_teleop.late_ticks import LateTick, cause_counts
+
+
+class AppEvents:
+    """Wall-clock intervals of the app process's events a late tick may line up with."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple[str, float, float]] = []
+
+    def wrap(self, name: str, function: Any) -> Any:
+        """`function`, its calls recorded as events `name`."""
+
+        def recorded(*args: Any, **kwargs: Any) -> Any:
+            start = time.time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.events.append((name, start, time.time()))
+
+        return recorded
+
+    def mark(self, name: str) -> None:
+        """An instant event now."""
+        now = time.time()
+        self.events.append((name, now, now))
+
+    def during(self, tick: LateTick, slack_s: float = 0.0) -> list[str]:
+        """The events overlapping `tick`'s gap (widened by `slack_s` each side)."""
+        t0, t1 = tick.at_s - tick.gap_s - slack_s, tick.at_s + slack_s
+        return sorted({name for name, a, b in self.events if a <= t1 and b >= t0})
+
+
+def report(late: tuple[LateTick, ...], events: AppEvents, threshold_s: float, shown: int) -> str:
+    """Counts of the causes of the late ticks, of the app events beside them, and the
+    `shown` latest ticks in full."""
+    lines = [f"late ticks (> {1e3 * threshold_s:.0f} ms beyond the period): {len(late)}"]
+    if not late:
+        return lines[0]
+    lines.append("  by cause: " + ", ".join(f"{c} {n}" for c, n in cause_counts(late).items()))
+    beside: collections.Counter[str] = collections.Counter()
+    for tick in late:
+        beside.update(events.during(tick, slack_s=0.5) or ["none"])
+    lines.append(
+        "  app events within 0.5 s of the gap: "
+        + ", ".join(f"{name} {n}" for name, n in beside.most_common())
+    )
+    runq = sorted(t.runqueue_s / t.late_s for t in late if t.late_s > 0)
+    lines.append(
+        f"  run-queue wait / lateness: median {runq[len(runq) // 2]:.2f}, "
+        f"min {runq[0]:.2f}, max {runq[-1]:.2f}"
+    )
+    worst = sorted(late, key=lambda t: t.late_s, reverse=True)[:shown]
+    lines.append(f"  the {len(worst)} latest (ms):")
+    for tick in worst:
+        stamp = time.strftime("%H:%M:%S", time.gmtime(tick.at_s))
+        extra = ", ".join(events.during(tick, slack_s=0.5)) or "-"
+        lines.append(f"    {stamp} {tick.describe()}; app: {extra}")
+    return "\n".join(lines)
