@@ -66,7 +66,7 @@ from typing import Any
 
 import numpy as np
 import psutil
-from soak_late import AppEvents
+from soak_late import AppEvents, write_log
 from soak_late import report as late_report
 from soak_memory import Sampler
 
@@ -280,6 +280,7 @@ def main() -> None:
     parser.add_argument(
         "--late-ms", type=float, default=50.0, help="attribute ticks this late [ms] and more"
     )
+    parser.add_argument("--late-log", type=Path, help="append each late tick as a JSON line")
     args = parser.parse_args()
     process = psutil.Process()
     loads, events = Timed(), AppEvents()
@@ -374,6 +375,8 @@ def main() -> None:
         f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * ticks.max_compute_s:.0f} ms"
     )
     print(late_report(ticks.late, events, args.late_ms / 1e3, shown=15))
+    if args.late_log:
+        write_log(args.late_log, ticks.late, events)
     print(f"gc pauses (the app's process): {pauses.summary()}")
     trimmer = app.heap_trimmer
     print(

@@ -10,10 +10,16 @@ presses) by wall clock, counts the causes and prints the latest ticks in full.
 from __future__ import annotations
 
 import collections
+import dataclasses
+import json
 import time
+from pathlib import Path
 from typing import Any
 
 from bt_teleop.late_ticks import LateTick, cause_counts
+
+AIM_S = 0.05
+"""Issue 10's aim: no tick later than this beyond the period [s]."""
 
 
 class AppEvents:
@@ -52,6 +58,12 @@ def report(late: tuple[LateTick, ...], events: AppEvents, threshold_s: float, sh
     if not late:
         return lines[0]
     lines.append("  by cause: " + ", ".join(f"{c} {n}" for c, n in cause_counts(late).items()))
+    over_aim = [t for t in late if t.late_s > AIM_S]
+    if threshold_s < AIM_S:
+        lines.append(
+            f"  of them > {1e3 * AIM_S:.0f} ms late: {len(over_aim)}; by cause: "
+            + ", ".join(f"{c} {n}" for c, n in cause_counts(over_aim).items())
+        )
     beside: collections.Counter[str] = collections.Counter()
     for tick in late:
         beside.update(events.during(tick, slack_s=0.5) or ["none"])
@@ -71,3 +83,14 @@ def report(late: tuple[LateTick, ...], events: AppEvents, threshold_s: float, sh
         extra = ", ".join(events.during(tick, slack_s=0.5)) or "-"
         lines.append(f"    {stamp} {tick.describe()}; app: {extra}")
     return "\n".join(lines)
+
+
+def write_log(path: Path, late: tuple[LateTick, ...], events: AppEvents) -> None:
+    """Every late tick as a JSON line: its fields, its cause and the app events beside it."""
+    with path.open("a", encoding="utf-8") as out:
+        for tick in late:
+            row = dataclasses.asdict(tick) | {
+                "cause": tick.cause,
+                "app": events.during(tick, slack_s=0.5),
+            }
+            out.write(json.dumps(row) + "\n")

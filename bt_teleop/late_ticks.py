@@ -75,17 +75,22 @@ class LateTick:
     @property
     def cause(self) -> str:
         """What explains at least half the lateness, checked in this order: ``cpu`` (the
-        control thread's run-queue wait), ``gc<generation>`` (a collection), ``tick:<phase>``
-        (a phase of the tick before), ``request:<name>`` (the command thread held the GIL),
-        ``peer-cpu`` (the command thread waited for a CPU), else ``unattributed``."""
+        control thread's run-queue wait), ``peer-cpu`` (the control thread was blocked, off
+        the CPU and not runnable, while the command thread waited for a CPU: it held the GIL
+        or the state lock, preempted), ``gc<generation>`` (a collection),
+        ``request:<name>`` (the command thread served it: it held the GIL or the state lock),
+        ``tick:<phase>`` (a phase of the tick before took the time itself), else
+        ``unattributed``. Starvation comes first: a request or phase that was only slowed by
+        it names where the time went, not why."""
         half = 0.5 * self.late_s
         if self.runqueue_s >= half:
             return "cpu"
+        blocked = self.gap_s - self.on_cpu_s - self.runqueue_s
         candidates = (
-            [(f"gc{g}", s) for g, s in self.collections]
-            + [(f"tick:{n}", s) for n, s in self.phases]
+            [("peer-cpu", min(self.peer_runqueue_s, blocked))]
+            + [(f"gc{g}", s) for g, s in self.collections]
             + [(f"request:{n}", s) for n, s in self.requests]
-            + [("peer-cpu", self.peer_runqueue_s)]
+            + [(f"tick:{n}", s) for n, s in self.phases]
         )
         for name, seconds in candidates:
             if seconds >= half:
