@@ -280,6 +280,12 @@ def main() -> None:
     parser.add_argument(
         "--late-ms", type=float, default=50.0, help="attribute ticks this late [ms] and more"
     )
+    parser.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=SessionConfig().realtime_priority,
+        help="run the control loops under SCHED_RR at this priority (0: off)",
+    )
     parser.add_argument("--late-log", type=Path, help="append each late tick as a JSON line")
     args = parser.parse_args()
     process = psutil.Process()
@@ -298,7 +304,9 @@ def main() -> None:
             session_processes=not args.in_process,
             trim_heap_every_s=args.trim_heap_every_s,
             session=SessionConfig(
-                priority_boost=args.priority_boost, late_tick_s=args.late_ms / 1e3
+                priority_boost=args.priority_boost,
+                late_tick_s=args.late_ms / 1e3,
+                realtime_priority=args.realtime_priority,
             ),
         )
         app.heap_trimmer._trim = events.wrap("heap trim", app.heap_trimmer._trim)
@@ -362,7 +370,10 @@ def main() -> None:
         f"control ticks: {ticks.n_ticks} ({ticks.n_ticks / wall:.0f}/s of "
         f"{args.sessions / period:.0f}/s intended), period {1e3 * period:.1f} ms"
     )
-    print(f"control threads' nice value: {ticks.nice} (priority boost {args.priority_boost})")
+    print(
+        f"control threads' nice value: {ticks.nice} (priority boost {args.priority_boost}); "
+        f"real-time (SCHED_RR {args.realtime_priority}): {ticks.realtime}"
+    )
     print(f"largest stall: {1e3 * ticks.largest_stall_s:.1f} ms beyond the period")
     p50, p99, p999 = (1e3 * ticks.gap_percentile(q) for q in (50, 99, 99.9))
     print(

@@ -27,7 +27,15 @@ from numpy.typing import NDArray
 from bt_teleop.late_ticks import LateProbe, LateTick
 from bt_teleop.session import Session
 
-__all__ = ["BIN_S", "N_BINS", "Histogram", "TickReport", "TimedSession", "raise_priority"]
+__all__ = [
+    "BIN_S",
+    "N_BINS",
+    "Histogram",
+    "TickReport",
+    "TimedSession",
+    "raise_priority",
+    "use_realtime",
+]
 
 LOGGER = logging.getLogger("bt.teleop")
 BIN_S = 1e-4
@@ -66,6 +74,9 @@ class TickReport:
     nice: int | None = None
     """The control thread's nice value while it ran (None: not started, or merged reports
     that differ); lower is a higher priority (``SessionConfig.priority_boost``)."""
+    realtime: bool | None = None
+    """Whether the control thread ran under a real-time policy (``SCHED_RR``:
+    ``SessionConfig.realtime_priority``; None: not started, or merged reports that differ)."""
     late: tuple[LateTick, ...] = ()
     """The ticks later than ``SessionConfig.late_tick_s`` and what overlapped each gap
     (:mod:`bt_teleop.late_ticks`; the most recent :data:`~bt_teleop.late_ticks.MAX_KEPT`)."""
@@ -104,6 +115,7 @@ class TickReport:
             np.sum([r.compute_counts for r in reports], axis=0),
             max(r.max_compute_s for r in reports),
             reports[0].nice if len({r.nice for r in reports}) == 1 else None,
+            reports[0].realtime if len({r.realtime for r in reports}) == 1 else None,
             tuple(t for r in reports for t in r.late),
         )
 
@@ -120,6 +132,26 @@ def raise_priority(boost: int) -> int | None:
         except PermissionError:
             LOGGER.info("control loop priority not raised: not permitted (ulimit -e)")
     return os.getpriority(os.PRIO_PROCESS, tid)
+
+
+def use_realtime(priority: int) -> bool:
+    """Run this thread under ``SCHED_RR`` at `priority` (1..99; 0: keep its policy) if
+    permitted; whether it now runs under a real-time policy (Linux).
+
+    A real-time thread runs before every normal one whenever it is runnable, so the machine's
+    other work cannot keep it waiting for a CPU (what nice values only make less likely). The
+    kernel still keeps 5 % of each second for normal threads (``sched_rt_runtime_us``), and the
+    loop sleeps between ticks, so a session takes no more CPU than before. Needs root,
+    CAP_SYS_NICE or a ``ulimit -r`` of at least `priority`; else the policy stays (logged).
+    """
+    if not hasattr(os, "sched_setscheduler"):
+        return False
+    if priority > 0:
+        try:  # pid 0: this thread (Linux)
+            os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
+        except OSError as exc:
+            LOGGER.info("control loop not made real-time (SCHED_RR %d): %s", priority, exc)
+    return os.sched_getscheduler(0) in (os.SCHED_RR, os.SCHED_FIFO)
 
 
 def _percentile(counts: NDArray[np.int64], max_s: float, q: float) -> float:
@@ -145,6 +177,7 @@ class TimedSession(Session):
         self._last_tick: float | None = None
         self._last_compute = 0.0
         self._nice: int | None = None
+        self._realtime: bool | None = None
         super().__init__(*args, **kwargs)
         self.late_probe = LateProbe(self.dt_s, self.config.late_tick_s)
         """What overlapped each late tick's gap (:mod:`bt_teleop.late_ticks`)."""
@@ -167,8 +200,10 @@ class TimedSession(Session):
         return timed
 
     def _run(self) -> None:
-        """The real-time loop, its thread's priority raised by ``config.priority_boost``."""
+        """The real-time loop, its thread's priority raised by ``config.priority_boost``, and
+        under ``SCHED_RR`` with ``config.realtime_priority``."""
         self._nice = raise_priority(self.config.priority_boost)
+        self._realtime = use_realtime(self.config.realtime_priority)
         self.late_probe.loop_started()
         super()._run()
 
@@ -196,6 +231,7 @@ class TimedSession(Session):
                 compute.counts.copy(),
                 compute.max_s,
                 self._nice,
+                self._realtime,
                 self.late_probe.kept(),
             )
 
