@@ -349,7 +349,10 @@ def main() -> None:
         for ui in uis:
             ui.wait_idle(120.0)  # the last Stop & save may still be queued
         refused = [body for counted in refusals for body in counted.bodies]
-        ticks = TickReport.merged([ui.session.tick_stats() for ui in uis])  # before they close
+        lost = [ui.session.lost for ui in uis if getattr(ui.session, "lost", None)]
+        ticks = TickReport.merged(  # before they close; a lost child has none to give
+            [ui.session.tick_stats() for ui in uis if not getattr(ui.session, "lost", None)]
+        )
         cpu_end, app_cpu_end = tree_cpu_s(uis), process.cpu_times()
         sampler.stop()
         growth_text = ""
@@ -429,6 +432,7 @@ def main() -> None:
         f"kept anon PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}"
     )
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
+    print(f"sessions lost: {len(lost)}" + "".join(f"\n  {reason}" for reason in lost))
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")
     if growth_text:
