@@ -137,3 +137,15 @@ def test_python_dash_m_runs_the_same_cli() -> None:
     )
     for command in ("score", "synth", "clean"):
         assert command in result.stdout
+
+
+def test_teleop_realtime_priority_reaches_every_session(capsys, monkeypatch) -> None:
+    import bt_teleop.app
+
+    seen = []
+    monkeypatch.setattr(bt_teleop.app, "serve", seen.append)
+    assert run(capsys, "teleop", "--realtime-priority", "12")[0] == 0
+    assert run(capsys, "teleop")[0] == 0
+    assert [options.session.realtime_priority for options in seen] == [12, 0]
+    code, _, err = run(capsys, "teleop", "--realtime-priority", "100")
+    assert code == 2 and "realtime_priority" in err and "Traceback" not in err

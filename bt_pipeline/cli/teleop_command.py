@@ -18,6 +18,7 @@ def teleop(
     operator_token: str | None = None,
     script: Path | None = None,
     session_processes: bool = True,
+    realtime_priority: int = 0,
 ) -> None:
     """Open the teleoperation web app: drag a target, a simulated FR3 follows; record demos.
 
@@ -41,6 +42,10 @@ def teleop(
         session_processes: Run each tab's simulation (control loop, IK, recorder) in a child
             process of its own, so the loops keep time beside the web server;
             --no-session-processes runs them in the app's process (one interpreter).
+        realtime_priority: When 1..99, each tab's control loop (and the thread serving it)
+            runs under the real-time scheduling policy SCHED_RR at this priority, so the
+            machine's other work cannot delay its ticks; needs root, CAP_SYS_NICE or ulimit -r
+            (else it is logged and left off). 0: off.
     """
     if script is not None:
         from bt_teleop.script import run_script
@@ -48,6 +53,7 @@ def teleop(
         print(run_script(script, recordings))
         return
     from bt_teleop.app import AppOptions, serve
+    from bt_teleop.session_config import SessionConfig
 
     serve(
         AppOptions(
@@ -60,5 +66,6 @@ def teleop(
             idle_timeout_s=idle_timeout_s,
             operator_token=operator_token or os.environ.get("BT_OPERATOR_TOKEN") or None,
             session_processes=session_processes,
+            session=SessionConfig(realtime_priority=realtime_priority),
         )
     )
