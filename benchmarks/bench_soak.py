@@ -66,7 +66,7 @@ from typing import Any
 
 import numpy as np
 import psutil
-from soak_late import AppEvents, write_log
+from soak_late import AppEvents, StealSampler, write_log
 from soak_late import report as late_report
 from soak_memory import Sampler
 
@@ -316,6 +316,7 @@ def main() -> None:
         time.sleep(2.0)
         sampler = Sampler(args.sample_every, lambda: session_heaps(uis), args.memory_log)
         pauses = GcPauses()
+        steal = StealSampler()
         cpu_start, app_cpu_start = tree_cpu_s(uis), process.cpu_times()
         wall_start = time.monotonic()
         stop = threading.Event()
@@ -349,12 +350,17 @@ def main() -> None:
         for ui in uis:
             ui.wait_idle(120.0)  # the last Stop & save may still be queued
         refused = [body for counted in refusals for body in counted.bodies]
-        lost = [ui.session.lost for ui in uis if getattr(ui.session, "lost", None)]
+        lost = [
+            str(getattr(ui.session, "lost", None))
+            for ui in uis
+            if getattr(ui.session, "lost", None)
+        ]
         ticks = TickReport.merged(  # before they close; a lost child has none to give
             [ui.session.tick_stats() for ui in uis if not getattr(ui.session, "lost", None)]
         )
         cpu_end, app_cpu_end = tree_cpu_s(uis), process.cpu_times()
         sampler.stop()
+        steal.stop()
         growth_text = ""
         if tracemalloc.is_tracing():
             gc.collect()
@@ -388,9 +394,9 @@ def main() -> None:
     print(
         f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * ticks.max_compute_s:.0f} ms"
     )
-    print(late_report(ticks.late, events, args.late_ms / 1e3, shown=15))
+    print(late_report(ticks.late, events, args.late_ms / 1e3, shown=15, steal=steal))
     if args.late_log:
-        write_log(args.late_log, ticks.late, events)
+        write_log(args.late_log, ticks.late, events, steal)
     print(f"gc pauses (the app's process): {pauses.summary()}")
     trimmer = app.heap_trimmer
     print(
