@@ -141,7 +141,7 @@ def use_realtime(priority: int) -> bool:
     A real-time thread runs before every normal one whenever it is runnable, so the machine's
     other work cannot keep it waiting for a CPU (what nice values only make less likely). The
     kernel still keeps 5 % of each second for normal threads (``sched_rt_runtime_us``), and the
-    loop sleeps between ticks, so a session takes no more CPU than before. Needs root,
+    loop sleeps between ticks, so a session takes only the CPU its ticks need. Needs root,
     CAP_SYS_NICE or a ``ulimit -r`` of at least `priority`; else the policy stays (logged).
     """
     if not hasattr(os, "sched_setscheduler"):
