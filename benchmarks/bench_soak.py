@@ -15,7 +15,8 @@ Reported:
   from the sessions in the app's process with ``--in-process``, the baseline);
 * the late ticks attributed (:mod:`soak_late`): for each tick later than ``--late-ms``, what
   its session process did meanwhile (run-queue wait, collections, requests, the tick's phases:
-  :mod:`bt_teleop.late_ticks`) and the app's heap trims, Clean presses and library loads;
+  :mod:`bt_teleop.late_ticks`), the app's heap trims, Clean presses and library loads, and the
+  machine's steal time beside it (``--late-log FILE``: every late tick as a JSON line);
 * where the time went (to attribute stalls): the compute time of the ticks themselves, the
   app process's garbage-collector pauses (``gc.callbacks``), the task-library loads every save
   triggers (:func:`bt_teleop.library.load_library` as the tabs' shared loader calls it, timed),
