@@ -13,6 +13,10 @@ Reported:
   ticks minus the tick period, and the distribution of those gaps (p50, p99, p99.9, max), as
   each session keeps them (:mod:`bt_teleop.tick_stats`; read from the session processes, or
   from the sessions in the app's process with ``--in-process``, the baseline);
+* the late ticks attributed (:mod:`soak_late`): for each tick later than ``--late-ms``, what
+  its session process did meanwhile (run-queue wait, collections, requests, the tick's phases:
+  :mod:`bt_teleop.late_ticks`), the app's heap trims, Clean presses and library loads, and the
+  machine's steal time beside it (``--late-log FILE``: every late tick as a JSON line);
 * where the time went (to attribute stalls): the compute time of the ticks themselves, the
   app process's garbage-collector pauses (``gc.callbacks``), the task-library loads every save
   triggers (:func:`bt_teleop.library.load_library` as the tabs' shared loader calls it, timed),
@@ -67,6 +71,8 @@ from typing import Any
 
 import numpy as np
 import psutil
+from soak_late import AppEvents, StealSampler, write_log
+from soak_late import report as late_report
 from soak_memory import Sampler
 
 import bt_teleop.library
@@ -307,15 +313,25 @@ def main() -> None:
         "read, scored or listed; empty tables and pickers) or read-new (read and score each "
         "new file as the app does, list nothing); the takes are saved as usual: controls",
     )
+    parser.add_argument(
+        "--late-ms", type=float, default=50.0, help="attribute ticks this late [ms] and more"
+    )
+    parser.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=SessionConfig().realtime_priority,
+        help="run the control loops under SCHED_RR at this priority (0: off)",
+    )
+    parser.add_argument("--late-log", type=Path, help="append each late tick as a JSON line")
     args = parser.parse_args()
     process = psutil.Process()
-    loads = Timed()
+    loads, events = Timed(), AppEvents()
     load = {
         "full": bt_teleop.library.load_library,
         "none": empty_library,
         "read-new": read_new_files,
     }[args.library_loads]
-    bt_teleop.library_loader.load_library = loads.wrap(load)
+    bt_teleop.library_loader.load_library = loads.wrap(events.wrap("library load", load))
     tmp = tempfile.mkdtemp(prefix="bt-soak-")
     with app_factory(Path(tmp) / "rec") as make, tab_factory() as open_tab:
         # The drivers act through the app's handles, not the websocket, so every tab looks
@@ -326,14 +342,20 @@ def main() -> None:
             idle_timeout_s=float("inf"),
             session_processes=not args.in_process,
             trim_heap_every_s=args.trim_heap_every_s,
-            session=SessionConfig(priority_boost=args.priority_boost),
+            session=SessionConfig(
+                priority_boost=args.priority_boost,
+                late_tick_s=args.late_ms / 1e3,
+                realtime_priority=args.realtime_priority,
+            ),
         )
+        app.heap_trimmer._trim = events.wrap("heap trim", app.heap_trimmer._trim)
         tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
         refusals = [Refusals(ui) for ui in uis]
         time.sleep(2.0)
         sampler = Sampler(args.sample_every, lambda: session_heaps(uis), args.memory_log)
         pauses = GcPauses()
+        steal = StealSampler()
         cpu_start, app_cpu_start = tree_cpu_s(uis), process.cpu_times()
         wall_start = time.monotonic()
         stop = threading.Event()
@@ -357,6 +379,7 @@ def main() -> None:
                 tracemalloc.start(args.tracemalloc)
             if next_clean is not None and time.monotonic() >= next_clean:
                 uis[cleans % len(uis)].controls.clean_button.value = True
+                events.mark("clean press")
                 cleans += 1
                 next_clean += args.clean_every
         stop.set()
@@ -366,9 +389,17 @@ def main() -> None:
         for ui in uis:
             ui.wait_idle(120.0)  # the last Stop & save may still be queued
         refused = [body for counted in refusals for body in counted.bodies]
-        ticks = TickReport.merged([ui.session.tick_stats() for ui in uis])  # before they close
+        lost = [
+            str(getattr(ui.session, "lost", None))
+            for ui in uis
+            if getattr(ui.session, "lost", None)
+        ]
+        ticks = TickReport.merged(  # before they close; a lost child has none to give
+            [ui.session.tick_stats() for ui in uis if not getattr(ui.session, "lost", None)]
+        )
         cpu_end, app_cpu_end = tree_cpu_s(uis), process.cpu_times()
         sampler.stop()
+        steal.stop()
         growth_text = ""
         if tracemalloc.is_tracing():
             gc.collect()
@@ -387,7 +418,10 @@ def main() -> None:
         f"control ticks: {ticks.n_ticks} ({ticks.n_ticks / wall:.0f}/s of "
         f"{args.sessions / period:.0f}/s intended), period {1e3 * period:.1f} ms"
     )
-    print(f"control threads' nice value: {ticks.nice} (priority boost {args.priority_boost})")
+    print(
+        f"control threads' nice value: {ticks.nice} (priority boost {args.priority_boost}); "
+        f"real-time (SCHED_RR {args.realtime_priority}): {ticks.realtime}"
+    )
     print(f"largest stall: {1e3 * ticks.largest_stall_s:.1f} ms beyond the period")
     p50, p99, p999 = (1e3 * ticks.gap_percentile(q) for q in (50, 99, 99.9))
     print(
@@ -399,7 +433,10 @@ def main() -> None:
     print(
         f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * ticks.max_compute_s:.0f} ms"
     )
-    print(f"gc pauses: {pauses.summary()}")
+    print(late_report(ticks.late, events, args.late_ms / 1e3, shown=15, steal=steal))
+    if args.late_log:
+        write_log(args.late_log, ticks.late, events, steal)
+    print(f"gc pauses (the app's process): {pauses.summary()}")
     trimmer = app.heap_trimmer
     print(
         f"heap trims (every {trimmer.every_s:g} s): {trimmer.calls}, "
@@ -440,6 +477,7 @@ def main() -> None:
         f"kept anon PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}"
     )
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
+    print(f"sessions lost: {len(lost)}" + "".join(f"\n  {reason}" for reason in lost))
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")
     if growth_text:

@@ -14,6 +14,8 @@ One concept per module:
   control loop), behind the part of the session's API the app uses.
 * :mod:`bt_teleop.session_child`: that child's side: the session, served over a pipe.
 * :mod:`bt_teleop.tick_stats`: the app's sessions time their ticks (gaps, stalls, priority).
+* :mod:`bt_teleop.late_ticks`: why a tick was late (run-queue wait, collections, requests,
+  the tick's phases), kept for every tick later than ``SessionConfig.late_tick_s``.
 * :mod:`bt_teleop.session_config`: a session's rates and policies, and its status snapshot.
 * :mod:`bt_teleop.session_recording`: a session's recording lifecycle (start, samples, save,
   a closed tab's demo flagged incomplete).

@@ -54,6 +54,8 @@ from bt_teleop.workspace import (
 __all__ = ["Session", "SessionConfig", "SessionStatus"]
 
 LOGGER = logging.getLogger("bt.teleop")
+MIN_SAMPLES_WAIT_S = 10.0
+"""Longest wall time Stop & save lets a too-short take record on to a file's minimum [s]."""
 _UNSTABLE = (
     mujoco.mjtWarning.mjWARN_BADQACC,
     mujoco.mjtWarning.mjWARN_BADQPOS,
@@ -180,7 +182,15 @@ class Session:
 
     def stop_and_check(self) -> SavedTake:
         """:meth:`stop_and_save`, also returning what the take checks found (a take that fails
-        them is saved with the demo attr ``flags``)."""
+        them is saved with the demo attr ``flags``).
+
+        A Stop pressed a moment after Record: while the loop runs in real time, a take with
+        fewer samples than a file needs (``MIN_SAMPLES``) records on until it has them (0.3 s
+        of simulation at 50 Hz) and is saved flagged ``too_short``, not refused and lost.
+        """
+        deadline = time.monotonic() + MIN_SAMPLES_WAIT_S
+        while self._demo.short_of_minimum() and self.running and time.monotonic() < deadline:
+            time.sleep(self.dt_s)
         with self._state_lock:
             recorder = self._demo.take()
             if recorder is None:
@@ -196,7 +206,7 @@ class Session:
 
     def step(self, n_ticks: int = 1) -> None:
         """Run `n_ticks` control ticks synchronously, as fast as possible."""
-        if self._thread is not None and self._thread.is_alive():
+        if self.running:
             raise ConfigError("the session runs in real time; stop() it before stepping by hand")
         self._check_open()
         for _ in range(int(n_ticks)):
@@ -211,7 +221,7 @@ class Session:
     def start(self) -> None:
         """Run the loop in a background thread, paced to real time."""
         self._check_open()
-        if self._thread is not None and self._thread.is_alive():
+        if self.running:
             return
         self._stop_event.clear()
         self._thread = threading.Thread(
@@ -280,6 +290,11 @@ class Session:
     # -- reading ------------------------------------------------------------------------------
 
     @property
+    def running(self) -> bool:
+        """Whether the real-time background loop runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
     def recording(self) -> bool:
         """Whether a demo is being recorded."""
         return self._demo.recorder is not None
@@ -315,7 +330,7 @@ class Session:
                 recording=recorder is not None,
                 n_samples=0 if recorder is None else recorder.n_samples,
                 duration_s=0.0 if recorder is None else recorder.duration_s,
-                running=self._thread is not None and self._thread.is_alive(),
+                running=self.running,
             )
 
     def trail(self) -> FloatArray:

@@ -36,7 +36,7 @@ from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.native_memory import heap_info
 from bt_teleop.rerun_proxy import libc
 from bt_teleop.session_config import SessionConfig
-from bt_teleop.tick_stats import TimedSession, raise_priority
+from bt_teleop.tick_stats import TimedSession, raise_priority, use_realtime
 
 __all__ = ["CALLS", "ONE_WAY", "PROCESS_CALLS", "portable_error", "serve_session"]
 
@@ -76,17 +76,19 @@ def serve_session(
     # loop's raised priority too (the loop's thread, started from it, inherits it). At a lower
     # one, preempted while holding the GIL, it stalled the loop (a priority inversion).
     raise_priority(config.priority_boost)
+    use_realtime(config.realtime_priority)  # the same for SCHED_RR: the GIL is shared
     try:
         session = TimedSession(
             task,
             recordings_dir,
             robot=robot,
-            config=dataclasses.replace(config, priority_boost=0),
+            config=dataclasses.replace(config, priority_boost=0, realtime_priority=0),
             session_id=session_id,
         )
     except BaseException as exc:
         _send_reply(conn, False, exc)
         return
+    session.late_probe.watch_peer()  # this thread shares the loop's GIL: a late tick reads it
     _send_reply(conn, True, session.dt_s)
     save_incomplete: bool | None = None  # EOF or SIGTERM: the app is gone; as a closed tab
     try:
@@ -101,7 +103,8 @@ def serve_session(
                 )
                 if attr is None:
                     raise ConfigError(f"unknown session command {name!r}")
-                value = attr(*args) if callable(attr) else attr
+                with session.late_probe.serving(name):
+                    value = attr(*args) if callable(attr) else attr
             except Exception as exc:
                 if name not in ONE_WAY:
                     _send_reply(conn, False, exc)

@@ -33,6 +33,15 @@ class SessionConfig:
     thread's nice value by this much (0..20): the CPU serves them before the app's web server
     and library loads. Needs CAP_SYS_NICE or a ``ulimit -e`` that allows it (Linux); without,
     the loop keeps its priority (logged)."""
+    realtime_priority: int = 0
+    """When > 0 (1..99), the control loop and its process's command thread run under the
+    real-time policy ``SCHED_RR`` at this priority (:func:`bt_teleop.tick_stats.use_realtime`):
+    the machine's other work then cannot keep them waiting for a CPU. Off by default: it needs
+    root, CAP_SYS_NICE or ``ulimit -r``, and a real-time thread that spins would hold a core."""
+    late_tick_s: float = 0.05
+    """A control tick later than this beyond the period [s] is attributed (what the loop's
+    thread and process did meanwhile: :mod:`bt_teleop.late_ticks`); ``inf``: never (the probe
+    then reads nothing)."""
     ik: IkSettings = field(default_factory=IkSettings)
     """IK weights and limits."""
     take_checks: TakeCheckConfig = field(default_factory=TakeCheckConfig)
@@ -45,6 +54,12 @@ class SessionConfig:
                 isinstance(value, int | float) and math.isfinite(value) and value > 0.0
             ):
                 raise ConfigError(f"{name} must be a positive number; got {value!r}")
+        rt = self.realtime_priority
+        if isinstance(rt, bool) or not isinstance(rt, int) or not 0 <= rt <= 99:
+            raise ConfigError(f"realtime_priority must be a whole number in 0..99; got {rt!r}")
+        late = self.late_tick_s
+        if isinstance(late, bool) or not (isinstance(late, int | float) and late > 0.0):
+            raise ConfigError(f"late_tick_s must be a positive number or inf; got {late!r}")
         boost = self.priority_boost
         if isinstance(boost, bool) or not isinstance(boost, int) or not 0 <= boost <= 20:
             raise ConfigError(f"priority_boost must be a whole number in 0..20; got {boost!r}")

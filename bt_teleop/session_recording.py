@@ -97,6 +97,11 @@ class RecordingSlot:
         if recorder is not None and (tick - self._tick0) % self._ticks_per_sample == 0:
             take_sample(recorder, self.scene, data, clamped=clamped)
 
+    def short_of_minimum(self) -> bool:
+        """Whether a demo is in progress with fewer samples than a file needs (MIN_SAMPLES)."""
+        recorder = self._recorder
+        return recorder is not None and recorder.n_samples < MIN_SAMPLES
+
     def trail(self) -> FloatArray:
         """End-effector positions of the demo in progress, shape (T, 3) [m] (empty if none)."""
         if self._recorder is None:

@@ -3,7 +3,8 @@
 ::
 
     TimedSession(Session)     a Session whose every tick is timed (wall clock, perf_counter)
-        .tick_stats() -> TickReport   gaps between ticks and compute per tick, as histograms
+        .tick_stats() -> TickReport   gaps between ticks and compute per tick, as histograms,
+                                      and each late tick's attribution (bt_teleop.late_ticks)
 
 A *stall* is a gap between two ticks beyond the control period: the loop asked to tick every
 ``1 / control_hz`` seconds and did not. The histograms have fixed 0.1 ms bins up to 2 s (the
@@ -23,9 +24,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from bt_teleop.late_ticks import LateProbe, LateTick
 from bt_teleop.session import Session
 
-__all__ = ["BIN_S", "N_BINS", "Histogram", "TickReport", "TimedSession", "raise_priority"]
+__all__ = [
+    "BIN_S",
+    "N_BINS",
+    "Histogram",
+    "TickReport",
+    "TimedSession",
+    "raise_priority",
+    "use_realtime",
+]
 
 LOGGER = logging.getLogger("bt.teleop")
 BIN_S = 1e-4
@@ -64,6 +74,12 @@ class TickReport:
     nice: int | None = None
     """The control thread's nice value while it ran (None: not started, or merged reports
     that differ); lower is a higher priority (``SessionConfig.priority_boost``)."""
+    realtime: bool | None = None
+    """Whether the control thread ran under a real-time policy (``SCHED_RR``:
+    ``SessionConfig.realtime_priority``; None: not started, or merged reports that differ)."""
+    late: tuple[LateTick, ...] = ()
+    """The ticks later than ``SessionConfig.late_tick_s`` and what overlapped each gap
+    (:mod:`bt_teleop.late_ticks`; the most recent :data:`~bt_teleop.late_ticks.MAX_KEPT`)."""
 
     @property
     def n_ticks(self) -> int:
@@ -99,6 +115,8 @@ class TickReport:
             np.sum([r.compute_counts for r in reports], axis=0),
             max(r.max_compute_s for r in reports),
             reports[0].nice if len({r.nice for r in reports}) == 1 else None,
+            reports[0].realtime if len({r.realtime for r in reports}) == 1 else None,
+            tuple(t for r in reports for t in r.late),
         )
 
 
@@ -116,6 +134,26 @@ def raise_priority(boost: int) -> int | None:
     return os.getpriority(os.PRIO_PROCESS, tid)
 
 
+def use_realtime(priority: int) -> bool:
+    """Run this thread under ``SCHED_RR`` at `priority` (1..99; 0: keep its policy) if
+    permitted; whether it now runs under a real-time policy (Linux).
+
+    A real-time thread runs before every normal one whenever it is runnable, so the machine's
+    other work cannot keep it waiting for a CPU (what nice values only make less likely). The
+    kernel still keeps 5 % of each second for normal threads (``sched_rt_runtime_us``), and the
+    loop sleeps between ticks, so a session takes only the CPU its ticks need. Needs root,
+    CAP_SYS_NICE or a ``ulimit -r`` of at least `priority`; else the policy stays (logged).
+    """
+    if not hasattr(os, "sched_setscheduler"):
+        return False
+    if priority > 0:
+        try:  # pid 0: this thread (Linux)
+            os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
+        except OSError as exc:
+            LOGGER.info("control loop not made real-time (SCHED_RR %d): %s", priority, exc)
+    return os.sched_getscheduler(0) in (os.SCHED_RR, os.SCHED_FIFO)
+
+
 def _percentile(counts: NDArray[np.int64], max_s: float, q: float) -> float:
     cumulative = np.cumsum(counts)
     if cumulative[-1] == 0:
@@ -126,25 +164,56 @@ def _percentile(counts: NDArray[np.int64], max_s: float, q: float) -> float:
 
 class TimedSession(Session):
     """A :class:`~bt_teleop.session.Session` that times every control tick (the app's
-    sessions, in a process of their own or not); :meth:`tick_stats` reads the timing."""
+    sessions, in a process of their own or not); :meth:`tick_stats` reads the timing.
+
+    Its :attr:`late_probe` attributes the late ticks: the tick's IK and recording-sample
+    phases are timed by wrapping the session's IK controller and recording slot (the rest of a
+    tick, mostly ``mj_step``, is its ``physics`` phase)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         """The arguments of :class:`~bt_teleop.session.Session`."""
         self._gaps, self._compute = Histogram(), Histogram()
         self._stats_lock = threading.Lock()
         self._last_tick: float | None = None
+        self._last_compute = 0.0
         self._nice: int | None = None
+        self._realtime: bool | None = None
         super().__init__(*args, **kwargs)
+        self.late_probe = LateProbe(self.dt_s, self.config.late_tick_s)
+        """What overlapped each late tick's gap (:mod:`bt_teleop.late_ticks`)."""
+        if self.late_probe.enabled:
+            self._ik.solve = self._timed("ik", self._ik.solve)  # type: ignore[method-assign]
+            self._demo.sample_due = self._timed(  # type: ignore[method-assign]
+                "sample", self._demo.sample_due
+            )
+
+    def _timed(self, name: str, function: Any) -> Any:
+        probe = self.late_probe
+
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                probe.phase(name, time.perf_counter() - start)
+
+        return timed
 
     def _run(self) -> None:
-        """The real-time loop, its thread's priority raised by ``config.priority_boost``."""
+        """The real-time loop, its thread's priority raised by ``config.priority_boost``, and
+        under ``SCHED_RR`` with ``config.realtime_priority``."""
         self._nice = raise_priority(self.config.priority_boost)
+        self._realtime = use_realtime(self.config.realtime_priority)
+        self.late_probe.loop_started()
         super()._run()
 
     def _tick(self) -> None:
         start = time.perf_counter()
+        self.late_probe.tick_started(start, self._last_compute)
         super()._tick()
         end = time.perf_counter()
+        self._last_compute = end - start
+        self.late_probe.tick_ended(self._last_compute)
         with self._stats_lock:
             if self._last_tick is not None:
                 self._gaps.add(start - self._last_tick)
@@ -162,6 +231,8 @@ class TimedSession(Session):
                 compute.counts.copy(),
                 compute.max_s,
                 self._nice,
+                self._realtime,
+                self.late_probe.kept(),
             )
 
     def stop(self, timeout_s: float = 5.0) -> None:

@@ -175,3 +175,15 @@ def test_clean_refuses_an_empty_preference_range(capsys, wiping_file, tmp_path) 
     assert "rho range" in err
     assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_teleop_realtime_priority_reaches_every_session(capsys, monkeypatch) -> None:
+    import bt_teleop.app
+
+    seen = []
+    monkeypatch.setattr(bt_teleop.app, "serve", seen.append)
+    assert run(capsys, "teleop", "--realtime-priority", "12")[0] == 0
+    assert run(capsys, "teleop")[0] == 0
+    assert [options.session.realtime_priority for options in seen] == [12, 0]
+    code, _, err = run(capsys, "teleop", "--realtime-priority", "100")
+    assert code == 2 and "realtime_priority" in err and "Traceback" not in err

@@ -77,6 +77,21 @@ def test_a_junk_take_is_saved_flagged_says_why_and_can_be_discarded(make_app, ta
     assert not ui.controls.discard_take_button.visible
 
 
+def test_stop_and_save_pressed_right_after_record_saves_a_flagged_take(make_app, tabs) -> None:
+    # What a hasty person (and tests/test_teleop_browser_crowd.py) does: Stop & save before the
+    # take has the 16 samples a file needs. It was refused ("at least 16 are needed"), and the
+    # take lost; with a starved control loop even a take of seconds could be that short.
+    app = make_app()
+    ui = tab_ui(app, tabs, 1)
+    ui.controls.record_button.value = True
+    ui.controls.save_button.value = True  # queued behind Record: runs as soon as it has
+    assert ui.wait_idle(60.0)
+    assert ui.saved, ui.messages[-1]
+    demo = read_recording(ui.saved[-1]).demos["demo_0"]
+    assert len(demo.timestamps) >= 16 and "too_short" in demo.flags
+    assert ui.messages[-1][0] == "Saved but flagged"
+
+
 def test_flagged_and_excluded_demos_are_never_best_nor_scored(tmp_path: Path) -> None:
     root = tmp_path / "rec"
     good = [run_script(guide_script(f"g{r}", t, r), root) for r, t in ((0.8, 0.0), (1.0, 5.0))]

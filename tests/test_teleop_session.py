@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from bt_pipeline.data.recording import read_recording
+from bt_pipeline.data.records import MIN_SAMPLES
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError, RecordingError
 from bt_teleop import ik as ik_module
@@ -121,6 +122,25 @@ def test_too_short_demo_is_refused_and_nothing_is_written(
     with pytest.raises(RecordingError, match="at least 16"):
         session.stop_and_save()
     assert _files(tmp_path) == [] and not session.recording
+
+
+def test_a_stop_a_moment_after_record_saves_a_flagged_take_in_real_time(
+    scenes: dict[str, SceneModel], tmp_path: Path
+) -> None:
+    # The app's loop runs in real time: a Stop pressed before the take has the 16 samples a
+    # file needs records on to them and saves the take flagged, as the take checks promise
+    # ("kept as files, never lost"), instead of refusing it (a take lost under CPU load).
+    session = Session(scenes["wiping"], tmp_path)
+    session.start()
+    try:
+        session.start_recording("quick", 0.0, 1.0)
+        take = session.stop_and_check()
+    finally:
+        session.close()
+    demo = read_recording(take.path).demos["demo_0"]
+    assert len(demo.timestamps) >= MIN_SAMPLES
+    assert "too_short" in demo.flags and "too_short" in take.check.attr
+    assert not session.recording
 
 
 def test_two_sessions_stay_independent(scenes: dict[str, SceneModel], tmp_path: Path) -> None:

@@ -272,3 +272,46 @@ def test_the_control_loop_raises_its_priority_when_permitted(
 def test_a_priority_boost_out_of_range_is_refused(boost) -> None:
     with pytest.raises(ConfigError, match="priority_boost"):
         SessionConfig(priority_boost=boost)
+
+
+def _may_use_realtime() -> bool:
+    """Whether this process may put a thread under SCHED_RR (root, CAP_SYS_NICE, ulimit -r)."""
+    result: list[bool] = []
+
+    def probe() -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(1))
+        except OSError:
+            result.append(False)
+        else:
+            result.append(True)
+
+    thread = threading.Thread(target=probe)
+    thread.start()
+    thread.join()
+    return result[0]
+
+
+def test_the_child_s_threads_run_real_time_when_asked_and_permitted(
+    scene: SceneModel, tmp_path: Path
+) -> None:
+    for priority in (0, 7):
+        config = SessionConfig(realtime_priority=priority)
+        with SessionProcess(scene, tmp_path, config=config) as proxy:
+            proxy.start()
+            wait_until(lambda p=proxy: p.tick_stats().n_ticks > 10, 30.0, "ticks")
+            realtime = proxy.tick_stats().realtime
+            assert proxy.pid is not None
+            tids = [t.id for t in psutil.Process(proxy.pid).threads()]
+            policies = {os.sched_getscheduler(tid) for tid in tids}
+        expected = priority > 0 and _may_use_realtime()
+        assert realtime is expected
+        # the loop and the command thread that shares its GIL: both, or neither
+        assert policies == ({os.SCHED_RR} if expected else {os.SCHED_OTHER})
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the app's own threads are untouched
+
+
+@pytest.mark.parametrize("priority", [-1, 100, 1.5, True])
+def test_a_realtime_priority_out_of_range_is_refused(priority) -> None:
+    with pytest.raises(ConfigError, match="realtime_priority"):
+        SessionConfig(realtime_priority=priority)

@@ -19,6 +19,7 @@ def teleop(
     script: Path | None = None,
     session_processes: bool = True,
     listed_demos: int = 50,
+    realtime_priority: int = 0,
 ) -> None:
     """Open the teleoperation web app: drag a target, a simulated FR3 follows; record demos.
 
@@ -44,6 +45,10 @@ def teleop(
             --no-session-processes runs them in the app's process (one interpreter).
         listed_demos: The newest takes of a task each tab's Demo and Replay pickers offer,
             besides the table's best demos (the table's counts cover every take).
+        realtime_priority: When 1..99, each tab's control loop (and the thread serving it)
+            runs under the real-time scheduling policy SCHED_RR at this priority, so the
+            machine's other work cannot delay its ticks; needs root, CAP_SYS_NICE or ulimit -r
+            (else it is logged and left off). 0: off.
     """
     if script is not None:
         from bt_teleop.script import run_script
@@ -51,6 +56,7 @@ def teleop(
         print(run_script(script, recordings))
         return
     from bt_teleop.app import AppOptions, serve
+    from bt_teleop.session_config import SessionConfig
 
     serve(
         AppOptions(
@@ -64,5 +70,6 @@ def teleop(
             operator_token=operator_token or os.environ.get("BT_OPERATOR_TOKEN") or None,
             session_processes=session_processes,
             listed_demos=listed_demos,
+            session=SessionConfig(realtime_priority=realtime_priority),
         )
     )
