@@ -104,7 +104,7 @@ class TeleopApp:
         self.cleaner = CleanRunner(
             options.recordings,
             CleanOptions(epochs=options.clean_epochs, write_rrd=options.rerun != "off"),
-            processes=options.clean_in_process,
+            processes=options.clean_in_subprocess,
             on_finish=lambda job: self.versions.bump(job.task),
         )
         self._background = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-read")

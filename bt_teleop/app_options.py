@@ -44,7 +44,7 @@ class AppOptions:
     """Scene updates per second sent to each tab."""
     clean_epochs: int | None = None
     """Refinement epochs of the Clean button (None: the cleaner's default)."""
-    clean_in_process: bool = True
+    clean_in_subprocess: bool = True
     """Run clean jobs in a separate process (keeps the sessions responsive)."""
     initial_task: Task = "wiping"
     """The task a new tab opens with."""

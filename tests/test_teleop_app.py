@@ -212,7 +212,7 @@ def test_clean_runs_in_a_process_and_writes_outside_the_raw_folder(three_recordi
 
 
 def test_clean_button_then_replay_a_cleaned_demo(three_recordings, make_app, tabs) -> None:
-    app = make_app(recordings=three_recordings, clean_in_process=False)
+    app = make_app(recordings=three_recordings, clean_in_subprocess=False)
     tabs(app)
     ui = only_session(app)
     ui.controls.clean_button.value = True

@@ -101,7 +101,7 @@ def test_exclude_restore_and_clean_with_a_flagged_demo(tmp_path: Path, page: Pag
     for k, (rho, theta) in enumerate(((0.8, 0.0), (1.0, 5.0), (0.9, -5.0))):
         guide_take(root, rho, theta, f"careful{k}")
     with app_factory(root) as make:
-        app = make(operator_token="operator-secret-1", clean_in_process=False, clean_epochs=1)
+        app = make(operator_token="operator-secret-1", clean_in_subprocess=False, clean_epochs=1)
         ui = open_tab(page, app)
         page.get_by_role("button", name="Record", exact=True).click()  # a junk take of this tab
         wait_until(lambda: ui.session.recording, 30.0, "the recording to start")
