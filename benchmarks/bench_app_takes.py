@@ -47,7 +47,7 @@ from bt_pipeline.data.demo import Demo, load_demos
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.shapes import canonical_shape, similarity_transform
-from bt_pipeline.data.synth_truth import shape_distance, timing_distance
+from bt_pipeline.data.synth_truth import ratios_against
 from bt_pipeline.data.tasks import TASKS, parse_task
 from bt_teleop.script import run_script
 
@@ -185,10 +185,7 @@ def _ratios(demo: Demo, take: Take, cleaned: tuple[FloatArray, FloatArray]) -> t
     t_rel = raw_t - raw_t[0]  # The recording starts at the script's t = 0.
     on = (t_rel >= take.loop_s[0]) & (t_rel <= take.loop_s[1])
     intended = np.stack([np.interp(t_rel, take.times, take.intended[:, d]) for d in range(2)], 1)
-    shape = shape_distance(cleaned[1], intended[on]) / shape_distance(raw[on], intended[on])
-    idx = np.searchsorted(raw_t, cleaned[0])
-    timing = timing_distance(cleaned[1], intended[idx]) / timing_distance(raw[idx], intended[idx])
-    return shape, timing
+    return ratios_against(intended, on, (raw, raw_t), cleaned)
 
 
 def main() -> None:

@@ -81,6 +81,7 @@ from bt_pipeline.data.tasks import parse_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.app import AppOptions, TeleopApp
 from bt_teleop.cleaning import task_dir
+from bt_teleop.late_ticks import GcLog
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.session_process import SessionProcess
 from bt_teleop.testing import app_factory, circle_uv, reachable, tab_factory, wait_until
@@ -117,27 +118,14 @@ class Timed:
         )
 
 
-class GcPauses:
-    """The garbage collector's pauses, by generation (``gc.callbacks``)."""
-
-    def __init__(self) -> None:
-        self.pauses: dict[int, list[float]] = {0: [], 1: [], 2: []}
-        self._t0 = 0.0
-        gc.callbacks.append(self._callback)
-
-    def _callback(self, phase: str, info: dict[str, int]) -> None:
-        if phase == "start":
-            self._t0 = time.perf_counter()
-        else:
-            self.pauses[info["generation"]].append(time.perf_counter() - self._t0)
-
-    def summary(self) -> str:
-        parts = []
-        for generation, pauses in self.pauses.items():
-            d = np.asarray(pauses) * 1e3
-            top = f", max {d.max():.1f} ms" if d.size else ""
-            parts.append(f"gen{generation} {d.size}× (total {d.sum() / 1e3:.2f} s{top})")
-        return "; ".join(parts)
+def gc_summary(log: GcLog) -> str:
+    """The garbage collector's pauses in this process, by generation."""
+    parts = []
+    for generation in (0, 1, 2):
+        d = np.array([b - a for g, a, b in log.entries if g == generation]) * 1e3
+        top = f", max {d.max():.1f} ms" if d.size else ""
+        parts.append(f"gen{generation} {d.size}× (total {d.sum() / 1e3:.2f} s{top})")
+    return "; ".join(parts)
 
 
 def tree_cpu_s(uis: list[ClientUI]) -> float:
@@ -354,7 +342,7 @@ def main() -> None:
         refusals = [Refusals(ui) for ui in uis]
         time.sleep(2.0)
         sampler = Sampler(args.sample_every, lambda: session_heaps(uis), args.memory_log)
-        pauses = GcPauses()
+        pauses = GcLog(maxlen=None)
         steal = StealSampler()
         cpu_start, app_cpu_start = tree_cpu_s(uis), process.cpu_times()
         wall_start = time.monotonic()
@@ -436,7 +424,7 @@ def main() -> None:
     print(late_report(ticks.late, events, args.late_ms / 1e3, shown=15, steal=steal))
     if args.late_log:
         write_log(args.late_log, ticks.late, events, steal)
-    print(f"gc pauses (the app's process): {pauses.summary()}")
+    print(f"gc pauses (the app's process): {gc_summary(pauses)}")
     trimmer = app.heap_trimmer
     print(
         f"heap trims (every {trimmer.every_s:g} s): {trimmer.calls}, "

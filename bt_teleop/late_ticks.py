@@ -122,10 +122,9 @@ class GcLog:
     """This process's garbage collections (``gc.callbacks``): (generation, start, end) in
     ``perf_counter`` seconds, the last few hundred."""
 
-    def __init__(self) -> None:
-        self.entries: collections.deque[tuple[int, float, float]] = collections.deque(
-            maxlen=_LOG_LEN
-        )
+    def __init__(self, maxlen: int | None = _LOG_LEN) -> None:
+        """Keep the last `maxlen` collections (None: every one, for a benchmark's summary)."""
+        self.entries: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=maxlen)
         self._start = 0.0
         gc.callbacks.append(self._callback)
 

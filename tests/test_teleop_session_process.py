@@ -10,6 +10,7 @@ import pickle
 import signal
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -233,16 +234,15 @@ def test_tick_reports_merge_and_give_percentiles_of_their_bins() -> None:
     assert ra.largest_stall_s == pytest.approx(0.001)
 
 
-def _may_raise_priority() -> bool:
-    """Whether this process may lower a thread's nice value (root, CAP_SYS_NICE, ulimit -e)."""
+def _permitted_in_a_thread(action: Callable[[], object]) -> bool:
+    """Whether `action` (a scheduling change of the calling thread) is permitted here: tried in
+    a thread of its own, which then ends, so this process's threads keep their policy."""
     result: list[bool] = []
 
     def probe() -> None:
-        tid = threading.get_native_id()
-        nice = os.getpriority(os.PRIO_PROCESS, tid)
         try:
-            os.setpriority(os.PRIO_PROCESS, tid, nice - 1)
-        except PermissionError:
+            action()
+        except OSError:  # PermissionError included
             result.append(False)
         else:
             result.append(True)
@@ -251,6 +251,16 @@ def _may_raise_priority() -> bool:
     thread.start()
     thread.join()
     return result[0]
+
+
+def _may_raise_priority() -> bool:
+    """Whether this process may lower a thread's nice value (root, CAP_SYS_NICE, ulimit -e)."""
+
+    def lower_nice() -> None:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) - 1)
+
+    return _permitted_in_a_thread(lower_nice)
 
 
 def test_the_control_loop_raises_its_priority_when_permitted(
@@ -276,20 +286,7 @@ def test_a_priority_boost_out_of_range_is_refused(boost) -> None:
 
 def _may_use_realtime() -> bool:
     """Whether this process may put a thread under SCHED_RR (root, CAP_SYS_NICE, ulimit -r)."""
-    result: list[bool] = []
-
-    def probe() -> None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(1))
-        except OSError:
-            result.append(False)
-        else:
-            result.append(True)
-
-    thread = threading.Thread(target=probe)
-    thread.start()
-    thread.join()
-    return result[0]
+    return _permitted_in_a_thread(lambda: os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(1)))
 
 
 def test_the_child_s_threads_run_real_time_when_asked_and_permitted(

@@ -69,7 +69,17 @@ def truth_ratios(
     stored = truth_of(record)
     if stored is None:
         raise ValueError("the demo stores no ground truth (truth_uv, truth_on_loop)")
-    truth, on_loop = stored
+    return ratios_against(*stored, raw, cleaned)
+
+
+def ratios_against(
+    truth: FloatArray,
+    on_loop: np.ndarray,
+    raw: tuple[FloatArray, FloatArray],
+    cleaned: tuple[FloatArray, FloatArray],
+) -> tuple[float, float]:
+    """:func:`truth_ratios` for a truth given as arrays: the intended path at each raw sample
+    time, shape (T, 2) [m], and which raw samples are on the loops, shape (T,) bool."""
     (raw_uv, raw_t), (t, out) = raw, cleaned
     idx = np.searchsorted(raw_t, t)
     shape = shape_distance(out, truth[on_loop]) / shape_distance(raw_uv[on_loop], truth[on_loop])
