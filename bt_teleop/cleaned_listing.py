@@ -23,23 +23,12 @@ import numpy as np
 
 from bt_pipeline.data.h5_read import float_attr, int_attr, read_extra_attrs, str_attr
 from bt_pipeline.data.limits import DEFAULT_LIMITS, check_demo_count, check_sample_count
-from bt_pipeline.data.tasks import parse_task
-from bt_pipeline.data.validate import DEMO_ATTRS, FORMAT, SUPPORTED_VERSIONS, sorted_demo_names
-from bt_pipeline.exceptions import RecordingError, UnknownTaskError
-from bt_teleop.tracks import FileStamp, FileTracks, ReplayTrack
+from bt_pipeline.data.recording import data_group
+from bt_pipeline.data.validate import DEMO_ATTRS, sorted_demo_names
+from bt_pipeline.exceptions import RecordingError
+from bt_teleop.tracks import FileStamp, FileTracks, ReplayTrack, cleaned_key
 
-__all__ = ["cleaned_key", "read_cleaned_listing"]
-
-
-def cleaned_key(name: str, cleaned_from: object) -> tuple[str, str]:
-    """(key, source key) of cleaned demo `name` whose attr ``cleaned_from`` is `cleaned_from`
-    (``<raw file>:<demo>``; the demo's own name when absent)."""
-    origin = str(name if cleaned_from is None else cleaned_from)
-    file, _, demo = origin.rpartition(":")
-    label = Path(file).stem if file else name
-    if demo and demo != "demo_0":
-        label = f"{label} · {demo}"
-    return f"cleaned · {label}", f"raw · {label}"
+__all__ = ["read_cleaned_listing"]
 
 
 def read_cleaned_listing(path: Path, stamp: FileStamp) -> FileTracks:
@@ -66,20 +55,7 @@ def read_cleaned_listing(path: Path, stamp: FileStamp) -> FileTracks:
 
 def _listing(file: h5py.File, path: Path, stamp: FileStamp) -> FileTracks:
     where = str(path)
-    data = file.get("data")
-    if not isinstance(data, h5py.Group):
-        raise RecordingError(f"{where}: missing group /data; not a bt recording (format v1)")
-    label = f"{where}: /data"
-    fmt = str_attr(data.attrs, "format", label)
-    if fmt != FORMAT:
-        raise RecordingError(f"{label}: attr format is {fmt!r}; expected {FORMAT!r}")
-    version = int_attr(data.attrs, "format_version", label)
-    if version not in SUPPORTED_VERSIONS:
-        raise RecordingError(f"{where}: format_version {version} is not supported")
-    try:
-        task = parse_task(str_attr(data.attrs, "task", label))
-    except UnknownTaskError as exc:
-        raise RecordingError(f"{label}: attr task: {exc}") from None
+    data, task = data_group(file, where)
     check_demo_count(len(data), where, DEFAULT_LIMITS)
     tracks = []
     for name in sorted_demo_names(list(data.keys()), where):

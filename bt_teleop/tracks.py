@@ -37,6 +37,7 @@ __all__ = [
     "FileTracks",
     "ReplayTrack",
     "TrackKind",
+    "cleaned_key",
     "file_stamp",
     "read_file_tracks",
 ]
@@ -209,29 +210,29 @@ def _metrics_or_none(demo: Demo, name: str) -> RawMetrics | None:
         return None
 
 
+def cleaned_key(name: str, cleaned_from: object) -> tuple[str, str]:
+    """(key, source key) of cleaned demo `name` whose attr ``cleaned_from`` is `cleaned_from`
+    (``<raw file>:<demo>``; the demo's own name when absent)."""
+    origin = str(name if cleaned_from is None else cleaned_from)
+    file, _, demo = origin.rpartition(":")
+    label = Path(file).stem if file else name
+    if demo and demo != "demo_0":
+        label = f"{label} · {demo}"
+    return f"cleaned · {label}", f"raw · {label}"
+
+
 def _cleaned_tracks(recording: Recording, stamp: FileStamp) -> tuple[ReplayTrack, ...]:
     """The tracks of a cleaned file read in full (the reference that
     :func:`bt_teleop.cleaned_listing.read_cleaned_listing` is tested against)."""
     assert recording.path is not None
     tracks = []
     for name, record in recording.demos.items():
-        origin = str(record.attrs.get("cleaned_from", name))
-        file, _, demo = origin.rpartition(":")
-        label = Path(file).stem if file else name
-        if demo and demo != "demo_0":
-            label = f"{label} · {demo}"
+        key, source = cleaned_key(name, record.attrs.get("cleaned_from"))
         utility = record.attrs.get("utility_cleaned")
         utility = None if utility is None else float(utility)
         tracks.append(
             _track(
-                f"cleaned · {label}",
-                "cleaned",
-                recording.path,
-                name,
-                record,
-                stamp,
-                utility=utility,
-                source=f"raw · {label}",
+                key, "cleaned", recording.path, name, record, stamp, utility=utility, source=source
             )
         )
     return tuple(tracks)

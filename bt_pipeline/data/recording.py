@@ -49,7 +49,7 @@ from bt_pipeline.data.limits import (
 )
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import DemoRecord, Recording
-from bt_pipeline.data.tasks import parse_task
+from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.data.validate import (
     DATA_ATTRS,
     DEMO_ATTRS,
@@ -181,13 +181,18 @@ def write_recording(path: str | Path, recording: Recording, *, overwrite: bool =
     return path
 
 
-def _read_file(file: h5py.File, path: Path, limits: ReadLimits) -> Recording:
-    where = str(path)
+def data_group(file: h5py.File, where: str) -> tuple[h5py.Group, Task]:
+    """The open file's ``/data`` group and its task, once its format, version and task are
+    checked (every reader of format v1 starts here).
+
+    Raises:
+        RecordingError: No ``/data`` group, another format, an unsupported version or an
+            unknown task.
+    """
     label = f"{where}: /data"
-    if "data" not in file or not isinstance(file["data"], h5py.Group):
+    data = file.get("data")
+    if not isinstance(data, h5py.Group):
         raise RecordingError(f"{where}: missing group /data; not a bt recording (format v1)")
-    data = file["data"]
-    assert isinstance(data, h5py.Group)
     attrs = data.attrs
     fmt = str_attr(attrs, "format", label)
     if fmt != FORMAT:
@@ -203,6 +208,14 @@ def _read_file(file: h5py.File, path: Path, limits: ReadLimits) -> Recording:
         task = parse_task(str_attr(attrs, "task", label))
     except UnknownTaskError as exc:
         raise RecordingError(f"{label}: attr task: {exc}") from None
+    return data, task
+
+
+def _read_file(file: h5py.File, path: Path, limits: ReadLimits) -> Recording:
+    where = str(path)
+    label = f"{where}: /data"
+    data, task = data_group(file, where)
+    attrs = data.attrs
     total = int_attr(attrs, "total", label)
     env_args = json_attr(attrs, "env_args", label)
     check_env_args(env_args, where)
