@@ -4,7 +4,7 @@ For each task, seed, size (D1 = 4 demos, D2 = 20) and style (``human``: rest, ap
 loops, pauses, uneven times, hidden θ/ρ in half the sets; ``single``: the default one-loop
 style) it cleans the set and reports, for naive demos, the after/before ratios of
 
-- **shape**: symmetric Chamfer distance to the true shape, both curves densified (1 mm spacing)
+- **shape**: symmetric Chamfer distance to the true shape, both curves densified (0.1 mm spacing)
   first; "before" is the raw demo on its true loop part, "after" the cleaned output (kept span);
 - **timing**: mean distance, at each output sample time, to the intended path at the demo's
   own timing; "before" is the raw demo at the same times;
