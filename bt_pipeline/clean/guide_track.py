@@ -7,8 +7,7 @@ closed guide loop sampled once round (P points, endpoint excluded) in task coord
 * :func:`nearest_index` / :func:`nearest_distance`: each sample's nearest guide point;
 * :func:`drift_along`: a slow translation of the guide over time that fits the samples;
 * :func:`along_guide` / :func:`tangential`: whether each sample moves along the guide;
-* :func:`runs_of`: runs of flagged samples;
-* :func:`refine_span_ends`: a span's raw ends moved in past samples off the guide.
+* :func:`runs_of`: runs of flagged samples.
 """
 
 from __future__ import annotations
@@ -22,9 +21,6 @@ from bt_pipeline.data.records import FloatArray
 
 _DRIFT_SCALE_M = 0.003  # Cauchy scale of the drift fit's reweighting [m].
 _MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
-_EDGE_MEDIANS = 4.0  # A raw end sample farther off the guide than this many medians of the
-_EDGE_P95S = 1.5  # span's middle distances and this many 95th percentiles is dropped,
-_EDGE_MAX_SHARE = 0.1  # at most this share of the span at each end.
 
 
 def track_phase(
@@ -144,56 +140,7 @@ __all__ = [
     "drift_along",
     "nearest_distance",
     "nearest_index",
-    "refine_span_ends",
     "runs_of",
     "tangential",
     "track_phase",
 ]
-
-
-def refine_span_ends(
-    x: FloatArray,
-    t: FloatArray,
-    moving_clock: FloatArray,
-    drift: FloatArray,
-    guide: FloatArray,
-    i0: int,
-    i1: int,
-) -> tuple[int, int]:
-    """The raw span [i0, i1] with each end moved in past raw samples off the fitted guide.
-
-    The span was found on a smoothed 50 Hz path, which blurs where the
-    hand joins and leaves the loop. Here each raw sample's distance to the guide (drift
-    removed) is compared with how closely the middle 60 % of the span follows it: an end sample
-    farther than max(4 × the median, 1.5 × the 95th percentile) is dropped, walking inwards
-    until one is closer, at most 10 % of the span at each end. A noisy or misshapen loop has a
-    wide threshold and keeps its ends; a steady hand loses the approach samples that came in
-    off its loop.
-
-    Args:
-        x: Raw positions, shape (T, 2) [m].
-        t: Their times, shape (T,) [s].
-        moving_clock: Times of the drift samples, shape (M,) [s].
-        drift: The guide's drift at those times, shape (M, 2) [m].
-        guide: The fitted guide, one loop, shape (P, 2) [m].
-        i0: First raw sample of the span.
-        i1: Last raw sample of the span.
-    """
-    n = i1 - i0 + 1
-    if n < 20:
-        return i0, i1
-    shift = np.stack(
-        [np.interp(t[i0 : i1 + 1], moving_clock, drift[:, d]) for d in range(2)], axis=1
-    )
-    dist = nearest_distance(guide, x[i0 : i1 + 1] - shift)
-    inner = dist[int(0.2 * n) : int(0.8 * n)]
-    limit = int(_EDGE_MAX_SHARE * n)
-    threshold = max(
-        _EDGE_MEDIANS * float(np.median(inner)), _EDGE_P95S * float(np.percentile(inner, 95))
-    )
-    a, b = 0, n - 1
-    while a < limit and dist[a] > threshold:
-        a += 1
-    while n - 1 - b < limit and dist[b] > threshold:
-        b -= 1
-    return i0 + a, i0 + b

@@ -42,9 +42,6 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
 7. **Cycles.** The phase along the guide is tracked sample by sample
    (:func:`track_phase`), and cycles = |phase travelled| / one loop.
 
-8. **Raw ends.** The span, snapped to raw samples, loses end samples that lie off the refitted
-   guide (:func:`refine_span_ends`): the smoothed path blurs where the hand joins the loop.
-
 Incomplete single loops are handled (cycles < 1); a demo with no on-loop run keeps its moving
 part and is reported with cycles from the same phase track.
 """
@@ -64,7 +61,6 @@ from bt_pipeline.clean.guide_track import (
     drift_along,
     nearest_distance,
     nearest_index,
-    refine_span_ends,
     runs_of,
     tangential,
     track_phase,
@@ -215,9 +211,6 @@ def segment_demo(
     i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
     if first + b == clock.size - 1:
         i1 = t.size - 1  # The span runs to the recording's end (the clock stops short of it).
-    i0, i1 = refine_span_ends(
-        x, t, clock[first : last + 1], drift, fit.guide(task, _TRACK_POINTS), i0, i1
-    )
     return Segment(
         start_s=float(t[i0]),
         end_s=float(t[i1]),
