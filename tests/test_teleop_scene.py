@@ -13,9 +13,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from bt_pipeline.data.tasks import TASKS, default_plane
+from bt_pipeline.data.shapes import canonical_shape
+from bt_pipeline.data.tasks import TASKS, Task, default_plane
 from bt_pipeline.exceptions import ConfigError, UnknownTaskError
+from bt_teleop.recorder import RHO_RANGE, THETA_RANGE_DEG
 from bt_teleop.scene import ARM_JOINTS, EE_SITE, load_scene, robot_model
+from bt_teleop.viewer import guide_loop_world
 
 SHARED_MENAGERIE = Path(__file__).resolve().parents[2] / "shared" / "menagerie"
 
@@ -36,6 +39,59 @@ def test_scene_declares_the_default_plane_and_a_workspace_around_it(task: str) -
     assert scene.workspace.contains(plane.origin)
     np.testing.assert_allclose(scene.ready_pos, plane.origin)
     assert np.linalg.norm(scene.ee_quat) == pytest.approx(1.0)
+
+
+_SLIDER_GRID = [
+    (theta, rho)
+    for theta in (THETA_RANGE_DEG[0], 0.0, THETA_RANGE_DEG[1])
+    for rho in (RHO_RANGE[0], 1.0, RHO_RANGE[1])
+]
+# Preferences (θ [deg], ρ) whose whole guide each bundled scene's workspace must hold. Wiping and
+# weaving: the app's θ/ρ slider range (corners, edges' middles, centre). Pick-and-place: the loop
+# whose ends are the scene's places (θ = 0, ρ = 1), that loop turned by up to ±4° or scaled by up
+# to 1.05, and smaller loops at θ = 0; not the slider range: the places are where the block
+# stands, so the plane cannot rise far enough for a much tilted or larger arch.
+_GUIDES_INSIDE: dict[Task, list[tuple[float, float]]] = {
+    "wiping": _SLIDER_GRID,
+    "weaving": _SLIDER_GRID,
+    "pick_and_place": [
+        (0.0, 1.0),
+        (-4.0, 1.0),
+        (4.0, 1.0),
+        (0.0, 1.05),
+        (0.0, 0.75),
+        (0.0, RHO_RANGE[0]),
+    ],
+}
+_PICK_AND_PLACE_GUIDES_OUTSIDE = [(-5.0, 1.0), (5.0, 1.0), (0.0, 1.1)]
+"""Just beyond the pick-and-place preferences the box holds (README, docs/teleop.md)."""
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_the_workspace_holds_the_guide(task: Task) -> None:
+    """A guide the demonstrator follows never drives the target out of the box (where the app
+    would clamp it and flag the take)."""
+    scene = load_scene(task)
+    lo, hi = scene.workspace.lo, scene.workspace.hi
+    for theta, rho in _GUIDES_INSIDE[task]:
+        loop = guide_loop_world(scene, theta, rho, n=720)
+        below, above = (lo - loop).max(axis=0), (loop - hi).max(axis=0)
+        assert below.max() <= 1e-9 and above.max() <= 1e-9, (theta, rho, below, above)
+    if task == "pick_and_place":
+        for theta, rho in _PICK_AND_PLACE_GUIDES_OUTSIDE:
+            assert guide_loop_world(scene, theta, rho, n=720)[:, 2].min() < lo[2], (theta, rho)
+
+
+def test_pick_and_place_guide_places_are_the_scene_places() -> None:
+    """At θ = 0 and ρ = 1 the guide's ends (φ = 0, π) lie over the place geoms, 5 mm or more above
+    the workspace floor; the example script grasps and releases the block there."""
+    scene = load_scene("pick_and_place")
+    places = scene.plane.to_world(canonical_shape("pick_and_place", np.array([0.0, np.pi])))
+    for place, name in zip(places, ("place_left", "place_right"), strict=True):
+        np.testing.assert_allclose(place[:2], scene.model.geom(name).pos[:2], atol=1e-12)
+    lowest = guide_loop_world(scene, 0.0, 1.0, n=720)[:, 2].min()
+    assert lowest - scene.workspace.lo[2] >= 0.005 - 1e-9
+    assert places[0][2] == pytest.approx(0.1625)
 
 
 @pytest.mark.parametrize("task", TASKS)

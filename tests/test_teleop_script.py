@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from bt_pipeline.data.recording import read_recording
+from bt_pipeline.data.shapes import canonical_shape
 from bt_pipeline.exceptions import ConfigError, UnknownTaskError
 from bt_teleop.recorder import STATE_SIGNATURE
 from bt_teleop.scene import load_scene
@@ -76,6 +77,16 @@ def test_pick_and_place_example_moves_the_block(tmp_path: Path) -> None:
     assert max(heights) > 0.15  # lifted over the arch
     np.testing.assert_allclose(data.xpos[block][:2], [0.5, 0.15], atol=0.01)  # on the right place
     assert data.xpos[block][2] < 0.045
+    # It grasps and releases at the guide's places (θ = 0, ρ = 1: its ends, φ = 0 and π), and
+    # its target never leaves the workspace.
+    assert demo.ep_meta["clamped_samples"] == 0
+    script = load_script(EXAMPLES / "pick_and_place.json")
+    (t_close, closed), (t_open, opened) = script.gripper[1:]
+    assert not closed and opened
+    places = canonical_shape("pick_and_place", np.array([0.0, math.pi]))
+    for t_s, place in ((t_close, places[0]), (t_open, places[1])):
+        target = recording.plane.to_plane(script.target_at(t_s, recording.plane))
+        np.testing.assert_allclose(target, place, atol=1e-9)
 
 
 def test_world_frame_waypoints(tmp_path: Path) -> None:

@@ -36,8 +36,10 @@ _DEFAULT_PLANES: dict[Task, TaskPlane] = {
         origin=np.array([0.55, 0.0, 0.45]), axes=np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     ),
     # Vertical through both places: the arch over high and back low. u = world y, v = world z.
+    # At z = 0.20 the arch (ρ = 1) spans z 0.125-0.275 and its ends, the places, lie at z 0.1625:
+    # inside the scene's workspace (floor z 0.12) and low enough to grasp the block's top.
     "pick_and_place": TaskPlane(
-        origin=np.array([0.5, 0.0, 0.15]), axes=np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        origin=np.array([0.5, 0.0, 0.2]), axes=np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     ),
 }
 
