@@ -90,8 +90,6 @@ class ChildPipe:
         self._held: dict[str, tuple[Any, ...]] = {}
         self._lock = threading.Lock()  # one caller reads the replies
         self._send_lock = threading.Lock()  # whole messages (one-way ones come from any thread)
-        self._poller = select.poll()
-        self._poller.register(conn.fileno(), select.POLLOUT)
 
     def started(self, timeout_s: float) -> Any:
         """The child's first reply (seq 0: its control period, or its error raised here)."""
@@ -127,18 +125,26 @@ class ChildPipe:
         if not self._lock.acquire(timeout=timeout_s if quick else -1):
             raise SessionBusyError(BUSY_WARNING)
         try:
-            with self._send_lock:
-                seq = self._seq + 1
-                sent = self._flush(timeout_s) and self._writable(timeout_s)
-                if sent:
-                    self._seq = seq
-                    self._send((seq, name, args))
-                    limit_s = max(self.unresponsive_s, timeout_s)
-                    self._asked.append(_Asked(seq, name, time.monotonic(), limit_s))
-            if not sent:
-                if quick:
-                    raise SessionBusyError(BUSY_WARNING)
-                raise ChildGone(f"it did not read its pipe for {timeout_s:g} s")
+            while True:  # the held commands, then ours, once the pipe has room for them
+                with self._send_lock:  # never held while waiting: one-way senders never wait
+                    if self._flush(0.0) and self._writable(0.0):
+                        self._seq += 1
+                        seq = self._seq
+                        self._send((seq, name, args))
+                        limit_s = max(self.unresponsive_s, timeout_s)
+                        self._asked.append(_Asked(seq, name, time.monotonic(), limit_s))
+                        break
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    if quick:
+                        raise SessionBusyError(BUSY_WARNING)
+                    raise ChildGone(f"it did not read its pipe for {timeout_s:g} s")
+                try:  # read late replies meanwhile: the child may wait to send them
+                    while self.conn.poll(0.0):
+                        self._dispatch(self.conn.recv())
+                except (EOFError, OSError):
+                    raise ChildGone(self._ended()) from None
+                self._writable(min(0.05, remaining))
             return self._await(seq, name, deadline, quick=quick)
         finally:
             self._lock.release()
@@ -217,8 +223,14 @@ class ChildPipe:
         return True
 
     def _writable(self, wait_s: float) -> bool:
-        """Whether a message fits in the pipe now (a Unix socket: half its buffer is free)."""
-        return bool(self._poller.poll(max(0, round(1e3 * wait_s))))
+        """Whether a message fits in the pipe (a Unix socket: 3/4 of its buffer free), waiting
+        up to `wait_s` [s]; True for a closed pipe (sending then says it broke)."""
+        try:
+            poller = select.poll()  # one per call: a poll object refuses concurrent use
+            poller.register(self.conn.fileno(), select.POLLOUT)
+        except (OSError, ValueError):
+            return True
+        return bool(poller.poll(max(0, round(1e3 * wait_s))))
 
     def _send(self, message: tuple[int | None, str, tuple[Any, ...]]) -> None:
         try:

@@ -123,8 +123,8 @@ class SessionProcess:
         self.session_id = session_id or secrets.token_hex(4)
         self.timeout_s = float(timeout_s)
         self.unresponsive_s = float(unresponsive_s)
-        self.restarts = 0
-        """How many lost children were replaced."""
+        self.recoveries: list[Recovery] = []
+        """Each lost child replaced (:meth:`recover`), oldest first."""
         self._lost: str | None = None
         self._can_recover = True
         self._closed = False
@@ -282,7 +282,7 @@ class SessionProcess:
                     self._pipe.send_one_way(name, args)
             if self._running:
                 self.start()
-            self.restarts += 1
+            self.recoveries.append(recovery)
         LOGGER.warning("session %s: a new simulation started (%s)", self.session_id, recovery)
         return recovery
 
