@@ -1,10 +1,9 @@
 """A session whose simulation runs in a child process of its own (one GIL per control loop).
 
-The app's tabs share one interpreter: viser's event loop, the tabs' publishers, Rerun logging
-and library loads. In it, 8 control loops ran at 219 of the 800 ticks/s they asked for, and a
-tick waited up to 177 ms for the GIL (docs/security.md, soak). :class:`SessionProcess` moves a
-tab's :class:`~bt_teleop.session.Session` (MuJoCo, mink IK, the control loop, the recorder and
-the take saving) into a child process and keeps the part of its API the app uses::
+In the app's one interpreter, 8 control loops ran at 219 of the 800 ticks/s they asked for
+(docs/security.md, soak). :class:`SessionProcess` moves a tab's
+:class:`~bt_teleop.session.Session` (MuJoCo, mink IK, the control loop, the recorder and the
+take saving) into a child process and keeps the part of its API the app uses::
 
     main process (the app)                      child process (one per tab)
     SessionProcess ──Pipe──────────────────────▶ main thread: serve commands
@@ -24,15 +23,15 @@ to send it when the forkserver (its parent, which exits when the app does) dies,
 group, and the app closes each session itself.
 
 **Slow is not lost.** A quick call (status, trail, recording) with no reply within
-``timeout_s`` returns the last state known (the status with :data:`BUSY_WARNING`); its reply is
-dropped when it comes. One-way commands never block. Actions (record, discard, start, reset)
-wait up to ``unresponsive_s`` for their reply, saves SAVE_TIMEOUT_S. A child is **lost** only
-when its process ended, when it answered nothing for ``unresponsive_s`` (:data:`UNRESPONSIVE_S`)
-or a save got no reply in time. **A lost child is replaced** (:meth:`SessionProcess.recover`;
-a tab does it at once, with a notice; :mod:`bt_teleop.session_recovery`); until then
-:meth:`SessionProcess.status` returns the last status, not running, with the reason as its
-warning, one-way commands are kept for the new child, and other calls raise
-:class:`~bt_pipeline.exceptions.SessionLostError`.
+``timeout_s`` returns the last state known (a status with the warning "the simulation is not
+answering (busy machine?)"); its reply is dropped when it comes. One-way commands never block.
+Actions (record, discard, start, reset) wait up to ``unresponsive_s`` for their reply, saves
+SAVE_TIMEOUT_S. A child is **lost** only when its process ended, when it answered nothing for
+``unresponsive_s`` (:data:`UNRESPONSIVE_S`) or a save got no reply in time. **A lost child is
+replaced** (:meth:`SessionProcess.recover`; a tab does it at once, with a notice;
+:mod:`bt_teleop.session_recovery`); until then :meth:`SessionProcess.status` returns the last
+status, not running, with the reason as its warning, one-way commands are kept for the new
+child, and other calls raise :class:`~bt_pipeline.exceptions.SessionLostError`.
 """
 
 from __future__ import annotations
@@ -58,20 +57,13 @@ from bt_teleop.native_memory import HeapInfo
 from bt_teleop.scene import SceneModel
 from bt_teleop.session_child import serve_session
 from bt_teleop.session_config import SessionConfig, SessionStatus
-from bt_teleop.session_pipe import BUSY_WARNING, ChildGone, ChildPipe
+from bt_teleop.session_pipe import ChildGone, ChildPipe
 from bt_teleop.session_recording import SavedTake
 from bt_teleop.session_recovery import ChildMemory, Recovery
 from bt_teleop.tick_stats import TickReport, TimedSession
 from bt_teleop.workspace import validate_position, validate_quat
 
-__all__ = [
-    "BUSY_WARNING",
-    "Recovery",
-    "SessionProcess",
-    "TabSession",
-    "open_session",
-    "start_forkserver",
-]
+__all__ = ["SessionProcess", "TabSession", "open_session", "start_forkserver"]
 
 LOGGER = logging.getLogger("bt.teleop")
 START_TIMEOUT_S = 60.0
@@ -205,8 +197,8 @@ class SessionProcess:
             return False
 
     def status(self) -> SessionStatus:
-        """A snapshot of the session. While the child is slow, the last one with
-        :data:`BUSY_WARNING`; once it is lost, the last one, not running, with the reason."""
+        """A snapshot of the session. While the child is slow, the last one with a warning
+        that says so; once it is lost, the last one, not running, with the reason."""
         try:
             status: SessionStatus = self._call("status", kind="quick")
         except (SessionBusyError, SessionLostError) as exc:
@@ -274,16 +266,18 @@ class SessionProcess:
             except BtError as exc:
                 self._can_recover = False
                 self._lost = f"{reason}; a new one did not start ({exc}); reload the page"
+                self._lost += "".join(f". {line}" for line in recovery.take_lines())
                 LOGGER.warning("%s", self._lost)
                 raise SessionLostError(self._lost) from None
+            self.recoveries.append(recovery)
             with self._memory.settings_lock:
                 self._lost = None  # from here on one-way commands go to the new child
                 for name, args in self._memory.settings.items():
                     self._pipe.send_one_way(name, args)
             if self._running:
-                self.start()
-            self.recoveries.append(recovery)
-        LOGGER.warning("session %s: a new simulation started (%s)", self.session_id, recovery)
+                with contextlib.suppress(SessionLostError):  # lost again: the next recover
+                    self.start()
+        LOGGER.warning("%s", " ".join(recovery.notice()[1].split("\n")))
         return recovery
 
     def close(self, save_incomplete: bool | None = None) -> Path | None:

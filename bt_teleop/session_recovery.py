@@ -59,17 +59,20 @@ class Recovery:
         """Whether a take in progress was lost (not saved)."""
         return self.take_by is not None and not self.saved
 
-    def notice(self) -> tuple[str, str]:
-        """The tab's notice: (title, body)."""
-        lines = [f"{self.reason}.", f"A new {self.task} simulation started with your settings."]
+    def take_lines(self) -> list[str]:
+        """What became of the take in progress, and of takes saved late (none: empty)."""
         take = f"by {self.take_by}, {self.take_duration_s:.1f} s" if self.take_by else ""
-        if self.take_lost:
-            lines.append(f"The take in progress ({take}) was lost: record it again.")
+        lines = [f"The take in progress ({take}) was lost: record it again."] * self.take_lost
         for path in self.saved:
             what = f"The take in progress ({take})" if self.take_by else "A take"
             lines.append(f"{what} was saved: {path.name}")
+        return lines
+
+    def notice(self) -> tuple[str, str]:
+        """The tab's notice: (title, body)."""
+        lines = [f"{self.reason}.", f"A new {self.task} simulation started with your settings."]
         title = "Take lost: simulation restarted" if self.take_lost else "Simulation restarted"
-        return title, "\n".join(lines)
+        return title, "\n".join(lines + self.take_lines())
 
 
 class ChildMemory:

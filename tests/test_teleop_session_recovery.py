@@ -20,9 +20,11 @@ import psutil
 import pytest
 
 from bt_pipeline.data.recording import read_recording
+from bt_pipeline.exceptions import ConfigError, SessionLostError
 from bt_teleop.scene import SceneModel, load_scene
 from bt_teleop.session_config import SessionStatus
-from bt_teleop.session_process import BUSY_WARNING, SessionProcess
+from bt_teleop.session_pipe import BUSY_WARNING
+from bt_teleop.session_process import SessionProcess
 from bt_teleop.testing import circle_uv, wait_until
 from bt_teleop.tick_stats import TickReport
 from bt_teleop.ui import ClientUI
@@ -173,3 +175,24 @@ def test_a_tab_whose_simulation_is_killed_gets_a_new_one_and_a_notice(make_app, 
     assert ui.wait_idle()
     (demo,) = read_recording(ui.saved[-1]).demos.values()
     assert demo.demonstrator == "Grace"
+
+
+def test_when_no_new_child_starts_the_session_stays_lost_and_says_reload(
+    scene: SceneModel, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with SessionProcess(scene, tmp_path, session_id="dead") as proxy:
+        proxy.start()
+        _record(proxy, scene, "Bo")
+        assert proxy.pid is not None
+        os.kill(proxy.pid, signal.SIGKILL)
+        proxy.status()
+
+        def no_child(self: SessionProcess) -> None:
+            raise ConfigError("no forkserver")
+
+        monkeypatch.setattr(SessionProcess, "_spawn", no_child)
+        with pytest.raises(SessionLostError, match="reload the page") as caught:
+            proxy.recover()
+        assert "no forkserver" in str(caught.value) and "(by Bo," in str(caught.value)
+        assert not proxy.can_recover and proxy.lost == str(caught.value)
+        assert proxy.status().warning == proxy.lost and not proxy.recording
