@@ -377,11 +377,9 @@ def main() -> None:
         for ui in uis:
             ui.wait_idle(120.0)  # the last Stop & save may still be queued
         refused = [body for counted in refusals for body in counted.bodies]
-        lost = [
-            str(getattr(ui.session, "lost", None))
-            for ui in uis
-            if getattr(ui.session, "lost", None)
-        ]
+        recoveries = [r for ui in uis for r in getattr(ui.session, "recoveries", [])]
+        lost = [r.reason for r in recoveries]  # a tab replaces a lost child at once
+        lost += [why for ui in uis if (why := getattr(ui.session, "lost", None))]
         ticks = TickReport.merged(  # before they close; a lost child has none to give
             [ui.session.tick_stats() for ui in uis if not getattr(ui.session, "lost", None)]
         )
@@ -465,7 +463,11 @@ def main() -> None:
         f"kept anon PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}"
     )
     print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
-    print(f"sessions lost: {len(lost)}" + "".join(f"\n  {reason}" for reason in lost))
+    print(
+        f"session children lost: {len(lost)} ({len(recoveries)} replaced; takes in progress "
+        f"lost: {sum(r.take_lost for r in recoveries)}, "
+        f"saved: {sum(len(r.saved) for r in recoveries)})" + "".join(f"\n  {why}" for why in lost)
+    )
     print(f"refused actions: {len(refused)}" + "".join(f"\n  {body}" for body in refused[:10]))
     print(f"bytes sent to the tabs: {received / 2**20:.0f} MiB")
     if growth_text:

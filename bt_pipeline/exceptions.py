@@ -29,3 +29,8 @@ class DemoError(BtError, ValueError):
 
 class SessionLostError(BtError):
     """A worker process (a teleop tab's simulation) died or stopped answering."""
+
+
+class SessionBusyError(BtError):
+    """A worker process did not answer a quick call in time but still runs (a busy machine);
+    its late answer is dropped when it comes."""

@@ -4,17 +4,22 @@ session, served over a pipe.
 ::
 
     serve_session(conn, task, robot, recordings_dir, config, session_id, log_level)   main thread
-        TimedSession(task, robot)  -> reply (True, dt_s), or (False, the error)
-        loop: (name, args) = conn.recv()
-            one-way (set_target, set_gripper, set_stay_on_plane): applied, no reply
-            request (status, trail, ...): reply (True, value) or (False, error)
-            close: settle the take as asked, reply (True, path), exit
-        EOF (the app died), SIGTERM (its parent, the forkserver, died): the take is settled
-            as a closed tab's (saved flagged incomplete), then exit
+        TimedSession(task, robot)  -> reply (0, True, dt_s), or (0, False, the error)
+        loop: (seq, name, args) = conn.recv()
+            one-way (set_target, set_gripper, set_stay_on_plane; seq None): applied, no reply
+            request (status, trail, ...; seq 1, 2, ...): reply (seq, True, value) or
+                (seq, False, error); the app matches a reply to its call by seq, so a reply
+                that comes after the app stopped waiting for it is never taken for another's
+            close: settle the take as asked, reply (seq, True, path), exit
+        EOF (the app died), SIGTERM (its parent, the forkserver, died; or the app gave up on
+            this child, session_process.py): the take is settled as a closed tab's (saved
+            flagged incomplete), (None, True, path) is sent if anyone still listens, exit
 
 The control loop runs in the session's own thread at real time; this process's GIL is shared
 only by it and the command thread. SIGINT is ignored (Ctrl-C reaches the terminal's whole
-process group; the app closes its sessions itself).
+process group; the app closes its sessions itself). SIGTERM ends the wait for a command at
+once, but never a command being served or a reply being sent (a reply cut short would garble
+the pipe): those finish first.
 """
 
 from __future__ import annotations
@@ -39,6 +44,9 @@ from bt_teleop.session_config import SessionConfig
 from bt_teleop.tick_stats import TimedSession, raise_priority, use_realtime
 
 __all__ = ["CALLS", "ONE_WAY", "PROCESS_CALLS", "portable_error", "serve_session"]
+
+Reply = tuple[int | None, bool, Any]
+"""(the request's seq, or None for the path saved at EOF or SIGTERM; ok; value or error)."""
 
 LOGGER = logging.getLogger("bt.teleop")
 ONE_WAY = frozenset({"set_target", "set_gripper", "set_stay_on_plane"})
@@ -70,7 +78,7 @@ def serve_session(
     logging.basicConfig(level=log_level, format="bt: %(message)s", stream=sys.stderr)
     gc.freeze()  # what the forkserver imported: never traversed here, so its pages stay shared
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the app closes us itself
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    signal.signal(signal.SIGTERM, _Term.on_sigterm)
     _die_with_parent()
     # The thread serving the app's requests takes the GIL the control loop needs: it runs at the
     # loop's raised priority too (the loop's thread, started from it, inherits it). At a lower
@@ -86,16 +94,17 @@ def serve_session(
             session_id=session_id,
         )
     except BaseException as exc:
-        _send_reply(conn, False, exc)
+        _send_reply(conn, 0, False, exc)
         return
     session.late_probe.watch_peer()  # this thread shares the loop's GIL: a late tick reads it
-    _send_reply(conn, True, session.dt_s)
+    _send_reply(conn, 0, True, session.dt_s)
     save_incomplete: bool | None = None  # EOF or SIGTERM: the app is gone; as a closed tab
+    close_seq: int | None = None
     try:
         while True:
-            name, args = conn.recv()
+            seq, name, args = _Term.receive(conn)
             if name == "close":
-                save_incomplete = args[0]
+                save_incomplete, close_seq = args[0], seq
                 break
             try:
                 attr = PROCESS_CALLS.get(name) or (
@@ -106,17 +115,17 @@ def serve_session(
                 with session.late_probe.serving(name):
                     value = attr(*args) if callable(attr) else attr
             except Exception as exc:
-                if name not in ONE_WAY:
-                    _send_reply(conn, False, exc)
+                if seq is not None:
+                    _send_reply(conn, seq, False, exc)
                 continue
-            if name not in ONE_WAY:
-                _send_reply(conn, True, value)
+            if seq is not None:
+                _send_reply(conn, seq, True, value)
     except (EOFError, OSError, SystemExit):
         pass
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # let the take be saved
         path = _close_quietly(session, save_incomplete)
-    _send_reply(conn, True, path)
+    _send_reply(conn, close_seq, True, path)
 
 
 def _close_quietly(session: Any, save_incomplete: bool | None) -> Path | None:
@@ -127,12 +136,15 @@ def _close_quietly(session: Any, save_incomplete: bool | None) -> Path | None:
         return None
 
 
-def _send_reply(conn: multiprocessing.connection.Connection, ok: bool, value: Any) -> None:
-    """Send (ok, value), an error made portable first (:func:`portable_error`)."""
+def _send_reply(
+    conn: multiprocessing.connection.Connection, seq: int | None, ok: bool, value: Any
+) -> None:
+    """Send (seq, ok, value), an error made portable first (:func:`portable_error`)."""
     if not ok:
         value = portable_error(value)
+    reply: Reply = (seq, ok, value)
     with contextlib.suppress(OSError, ValueError):  # the app is gone
-        conn.send((ok, value))
+        conn.send(reply)
 
 
 def portable_error(exc: BaseException) -> BaseException:
@@ -147,8 +159,30 @@ def portable_error(exc: BaseException) -> BaseException:
     return exc
 
 
-def _exit_on_sigterm(_signum: int, _frame: object) -> None:
-    raise SystemExit(0)
+class _Term:
+    """SIGTERM: ends the wait for a command at once; a command being served finishes first."""
+
+    waiting = False
+    """Whether the main thread waits for a command (in :meth:`receive`)."""
+    asked = False
+    """Whether SIGTERM came."""
+
+    @classmethod
+    def on_sigterm(cls, _signum: int, _frame: object) -> None:
+        cls.asked = True
+        if cls.waiting:
+            raise SystemExit(0)
+
+    @classmethod
+    def receive(cls, conn: multiprocessing.connection.Connection) -> tuple[int | None, str, Any]:
+        """The next command (seq, name, args); SystemExit once SIGTERM came."""
+        cls.waiting = True
+        try:
+            if cls.asked:
+                raise SystemExit(0)
+            return conn.recv()
+        finally:
+            cls.waiting = False
 
 
 def _die_with_parent() -> None:

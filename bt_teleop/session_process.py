@@ -1,30 +1,37 @@
 """A session whose simulation runs in a child process of its own (one GIL per control loop).
 
-The app's tabs share one interpreter: viser's event loop, the tabs' publishers, Rerun logging
-and library loads. In it, 8 control loops ran at 219 of the 800 ticks/s they asked for, and a
-tick waited up to 177 ms for the GIL (docs/security.md, soak). :class:`SessionProcess` moves a
-tab's :class:`~bt_teleop.session.Session` (MuJoCo, mink IK, the control loop, the recorder and
-the take saving) into a child process and keeps the part of its API the app uses::
+In the app's one interpreter, 8 control loops ran at 219 of the 800 ticks/s they asked for
+(docs/security.md, soak). :class:`SessionProcess` moves a tab's
+:class:`~bt_teleop.session.Session` (MuJoCo, mink IK, the control loop, the recorder and the
+take saving) into a child process and keeps the part of its API the app uses::
 
     main process (the app)                      child process (one per tab)
     SessionProcess ──Pipe──────────────────────▶ main thread: serve commands
       set_target / set_gripper / set_stay_on_plane   one-way (validated here, never wait)
-      status / trail / recording / start_recording   request → reply (pickled; errors raised
-      stop_and_check / discard / close / tick_stats      again here, BtError messages kept)
+      status / trail / recording                     quick request → reply (timeout_s)
+      start_recording / discard / start / reset ...  request → reply (unresponsive_s)
+      stop_and_check / close                         request → reply (SAVE_TIMEOUT_S)
       .scene: its own SceneModel (for drawing)  control thread: TimedSession at real time
 
-Children are forked by a ``forkserver`` that has imported MuJoCo and mink once (never plain
-``fork``: the app has many threads), so a child starts in well under a second and shares those
-pages. A child ends with its tab (:meth:`SessionProcess.close`), when its pipe reaches EOF
-(the app died: a take in progress is then saved flagged incomplete, as a closed tab's is), or
-at SIGTERM, which it asks the kernel to send it when the forkserver (its parent, which exits
-when the app does) dies, even after a ``kill -9`` of the app. SIGINT is ignored: Ctrl-C in the
-terminal reaches the whole process group, and the app closes each session itself.
+Calls and replies carry a sequence number (:mod:`bt_teleop.session_pipe`; the child's side:
+:mod:`bt_teleop.session_child`). Children are forked by a ``forkserver`` that has imported
+MuJoCo and mink once (:mod:`bt_teleop.forkserver`). A child ends with its tab
+(:meth:`SessionProcess.close`), when its pipe reaches EOF (the app died: a take in progress is
+then saved flagged incomplete, as a closed tab's is), or at SIGTERM, which it asks the kernel
+to send it when the forkserver (its parent, which exits when the app does) dies, even after a
+``kill -9`` of the app. SIGINT is ignored: Ctrl-C in the terminal reaches the whole process
+group, and the app closes each session itself.
 
-A child that dies or stops answering (no reply within ``timeout_s``) is killed and marked
-lost: :meth:`SessionProcess.status` then returns the last status with the reason as its
-warning (the tab's status line shows it), one-way commands are dropped, and every other call
-raises :class:`~bt_pipeline.exceptions.SessionLostError` naming the session and the reason.
+**Slow is not lost.** A quick call (status, trail, recording) with no reply within
+``timeout_s`` returns the last state known (a status with the warning "the simulation is not
+answering (busy machine?)"); its reply is dropped when it comes. One-way commands never block.
+Actions (record, discard, start, reset) wait up to ``unresponsive_s`` for their reply, saves
+SAVE_TIMEOUT_S. A child is **lost** only when its process ended, when it answered nothing for
+``unresponsive_s`` (:data:`UNRESPONSIVE_S`) or a save got no reply in time. **A lost child is
+replaced** (:meth:`SessionProcess.recover`; a tab does it at once, with a notice;
+:mod:`bt_teleop.session_recovery`); until then :meth:`SessionProcess.status` returns the last
+status, not running, with the reason as its warning, one-way commands are kept for the new
+child, and other calls raise :class:`~bt_pipeline.exceptions.SessionLostError`.
 """
 
 from __future__ import annotations
@@ -33,27 +40,26 @@ import contextlib
 import dataclasses
 import logging
 import math
-import multiprocessing
-import multiprocessing.connection
-import multiprocessing.forkserver
-import multiprocessing.spawn
+import os
 import secrets
+import signal
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.exceptions import ConfigError, SessionLostError
+from bt_pipeline.exceptions import BtError, ConfigError, SessionBusyError, SessionLostError
+from bt_teleop.forkserver import start_child, start_forkserver
 from bt_teleop.native_memory import HeapInfo
 from bt_teleop.scene import SceneModel
 from bt_teleop.session_child import serve_session
 from bt_teleop.session_config import SessionConfig, SessionStatus
+from bt_teleop.session_pipe import ChildGone, ChildPipe
 from bt_teleop.session_recording import SavedTake
+from bt_teleop.session_recovery import ChildMemory, Recovery
 from bt_teleop.tick_stats import TickReport, TimedSession
 from bt_teleop.workspace import validate_position, validate_quat
 
@@ -63,50 +69,14 @@ LOGGER = logging.getLogger("bt.teleop")
 START_TIMEOUT_S = 60.0
 """Longest wait for a child to load its scene and answer [s] (Menagerie meshes: seconds)."""
 SAVE_TIMEOUT_S = 60.0
-"""Longest wait for a call that writes a take (Stop & save, close) [s]."""
-
-_context_lock = threading.Lock()
-
-
-def _context() -> Any:
-    """The forkserver context, its server preloaded with MuJoCo, mink and the session code.
-
-    A session child needs nothing of the app's main module, but ``multiprocessing`` makes every
-    child import it again (the script's whole import graph: viser, ... for ~80 MiB of private
-    memory per child in benchmarks/bench_soak.py; CPython 3.11's forkserver cannot preload it,
-    as it asks for a ``main_path`` key the preparation data never has). So the children started
-    here get preparation data without the main module (:func:`_preparation_data`).
-    """
-    with _context_lock:
-        if multiprocessing.spawn.get_preparation_data is not _preparation_data:
-            global _stdlib_preparation_data
-            _stdlib_preparation_data = multiprocessing.spawn.get_preparation_data
-            multiprocessing.spawn.get_preparation_data = _preparation_data
-        context = multiprocessing.get_context("forkserver")
-        context.set_forkserver_preload(["bt_teleop.session_child"])  # no effect once it runs
-        return context
-
-
-def start_forkserver() -> None:
-    """Start the server that forks session children now (it then imports MuJoCo and mink in
-    the background), not when the first session is made; a no-op once it runs."""
-    _context()
-    multiprocessing.forkserver.ensure_running()
-
-
-_starting = threading.local()
-"""``_starting.session`` is True while this thread starts a session child."""
-_stdlib_preparation_data: Callable[[str], dict[str, Any]] | None = None
-
-
-def _preparation_data(name: str) -> dict[str, Any]:
-    """multiprocessing's data for a new child; without the main module for a session child."""
-    assert _stdlib_preparation_data is not None
-    data = _stdlib_preparation_data(name)
-    if getattr(_starting, "session", False):
-        data.pop("init_main_from_path", None)
-        data.pop("init_main_from_name", None)
-    return data
+"""Longest wait for a call that writes a take (Stop & save, close), and for a lost child to
+save its take in progress [s]."""
+UNRESPONSIVE_S = 60.0
+"""A child that answers nothing for this long [s] is lost: 12 times the 5 s after which two
+starved children were killed at load 38 on 2 cores (docs/security.md; how long they would have
+taken was not measured), and as long as a save may take."""
+Kind = Literal["quick", "action", "save"]
+"""A call's timeout: ``timeout_s`` and not fatal; ``unresponsive_s``; SAVE_TIMEOUT_S."""
 
 
 class SessionProcess:
@@ -120,6 +90,7 @@ class SessionProcess:
         config: SessionConfig | None = None,
         session_id: str | None = None,
         timeout_s: float = 5.0,
+        unresponsive_s: float = UNRESPONSIVE_S,
     ) -> None:
         """Start the child, which loads `scene`'s task and robot by name, and wait until it
         answers (its loop is not started: :meth:`start`).
@@ -129,7 +100,10 @@ class SessionProcess:
             recordings_dir: Root folder; demos go to ``<recordings_dir>/<task>/``.
             config: Rates and policies; defaults when None.
             session_id: Stored in each demo's ep_meta; random when None.
-            timeout_s: Longest wait for a reply to a quick call [s] (status, trail, ...).
+            timeout_s: Longest wait for a reply to a quick call [s] (status, trail, recording;
+                then the last state is returned, and the child stays).
+            unresponsive_s: A child that answers nothing for this long [s] is lost; also the
+                longest wait for an action's reply (start_recording, discard, ...).
 
         Raises:
             BtError: The session cannot be made (the child's error, e.g. ConfigError).
@@ -140,31 +114,16 @@ class SessionProcess:
         self.recordings_dir = Path(recordings_dir)
         self.session_id = session_id or secrets.token_hex(4)
         self.timeout_s = float(timeout_s)
+        self.unresponsive_s = float(unresponsive_s)
+        self.recoveries: list[Recovery] = []
+        """Each lost child replaced (:meth:`recover`), oldest first."""
         self._lost: str | None = None
+        self._can_recover = True
         self._closed = False
-        self._last_status: SessionStatus | None = None
-        self._call_lock = threading.Lock()  # one request in flight: replies come in order
-        self._send_lock = threading.Lock()
-        context = _context()
-        self._conn, child_end = context.Pipe()
-        args = (child_end, scene.task, scene.robot, self.recordings_dir, self.config)
-        self._process = context.Process(
-            target=serve_session,
-            args=(*args, self.session_id, LOGGER.getEffectiveLevel()),
-            name=f"bt-session-{self.session_id}",
-            daemon=True,
-        )
-        _starting.session = True
-        try:
-            self._process.start()
-        finally:
-            _starting.session = False
-        child_end.close()  # only the child holds it now: its death is EOF here
-        self._pid = self._process.pid
-        with self._call_lock:
-            self.dt_s: float = self._reply(START_TIMEOUT_S)
-            """Control period [s]."""
-        self._last_status = self.status()
+        self._memory = ChildMemory()  # the last answers, the take, the settings
+        self._running = False  # start() asked (and no stop() since): a new child starts too
+        self._recover_lock = threading.Lock()
+        self._spawn()
 
     # -- commands (one-way: validated here, never wait for the child) --------------------------
 
@@ -190,10 +149,12 @@ class SessionProcess:
     def start(self) -> None:
         """Run the control loop in the child at real time."""
         self._call("start")
+        self._running = True
 
     def stop(self) -> None:
         """Stop the child's control loop (the child stays)."""
         self._call("stop")
+        self._running = False
 
     def reset(self) -> None:
         """Put the robot at the ready pose with the gripper open and the target on it."""
@@ -204,10 +165,13 @@ class SessionProcess:
     ) -> None:
         """:meth:`Session.start_recording <bt_teleop.session.Session.start_recording>`."""
         self._call("start_recording", demonstrator, theta_deg, rho)
+        self._memory.take_by = demonstrator
 
     def stop_and_check(self) -> SavedTake:
         """Stop the demo in progress, check it and write it (in the child); what was saved."""
-        return self._call("stop_and_check", timeout_s=SAVE_TIMEOUT_S)
+        take: SavedTake = self._call("stop_and_check", kind="save")
+        self._memory.take_by = None
+        return take
 
     def stop_and_save(self) -> Path:
         """:meth:`stop_and_check`, the path only."""
@@ -215,39 +179,49 @@ class SessionProcess:
 
     def discard(self) -> bool:
         """Drop the demo in progress without writing anything; whether there was one."""
-        return self._call("discard")
+        dropped: bool = self._call("discard")
+        self._memory.take_by = None
+        return dropped
 
     @property
     def recording(self) -> bool:
-        """Whether a demo is being recorded (False once the child is lost or closed)."""
+        """Whether a demo is being recorded (the last known answer while the child is slow;
+        False once it is lost or closed)."""
         if self._closed:
             return False
         try:
-            return self._call("recording")
+            return self._call("recording", kind="quick")
+        except SessionBusyError:
+            return self._memory.status is not None and self._memory.status.recording
         except SessionLostError:
             return False
 
     def status(self) -> SessionStatus:
-        """A snapshot of the session; once the child is lost, the last one, not running and
-        with the reason as its warning."""
+        """A snapshot of the session. While the child is slow, the last one with a warning
+        that says so; once it is lost, the last one, not running, with the reason."""
         try:
-            status: SessionStatus = self._call("status")
-        except SessionLostError as exc:
-            if self._last_status is None:
+            status: SessionStatus = self._call("status", kind="quick")
+        except (SessionBusyError, SessionLostError) as exc:
+            last = self._memory.status
+            if last is None:
                 raise
-            return dataclasses.replace(self._last_status, warning=str(exc), running=False)
-        self._last_status = status
+            busy = isinstance(exc, SessionBusyError)
+            return dataclasses.replace(last, warning=str(exc), running=last.running and busy)
+        self._memory.note_status(status)
         return status
 
     def trail(self) -> FloatArray:
         """End-effector positions of the demo in progress, shape (T, 3) [m] (empty if none or
-        lost)."""
+        lost; the last one received while the child is slow)."""
         if self._closed:
             return np.zeros((0, 3))
         try:
-            return self._call("trail")
+            self._memory.trail = self._call("trail", kind="quick")
+        except SessionBusyError:
+            pass
         except SessionLostError:
             return np.zeros((0, 3))
+        return self._memory.trail
 
     def tick_stats(self) -> TickReport:
         """The control loop's tick timing so far (gaps, stalls; :mod:`bt_teleop.tick_stats`)."""
@@ -259,31 +233,73 @@ class SessionProcess:
 
     @property
     def pid(self) -> int | None:
-        """The child's process id."""
+        """The child's process id (a new one after :meth:`recover`)."""
         return self._pid
 
     @property
     def lost(self) -> str | None:
-        """Why the child is gone (None while it answers)."""
+        """Why the child is gone (None while it runs, slow or not)."""
         return self._lost
+
+    @property
+    def can_recover(self) -> bool:
+        """Whether :meth:`recover` may replace a lost child (False once starting one failed)."""
+        return self._can_recover and not self._closed
+
+    def recover(self) -> Recovery:
+        """Replace the lost child: settle it (its take saved if it still can), then start a
+        new one with the same task, robot, settings and session id, running if this was.
+
+        Raises:
+            ConfigError: Not lost, or closed.
+            SessionLostError: The new child could not be started (:attr:`can_recover` is then
+                False, and the reason says to reload the page).
+        """
+        with self._recover_lock:
+            reason = self._lost
+            if reason is None or self._closed:
+                raise ConfigError(f"session {self.session_id} is not lost (or closed)")
+            self._settle()
+            recovery = self._memory.recovery(reason, self.scene.task)
+            try:
+                self._spawn()
+            except BtError as exc:
+                self._can_recover = False
+                self._lost = f"{reason}; a new one did not start ({exc}); reload the page"
+                self._lost += "".join(f". {line}" for line in recovery.take_lines())
+                LOGGER.warning("%s", self._lost)
+                raise SessionLostError(self._lost) from None
+            self.recoveries.append(recovery)
+            with self._memory.settings_lock:
+                self._lost = None  # from here on one-way commands go to the new child
+                for name, args in self._memory.settings.items():
+                    self._pipe.send_one_way(name, args)
+            if self._running:
+                with contextlib.suppress(SessionLostError):  # lost again: the next recover
+                    self.start()
+        LOGGER.warning("%s", " ".join(recovery.notice()[1].split("\n")))
+        return recovery
 
     def close(self, save_incomplete: bool | None = None) -> Path | None:
         """End the session and its child; a demo in progress is settled as
-        :meth:`Session.close <bt_teleop.session.Session.close>` does. Returns the file saved."""
-        if self._closed:
-            return None
-        self._closed = True
-        path: Path | None = None
-        with contextlib.suppress(SessionLostError):  # logged when it was lost
-            path = self._call("close", save_incomplete, timeout_s=SAVE_TIMEOUT_S)
-        self._process.join(5.0)
-        if self._process.is_alive():
-            self._process.kill()
-            self._process.join(5.0)
-        self._conn.close()
-        if self._process.exitcode is not None:
-            self._process.close()  # its sentinel fd (pid and exitcode stay readable here)
-        return path
+        :meth:`Session.close <bt_teleop.session.Session.close>` does (a lost child's as a
+        closed tab's). Returns the file saved."""
+        with self._recover_lock:
+            if self._closed:
+                return None
+            self._closed = True
+            pipe, path = self._pipe, None
+            if self._lost is None:
+                try:
+                    path = pipe.request("close", (save_incomplete,), SAVE_TIMEOUT_S, quick=False)
+                    self._memory.take_by = None
+                except (ChildGone, BtError) as exc:
+                    self._lose(str(exc), pipe)
+            if self._lost is not None:
+                self._settle()
+                path = self._memory.saved_late[-1] if self._memory.saved_late else None
+            self._end_process()
+            return path
 
     def __enter__(self) -> SessionProcess:
         return self
@@ -293,61 +309,89 @@ class SessionProcess:
 
     # -- internals -----------------------------------------------------------------------------
 
-    def _send_one_way(self, name: str, *args: Any) -> None:
-        if self._lost is not None or self._closed:
-            return  # the status line says why
+    def _spawn(self) -> None:
+        """Start a child and wait for its first answers (dt_s, status)."""
+        args = (self.scene.task, self.scene.robot, self.recordings_dir, self.config)
+        conn, process = start_child(
+            serve_session,
+            (*args, self.session_id, LOGGER.getEffectiveLevel()),
+            f"bt-session-{self.session_id}",
+        )
+        self._process, self._pid, self._ended = process, process.pid, False
+        self._pipe = pipe = ChildPipe(
+            conn, process, unresponsive_s=self.unresponsive_s, on_late=self._memory.on_late
+        )
         try:
-            with self._send_lock:
-                self._conn.send((name, args))
-        except (OSError, ValueError) as exc:
-            self._lose(f"its pipe broke ({exc})")
+            self.dt_s: float = pipe.started(START_TIMEOUT_S)
+            """Control period [s]."""
+            self._memory.note_status(pipe.request("status", (), START_TIMEOUT_S, quick=False))
+        except BaseException as exc:
+            self._end_process()
+            if isinstance(exc, ChildGone):
+                raise SessionLostError(
+                    f"the simulation of session {self.session_id} did not start: {exc}"
+                ) from None
+            raise
 
-    def _call(self, name: str, *args: Any, timeout_s: float | None = None) -> Any:
-        with self._call_lock:
+    def _send_one_way(self, name: str, *args: Any) -> None:
+        if self._closed:
+            return
+        pipe = self._pipe
+        with self._memory.settings_lock:
+            self._memory.settings.pop(name, None)
+            self._memory.settings[name] = args  # a new child gets it too
             if self._lost is not None:
-                raise SessionLostError(self._lost)
-            if self._closed and name != "close":
-                raise ConfigError(f"session {self.session_id} is closed")
+                return  # the status line says why; recover() sends it on
             try:
-                with self._send_lock:
-                    self._conn.send((name, args))
-            except (OSError, ValueError) as exc:
-                raise self._lose(f"its pipe broke ({exc})") from None
-            return self._reply(self.timeout_s if timeout_s is None else timeout_s)
+                pipe.send_one_way(name, args)
+            except ChildGone as exc:
+                self._lose(str(exc), pipe)
 
-    def _reply(self, timeout_s: float) -> Any:
-        """The child's next reply (under the call lock): its value, or its error raised."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            try:
-                if self._conn.poll(min(0.25, max(0.0, deadline - time.monotonic()))):
-                    ok, value = self._conn.recv()
-                    break
-            except (EOFError, OSError):
-                raise self._lose(f"its process ended (exit code {self._exit_code()})") from None
-            if not self._process.is_alive():
-                raise self._lose(f"its process ended (exit code {self._exit_code()})")
-            if time.monotonic() >= deadline:
-                raise self._lose(f"it did not answer within {timeout_s:g} s")
-        if not ok:
-            raise value
-        return value
+    def _call(self, name: str, *args: Any, kind: Kind = "action") -> Any:
+        if self._lost is not None:
+            raise SessionLostError(self._lost)
+        if self._closed:
+            raise ConfigError(f"session {self.session_id} is closed")
+        pipe = self._pipe
+        timeout_s = {"quick": self.timeout_s, "action": self.unresponsive_s}.get(kind)
+        try:
+            return pipe.request(name, args, timeout_s or SAVE_TIMEOUT_S, quick=kind == "quick")
+        except ChildGone as exc:
+            raise self._lose(str(exc), pipe) from None
 
-    def _exit_code(self) -> int | None:
-        self._process.join(1.0)
-        return self._process.exitcode
-
-    def _lose(self, reason: str) -> SessionLostError:
-        """Mark the child lost (killing it if it still runs); the error to raise."""
-        if self._lost is None:
-            self._lost = (
-                f"the simulation of session {self.session_id} stopped: {reason}; "
-                "reload the page to start a new one"
-            )
+    def _lose(self, reason: str, pipe: ChildPipe) -> SessionLostError:
+        """Mark the child behind `pipe` lost and tell it to end (it saves a take in progress
+        if it still can); the error to raise. A no-op for a child already replaced."""
+        if pipe is self._pipe and self._lost is None:
+            self._lost = f"the simulation of session {self.session_id} stopped: {reason}"
             LOGGER.warning("%s", self._lost)
-            if self._process.is_alive():
-                self._process.kill()
-        return SessionLostError(self._lost)
+            with contextlib.suppress(ProcessLookupError, ValueError):  # ended, or closed
+                if self._pid is not None and self._process.exitcode is None:
+                    os.kill(self._pid, signal.SIGTERM)
+                    os.kill(self._pid, signal.SIGCONT)  # if it was stopped
+        return SessionLostError(self._lost or reason)
+
+    def _settle(self) -> None:
+        """A lost child: read its last replies (a take it saved) until it ends, or kill it
+        after SAVE_TIMEOUT_S."""
+        if not self._pipe.drain(SAVE_TIMEOUT_S):
+            LOGGER.warning("session %s: the lost child did not end; killed", self.session_id)
+        self._end_process()
+
+    def _end_process(self) -> None:
+        """End the child (killed if it does not within 5 s) and close its pipe; once."""
+        process = self._process
+        if self._ended:
+            return
+        self._ended = True
+        if process.exitcode is None:
+            process.join(5.0)
+        if process.exitcode is None:
+            process.kill()
+            process.join(5.0)
+        self._pipe.conn.close()
+        if process.exitcode is not None:
+            process.close()  # its sentinel fd (pid and exitcode stay readable here)
 
 
 TabSession = TimedSession | SessionProcess

@@ -11,13 +11,15 @@ Data flow (everything a tab does stays in the tab)::
             (grouped with client.atomic(): one scene update per period)
         -> SessionLogger.log_state (Rerun, off this thread's critical path)
         poll: clean job progress, replay progress, library reloads
-    Session: fixed-rate IK + physics in a child process (session_process), never touched by viser
+    Session: fixed-rate IK + physics in a child process (session_process), never touched by
+        viser; when that child is lost the worker starts a new one (TakeDesk.recover_if_lost)
 
 Callbacks never block: they store a value or queue a command. The worker is the only thread
 that changes the tab's scene and the only one that swaps its Session (task switch).
 
-Beside it: panels :mod:`~bt_teleop.ui_panels`, takes and moderation :mod:`~bt_teleop.ui_takes`,
-3-D view :mod:`~bt_teleop.tab_scene`, what tabs share :mod:`~bt_teleop.ui_context`.
+Beside it: panels :mod:`~bt_teleop.ui_panels`, takes, moderation and a lost simulation
+:mod:`~bt_teleop.ui_takes`, clean jobs :mod:`~bt_teleop.ui_clean`, 3-D view
+:mod:`~bt_teleop.tab_scene`, what tabs share :mod:`~bt_teleop.ui_context`.
 """
 
 from __future__ import annotations
@@ -30,7 +32,6 @@ import logging
 import queue
 import threading
 import time
-import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -40,7 +41,6 @@ import viser
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError
-from bt_teleop.cleaning import CleanJob
 from bt_teleop.escape import breakable, display_text
 from bt_teleop.library import TaskLibrary
 from bt_teleop.replay import ReplayPlayer, read_replay
@@ -48,8 +48,9 @@ from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
 from bt_teleop.session_process import TabSession, open_session
 from bt_teleop.tab_scene import Frame, TabScene
+from bt_teleop.ui_clean import CleanWatch
 from bt_teleop.ui_context import TaskVersions, UiContext
-from bt_teleop.ui_panels import TabControls, clean_done_text, status_markdown
+from bt_teleop.ui_panels import TabControls, status_markdown
 from bt_teleop.ui_takes import TakeDesk
 
 __all__ = ["ClientUI", "Frame", "TaskVersions", "UiContext", "status_markdown"]
@@ -83,12 +84,12 @@ class ClientUI:
         self._guide_dirty = True
         self._library_future: concurrent.futures.Future[TaskLibrary] | None = None
         self._library_version = -1
-        self._seen_jobs: weakref.WeakSet[CleanJob] = weakref.WeakSet()
         self.controls = TabControls(client.gui, ctx, session_id)
         """The tab's GUI handles."""
         self.takes = TakeDesk(ctx, session_id, self.controls, self.logger, self._notify)
         """Saved takes, their checks' verdict and moderation."""
         self.saved = self.takes.saved
+        self.cleans = CleanWatch(ctx, self.controls, self.logger, self._notify)
         self.controls.connect(self)
         self.session: TabSession = self._new_session(ctx.initial_task)
         self.tab_scene = TabScene(
@@ -269,6 +270,11 @@ class ClientUI:
             self._run_commands()
             try:
                 self._publish()
+                lost_at_s = self.takes.recover_if_lost(self.session)  # a new simulation
+                if lost_at_s is not None:  # its clock starts at 0; the replay is gone
+                    self._time_offset_s += lost_at_s + 1.0
+                    self._do_stop_replay()
+                    self.tab_scene.trail.clear()
                 self._poll()
             except Exception:  # keep the tab alive; the log has the details
                 LOGGER.exception("tab %s: update failed", self.session_id)
@@ -314,25 +320,8 @@ class ClientUI:
                 if library.task == self.task:
                     self.library = library
                     self.controls.show_library(library)
-        self._poll_clean()
+        self.cleans.poll(self, self.task)
         self._poll_replay()
-
-    def _poll_clean(self) -> None:
-        cleaner = self.ctx.cleaner
-        mine = cleaner.job_for(self.task)
-        self.controls.show_clean_progress(None if mine is None else mine.progress())
-        for job in cleaner.jobs():
-            if job.owner is not self or not job.finished or job in self._seen_jobs:
-                continue
-            self._seen_jobs.add(job)
-            progress = job.progress()
-            if progress.state == "done":
-                self._notify("Clean done", clean_done_text(job.task, progress))
-                result = job.take_result()  # the job lets go of it (every demo of the task)
-                if result is not None:
-                    self.logger.log_clean_result(result, self.ctx.cleaner.options.seed)
-            else:
-                self._notify(f"Clean {progress.state}", progress.message, color="red")
 
     def _poll_replay(self) -> None:
         player = self.replay

@@ -7,6 +7,8 @@
     discard_flagged()         that take is excluded (sidecar; the file is kept, Restore undoes)
     moderate(action, key)     exclude / restore a raw demo of the task (bt_teleop.moderation)
     set_operator_token(text)  the tab becomes an operator when the text is the app's token
+    recover_if_lost(session)  its simulation was lost: a new one at once, and a notice of what
+                              became of the take in progress (saved flagged, or lost)
 
 Runs on the tab's worker thread (:class:`bt_teleop.ui.ClientUI` queues the calls), except
 :meth:`TakeDesk.set_operator_token`, which only stores a bool.
@@ -21,12 +23,12 @@ from typing import Any
 
 from bt_pipeline.data.moderation import exclude
 from bt_pipeline.data.tasks import Task
-from bt_pipeline.exceptions import BtError
+from bt_pipeline.exceptions import BtError, SessionLostError
 from bt_teleop.library import TaskLibrary
 from bt_teleop.moderation import Moderator, token_matches
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.session import Session
-from bt_teleop.session_process import SessionProcess
+from bt_teleop.session_process import SessionProcess, TabSession
 from bt_teleop.ui_context import UiContext
 from bt_teleop.ui_panels import TabControls
 
@@ -116,3 +118,20 @@ class TakeDesk:
     def set_operator_token(self, typed: Any) -> None:
         """Become an operator when `typed` is the app's token (else stop being one)."""
         self.operator = token_matches(str(typed), self.ctx.operator_token)
+
+    def recover_if_lost(self, session: TabSession) -> float | None:
+        """Replace `session`'s child if it was lost (:meth:`SessionProcess.recover
+        <bt_teleop.session_process.SessionProcess.recover>`) and say what became of the take in
+        progress; the lost child's last simulation time [s] (None: nothing was lost)."""
+        if not isinstance(session, SessionProcess) or not session.lost or not session.can_recover:
+            return None
+        try:
+            recovery = session.recover()
+        except SessionLostError as exc:  # the status line keeps saying it
+            self.notify("Simulation stopped", str(exc), color="red")
+            return None
+        for path in recovery.saved:
+            self.note_saved(path, recovery.task)
+        title, body = recovery.notice()
+        self.notify(title, body, color="red" if recovery.take_lost else "yellow")
+        return recovery.sim_time_s

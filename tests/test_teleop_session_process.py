@@ -1,6 +1,6 @@
 """A tab's session in a child process (bt_teleop/session_process.py): it moves the arm, records
 and saves takes that read back, re-raises the child's errors, survives nothing it should not
-(a killed or hung child is one clear message, never a hang) and leaves no child behind; and
+(a killed child is one clear message, never a hang) and leaves no child behind; and
 the tick timing every session keeps (bt_teleop/tick_stats.py)."""
 
 from __future__ import annotations
@@ -127,29 +127,12 @@ def test_a_killed_child_is_one_clear_message_not_a_hang(session: SessionProcess)
     status = session.status()  # the last status, with the reason
     assert not status.running
     assert status.warning is not None and "stopped" in status.warning
-    assert "exit code -9" in status.warning and "reload the page" in status.warning
+    assert "exit code -9" in status.warning and session.lost == status.warning
     with pytest.raises(SessionLostError, match="session proc1 stopped"):
         session.start_recording("a")
     session.set_target([0.4, 0.0, 0.3])  # dropped, not raised: the status says why
     assert session.trail().shape == (0, 3) and not session.recording
     assert session.close() is None
-
-
-def test_a_hung_child_times_out_is_killed_and_reported(scene: SceneModel, tmp_path: Path) -> None:
-    proxy = SessionProcess(scene, tmp_path, timeout_s=1.0)
-    assert proxy.pid is not None
-    child = psutil.Process(proxy.pid)
-    os.kill(proxy.pid, signal.SIGSTOP)
-    try:
-        status = proxy.status()
-        assert status.warning is not None and "did not answer within 1 s" in status.warning
-        child.wait(10.0)  # killed
-        with pytest.raises(SessionLostError):
-            proxy.stop_and_check()
-    finally:
-        if child.is_running():
-            os.kill(child.pid, signal.SIGKILL)
-    proxy.close()
 
 
 def _recording_child(session: SessionProcess, name: str) -> psutil.Process:
@@ -180,7 +163,7 @@ def test_a_child_whose_app_vanished_saves_its_take_and_exits(
 ) -> None:
     """EOF on the pipe (the app was killed): the child settles the take as a closed tab's."""
     child = _recording_child(session, "orphan")
-    session._conn.close()  # what the app's death does to the child's pipe
+    session._pipe.conn.close()  # what the app's death does to the child's pipe
     child.wait(30.0)
     (path,) = (tmp_path / "wiping").glob("*.hdf5")
     (demo,) = read_recording(path).demos.values()

@@ -1,0 +1,50 @@
+"""A tab's view of its clean jobs (:class:`bt_teleop.cleaning.CleanRunner`): the progress of
+its task's job, and a notice once for each job the tab started that finished (the cleaned demos
+go to Rerun)."""
+
+from __future__ import annotations
+
+import weakref
+from collections.abc import Callable
+
+from bt_teleop.cleaning import CleanJob
+from bt_teleop.rerun_live import SessionLogger
+from bt_teleop.ui_context import UiContext
+from bt_teleop.ui_panels import TabControls, clean_done_text
+
+__all__ = ["CleanWatch"]
+
+
+class CleanWatch:
+    """Polled by the tab's worker thread (:class:`bt_teleop.ui.ClientUI`)."""
+
+    def __init__(
+        self,
+        ctx: UiContext,
+        controls: TabControls,
+        logger: SessionLogger,
+        notify: Callable[..., None],
+    ) -> None:
+        self.ctx = ctx
+        self.controls = controls
+        self.logger = logger
+        self.notify = notify
+        self._seen: weakref.WeakSet[CleanJob] = weakref.WeakSet()
+
+    def poll(self, owner: object, task: str) -> None:
+        """Show `task`'s clean progress; notify each finished job of `owner` (the tab) once."""
+        cleaner = self.ctx.cleaner
+        mine = cleaner.job_for(task)
+        self.controls.show_clean_progress(None if mine is None else mine.progress())
+        for job in cleaner.jobs():
+            if job.owner is not owner or not job.finished or job in self._seen:
+                continue
+            self._seen.add(job)
+            progress = job.progress()
+            if progress.state == "done":
+                self.notify("Clean done", clean_done_text(job.task, progress))
+                result = job.take_result()  # the job lets go of it (every demo of the task)
+                if result is not None:
+                    self.logger.log_clean_result(result, cleaner.options.seed)
+            else:
+                self.notify(f"Clean {progress.state}", progress.message, color="red")
