@@ -35,6 +35,7 @@ from bt_pipeline.clean.segment import Segment, segment_demo, span_times, track_p
 from bt_pipeline.clean.stage1.alignment import apply_preference
 from bt_pipeline.data.demo import Demo, resample_uniform
 from bt_pipeline.data.records import FloatArray
+from bt_pipeline.score.losses import DEFAULT_ALPHAS, smoothness_loss
 
 UNCERTAIN = 0.5
 """Confidence below which an estimated θ/ρ is reported as uncertain."""
@@ -45,6 +46,7 @@ _DRIFT_PASSES = 2  # Phase tracks; the drift is estimated between them.
 _POOL_THETA_DEG = 2.5  # Estimates this close in θ [deg] and
 _POOL_RHO = 0.025  # in ρ agree when a demonstrator's demos are pooled.
 _RETIME_OVERSAMPLE = 4  # Points of the dense reference per reference sample.
+_MIN_LOOPS = 0.25  # loop_smoothness counts an incomplete loop as at least this many loops.
 
 
 @dataclass(frozen=True)
@@ -255,3 +257,21 @@ def _weighted_median(values: FloatArray, weights: FloatArray) -> float:
     order = np.argsort(values)
     cumulative = np.cumsum(weights[order])
     return float(values[order][int(np.searchsorted(cumulative, 0.5 * cumulative[-1]))])
+
+
+def loop_smoothness(demo: Demo, loops: float, alphas: Sequence[float] = DEFAULT_ALPHAS) -> float:
+    """L3 (Eq. 6) per loop: read on the demo resampled to N samples a loop, then divided by its
+    loops.
+
+    Eq. (6) sums raw sample differences over N samples, so a demo of c loops read at N samples
+    moves c times as far per sample and its k-th differences grow as c^k: three loops score
+    9, 81 and 729 times a single loop's L3 terms, and a steady hand that draws several loops
+    ranks below a wobbly single loop (bench_app_takes.py, pick-and-place). Read at N samples a
+    loop (from the demo's own samples, `Demo.raw_samples`) and averaged over its loops, every
+    demo is judged at the same step along its loop. Incomplete loops count as at least a
+    quarter.
+    """
+    x, t = demo.raw_samples()
+    per_loop = max(float(loops), _MIN_LOOPS)
+    n = max(4, round(demo.n_samples * per_loop))
+    return smoothness_loss(resample_uniform(x, t, n), alphas) / per_loop

@@ -28,6 +28,7 @@ from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.periodic import (
     UNCERTAIN,
     PreferenceEstimate,
+    loop_smoothness,
     output_on_raw_times,
     phase_loop,
     pool_preferences,
@@ -44,6 +45,7 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.execute import ExecutorConfig
+from bt_pipeline.score.losses import smoothness_loss
 from bt_pipeline.score.utility import (
     Normaliser,
     ScoreConfig,
@@ -268,7 +270,23 @@ def clean_demos(
             notes.append(f"{demo.label}: only {segment.cycles:.2f} of a loop was found")
 
     start = time.perf_counter()
-    scores = score_demos(demos, options.score)
+    # The ranking reads L3 per loop (a demo of several loops is not ranked by its loop count);
+    # Stage 2's normaliser (Eq. 7) reads it on the N-sample demos it refines, as Stage 2 does.
+    alphas = options.score.alphas
+    scores = score_demos(
+        demos,
+        options.score,
+        smoothness=[
+            loop_smoothness(d, s.cycles, alphas) for d, s in zip(demos, segments, strict=True)
+        ],
+    )
+    frozen = Normaliser.from_raw_metrics(
+        [
+            dataclasses.replace(sc.raw, smoothness=smoothness_loss(d.positions, alphas))
+            for sc, d in zip(scores.scores, demos, strict=True)
+        ],
+        options.score.delta,
+    )
     seconds["score"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -315,7 +333,7 @@ def clean_demos(
     seconds["stage1"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    normaliser = refine_normaliser(scores.normaliser, stage1.shape_losses)
+    normaliser = refine_normaliser(frozen, stage1.shape_losses)
     refined = refine_in_chunks(  # Stage 1 is shared by chunks of at most K demos (issue 14).
         positions,
         stage1,

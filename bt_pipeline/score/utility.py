@@ -14,6 +14,7 @@ the intent: the normalised form Eq. (8) is used everywhere (§7 row 10).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -325,7 +326,12 @@ class TaskScores:
         return self.normaliser.normalise(np.stack([s.raw.as_array() for s in self.scores]))
 
 
-def score_demos(demos: Sequence[Demo], config: ScoreConfig | None = None) -> TaskScores:
+def score_demos(
+    demos: Sequence[Demo],
+    config: ScoreConfig | None = None,
+    *,
+    smoothness: Sequence[float] | None = None,
+) -> TaskScores:
     """Score the raw demos of one task with the normalised demo utility (Eqs. 7-8).
 
     Actions are the demos' forward differences (t ∈ [0, 1], a_N = 0); L1 is de-rotated by each
@@ -335,6 +341,8 @@ def score_demos(demos: Sequence[Demo], config: ScoreConfig | None = None) -> Tas
     Args:
         demos: M ≥ 1 demos, all of the same task.
         config: Score settings; defaults when None.
+        smoothness: Each demo's L3 to rank by, in place of Eq. (6) on its N samples (the
+            cleaner passes it per loop: :func:`bt_pipeline.clean.periodic.loop_smoothness`).
 
     Raises:
         DemoError: No demos.
@@ -354,6 +362,13 @@ def score_demos(demos: Sequence[Demo], config: ScoreConfig | None = None) -> Tas
             "(split them with bt_pipeline.data.demo.group_by_task)"
         )
     metrics = [raw_metrics(d.positions, d.actions, d.theta_deg, config) for d in demos]
+    if smoothness is not None:
+        if len(smoothness) != len(demos):
+            raise ConfigError(f"smoothness holds {len(smoothness)} values for {len(demos)} demos")
+        metrics = [
+            dataclasses.replace(m, smoothness=float(v))
+            for m, v in zip(metrics, smoothness, strict=True)
+        ]
     normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
     normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
     utility = normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
