@@ -9,7 +9,7 @@ from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import Demo, demos_from_recording, resample_uniform
 from bt_pipeline.data.shapes import canonical_loop, similarity_transform
 from bt_pipeline.data.synth import make_d1, make_d2
-from bt_pipeline.data.tasks import TASKS, default_plane
+from bt_pipeline.data.tasks import TASKS, Task, default_plane
 from bt_pipeline.score.utility import select_best
 
 SEEDS = range(20)
@@ -26,28 +26,41 @@ def test_selection_picks_the_expert_in_at_least_95_percent_of_sets(task, make) -
     assert hits / len(SEEDS) >= 0.95, f"{task}: expert chosen in {hits}/{len(SEEDS)} sets"
 
 
-def _loops_demo(k: int, loops: int, wobble_m: float, seed: int) -> Demo:
-    """A weaving demo of `loops` loops of 4 s at 50 Hz, a slow wobble (0.3-1 Hz) of about
-    `wobble_m` per axis, 0.2 mm of noise; built here, not by bt's generators."""
+def _loops_demo(
+    k: int,
+    loops: int,
+    wobble_m: float,
+    seed: int,
+    *,
+    task: Task = "weaving",
+    rho: float = 1.0,
+    lopsided_speed: float = 0.0,
+) -> Demo:
+    """A demo of `loops` loops of 4 s at 50 Hz, a slow wobble (0.3-1 Hz) of about `wobble_m` per
+    axis, 0.2 mm of noise, at preference ρ (θ = 0); `lopsided_speed` > 0 draws the left half of
+    each loop that much slower. Built here, not by bt's generators."""
     rng = np.random.default_rng(seed)
-    guide = similarity_transform(canonical_loop("weaving", 4096), 0.0, 1.0)
+    guide = similarity_transform(canonical_loop(task, 4096), 0.0, rho)
     grid = np.linspace(0.0, 1.0, 4096, endpoint=False)
     t = np.arange(0.0, loops * 4.0, 0.02)
-    uv = np.stack([np.interp(t / 4.0, grid, guide[:, d], period=1.0) for d in range(2)], axis=1)
+    # Phase rate 1 + a·cos(2π s): slow where cos < 0 (the left half of the loop's phases).
+    s = t / 4.0
+    phase = s + lopsided_speed * np.sin(2 * np.pi * s) / (2 * np.pi)
+    uv = np.stack([np.interp(phase, grid, guide[:, d], period=1.0) for d in range(2)], axis=1)
     for axis in range(2):
         for _ in range(3):
-            freq, phase = rng.uniform(0.3, 1.0), rng.uniform(0.0, 7.0)
-            uv[:, axis] += wobble_m * rng.uniform(0.5, 1.0) * np.sin(2 * np.pi * freq * t + phase)
+            freq, offset = rng.uniform(0.3, 1.0), rng.uniform(0.0, 7.0)
+            uv[:, axis] += wobble_m * rng.uniform(0.5, 1.0) * np.sin(2 * np.pi * freq * t + offset)
     uv += rng.normal(0.0, 0.0002, uv.shape)
     return Demo(
         positions=resample_uniform(uv, t, 300),
-        task="weaving",
+        task=task,
         file="",
         name=f"demo_{k}",
         demonstrator=f"person_{k}",
         theta_deg=0.0,
-        rho=1.0,
-        plane=default_plane("weaving"),
+        rho=rho,
+        plane=default_plane(task),
         duration_s=float(t[-1] - t[0]),
         raw_positions=uv,
         raw_times_s=t,
@@ -68,3 +81,26 @@ def test_the_cleaner_ranks_smoothness_per_loop() -> None:
     result = clean_demos(demos, CleanOptions(seed=0, epochs=2, progress=False))
     three, one = (result.scores.scores[k].smoothness for k in (0, 1))
     assert 0.9 < three / one < 1.1, (three, one)
+
+
+def test_the_cleaners_ranking_reads_no_speed_profile_or_preference() -> None:
+    """Pick-and-place arches (mirror symmetric): a steady hand drawn at even speed, the same hand
+    slower on the left half of each loop (Eq. (4)'s centroid of time samples moves left, so the
+    mirror line does), and the same hand at ρ = 0.8 and 1.25 (L1 and L2 grow as ρ, L3 as ρ²)
+    score about the same L1 in the cleaner's ranking (sub-mm, within 2.5 ×; under half a wobbly
+    loop's; the slower-left hand read 30.6 mm by Eq. (4) on time samples), and the three drawn
+    at even speed the same L3 (within 25 %). In the app, a steady take drawn slower on one side
+    and a smaller wobbly loop ranked above the steady take (bench_app_takes.py, pick-and-place)."""
+    demos = [
+        _loops_demo(0, 2, 0.0, 0, task="pick_and_place"),
+        _loops_demo(1, 2, 0.0, 1, task="pick_and_place", lopsided_speed=0.5),
+        _loops_demo(2, 2, 0.0, 2, task="pick_and_place", rho=0.8),
+        _loops_demo(3, 2, 0.0, 3, task="pick_and_place", rho=1.25),
+        _loops_demo(4, 2, 0.004, 4, task="pick_and_place"),
+    ]
+    scores = clean_demos(demos, CleanOptions(seed=0, epochs=2, progress=False)).scores.scores
+    symmetry = np.array([scores[k].symmetry for k in range(4)])
+    assert symmetry.max() < 0.5 * scores[4].symmetry, (symmetry, scores[4].symmetry)
+    assert symmetry.max() < 2.5 * symmetry.min(), symmetry  # sub-mm: the noise's level
+    smoothness = np.array([scores[k].smoothness for k in (0, 2, 3)])  # the speed profile is L3's
+    assert smoothness.max() < 1.25 * smoothness.min(), smoothness

@@ -30,6 +30,7 @@ from bt_pipeline.clean.periodic import (
     PreferenceEstimate,
     loop_smoothness,
     output_on_raw_times,
+    path_symmetry,
     phase_loop,
     pool_preferences,
     smooth_residual,
@@ -45,7 +46,7 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.execute import ExecutorConfig
-from bt_pipeline.score.losses import smoothness_loss
+from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
 from bt_pipeline.score.utility import (
     Normaliser,
     ScoreConfig,
@@ -270,19 +271,35 @@ def clean_demos(
             notes.append(f"{demo.label}: only {segment.cycles:.2f} of a loop was found")
 
     start = time.perf_counter()
-    # The ranking reads L3 per loop (a demo of several loops is not ranked by its loop count);
-    # Stage 2's normaliser (Eq. 7) reads it on the N-sample demos it refines, as Stage 2 does.
-    alphas = options.score.alphas
+    # The ranking reads L1 along the path and L3 per loop (docs/refinement.md): a demo's speed
+    # profile and loop count do not rank it. Stage 2's normaliser (Eq. 7) reads both on the
+    # N-sample demos it refines, as Stage 2 computes them.
+    alphas, derotate = options.score.alphas, options.score.derotate
+    pairs = list(zip(demos, segments, strict=True))
+    # ρ is the demonstrator's preference, not a quality: L1 and L2 [m] grow as ρ, L3 as ρ², so
+    # each is read at ρ = 1 (a loop drawn small would otherwise rank as cleaner).
+    rhos = [d.rho if d.rho is not None and d.rho > 0.0 else 1.0 for d in demos]
     scores = score_demos(
         demos,
         options.score,
+        symmetry=[
+            path_symmetry(d, s.cycles, d.theta_deg if derotate else None) / r
+            for (d, s), r in zip(pairs, rhos, strict=True)
+        ],
+        closure=[closure_loss(d.positions) / r for d, r in zip(demos, rhos, strict=True)],
         smoothness=[
-            loop_smoothness(d, s.cycles, alphas) for d, s in zip(demos, segments, strict=True)
+            loop_smoothness(d, s.cycles, alphas) / r**2
+            for (d, s), r in zip(pairs, rhos, strict=True)
         ],
     )
     frozen = Normaliser.from_raw_metrics(
         [
-            dataclasses.replace(sc.raw, smoothness=smoothness_loss(d.positions, alphas))
+            dataclasses.replace(
+                sc.raw,
+                symmetry=symmetry_loss(d.positions, d.theta_deg if derotate else None),
+                closure=closure_loss(d.positions),
+                smoothness=smoothness_loss(d.positions, alphas),
+            )
             for sc, d in zip(scores.scores, demos, strict=True)
         ],
         options.score.delta,

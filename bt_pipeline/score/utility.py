@@ -330,6 +330,8 @@ def score_demos(
     demos: Sequence[Demo],
     config: ScoreConfig | None = None,
     *,
+    symmetry: Sequence[float] | None = None,
+    closure: Sequence[float] | None = None,
     smoothness: Sequence[float] | None = None,
 ) -> TaskScores:
     """Score the raw demos of one task with the normalised demo utility (Eqs. 7-8).
@@ -341,6 +343,9 @@ def score_demos(
     Args:
         demos: M ≥ 1 demos, all of the same task.
         config: Score settings; defaults when None.
+        symmetry: Each demo's L1 to rank by, in place of Eq. (4) on its N samples (the cleaner
+            reads it along the path: :func:`bt_pipeline.clean.periodic.path_symmetry`).
+        closure: Each demo's L2 to rank by, in place of Eq. (5) on its N samples.
         smoothness: Each demo's L3 to rank by, in place of Eq. (6) on its N samples (the
             cleaner passes it per loop: :func:`bt_pipeline.clean.periodic.loop_smoothness`).
 
@@ -362,13 +367,14 @@ def score_demos(
             "(split them with bt_pipeline.data.demo.group_by_task)"
         )
     metrics = [raw_metrics(d.positions, d.actions, d.theta_deg, config) for d in demos]
-    if smoothness is not None:
-        if len(smoothness) != len(demos):
-            raise ConfigError(f"smoothness holds {len(smoothness)} values for {len(demos)} demos")
-        metrics = [
-            dataclasses.replace(m, smoothness=float(v))
-            for m, v in zip(metrics, smoothness, strict=True)
-        ]
+    for name, values in (("symmetry", symmetry), ("closure", closure), ("smoothness", smoothness)):
+        if values is not None:
+            if len(values) != len(demos):
+                raise ConfigError(f"{name} holds {len(values)} values for {len(demos)} demos")
+            metrics = [
+                dataclasses.replace(m, **{name: float(v)})
+                for m, v in zip(metrics, values, strict=True)
+            ]
     normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
     normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
     utility = normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
