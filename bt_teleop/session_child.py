@@ -33,7 +33,12 @@ from pathlib import Path
 from typing import Any
 
 from bt_pipeline.exceptions import BtError, ConfigError
-from bt_teleop.native_memory import heap_info
+from bt_teleop.native_memory import (
+    hdf5_free_lists,
+    heap_info,
+    release_free_memory,
+    trim_heap,
+)
 from bt_teleop.rerun_proxy import libc
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.tick_stats import TimedSession, raise_priority, use_realtime
@@ -48,8 +53,16 @@ CALLS = frozenset(
     | {"discard", "close", "tick_stats", "reset"}
 )
 """Requests the child answers (methods, or properties read)."""
-PROCESS_CALLS = {"heap_info": heap_info}
-"""Requests about the child process itself, not its session (its C heap, for benchmarks)."""
+PROCESS_CALLS = {
+    "heap_info": heap_info,
+    "hdf5_free_lists": hdf5_free_lists,
+    "allocated_blocks": sys.getallocatedblocks,
+    "trim_heap": trim_heap,
+}
+"""Requests about the child process itself, not its session (its C heap, HDF5's free lists,
+the number of Python objects' memory blocks; for benchmarks and tests)."""
+ENDS_A_TAKE = frozenset({"stop_and_check", "discard"})
+"""Requests after which the child releases free memory (``release_memory_after_take``)."""
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
@@ -111,6 +124,9 @@ def serve_session(
                 continue
             if name not in ONE_WAY:
                 _send_reply(conn, True, value)
+            if name in ENDS_A_TAKE and config.release_memory_after_take:
+                with session.late_probe.serving("release_memory"):  # after the reply: no wait
+                    release_free_memory()
     except (EOFError, OSError, SystemExit):
         pass
     finally:
