@@ -6,10 +6,11 @@ the C heap is in use and how much is free but still mapped (``fordblks``): a hea
 in ``fordblks`` while ``uordblks`` stays flat is fragmentation, not a leak. ``malloc_trim(0)``
 returns the free pages of every arena to the system.
 
-HDF5 (h5py's library) keeps the blocks it frees on free lists of its own, one per block size,
-up to 16 MiB a kind by default: to glibc they stay in use. Every take of a new length leaves
-blocks of new sizes there. :func:`hdf5_free_lists` reads what they hold and
-:func:`release_hdf5_free_lists` gives it back to ``malloc`` (``H5garbage_collect``).
+HDF5 (h5py's library) keeps the blocks it frees on free lists of its own, one per block size
+(by default up to 1 MiB a list and 16 MiB for all block lists): to glibc they stay in use.
+Every take of a new length leaves blocks of new sizes there. :func:`hdf5_free_lists` reads
+what they hold and :func:`release_hdf5_free_lists` gives it back to ``malloc``
+(``H5garbage_collect``).
 
 Everything here is a no-op returning None on a C library without these calls (musl, macOS).
 """

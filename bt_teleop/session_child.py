@@ -8,6 +8,8 @@ session, served over a pipe.
         loop: (name, args) = conn.recv()
             one-way (set_target, set_gripper, set_stay_on_plane): applied, no reply
             request (status, trail, ...): reply (True, value) or (False, error)
+            after stop_and_check / discard: release_free_memory() (HDF5's free lists, the C
+                heap's free pages), once the reply is sent
             close: settle the take as asked, reply (True, path), exit
         EOF (the app died), SIGTERM (its parent, the forkserver, died): the take is settled
             as a closed tab's (saved flagged incomplete), then exit
@@ -33,12 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from bt_pipeline.exceptions import BtError, ConfigError
-from bt_teleop.native_memory import (
-    hdf5_free_lists,
-    heap_info,
-    release_free_memory,
-    trim_heap,
-)
+from bt_teleop.native_memory import hdf5_free_lists, heap_info, release_free_memory
 from bt_teleop.rerun_proxy import libc
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.tick_stats import TimedSession, raise_priority, use_realtime
@@ -57,7 +54,6 @@ PROCESS_CALLS = {
     "heap_info": heap_info,
     "hdf5_free_lists": hdf5_free_lists,
     "allocated_blocks": sys.getallocatedblocks,
-    "trim_heap": trim_heap,
 }
 """Requests about the child process itself, not its session (its C heap, HDF5's free lists,
 the number of Python objects' memory blocks; for benchmarks and tests)."""
