@@ -6,6 +6,12 @@ the C heap is in use and how much is free but still mapped (``fordblks``): a hea
 in ``fordblks`` while ``uordblks`` stays flat is fragmentation, not a leak. ``malloc_trim(0)``
 returns the free pages of every arena to the system.
 
+HDF5 (h5py's library) keeps the blocks it frees on free lists of its own, one per block size
+(by default up to 1 MiB a list and 16 MiB for all block lists): to glibc they stay in use.
+Every take of a new length leaves blocks of new sizes there. :func:`hdf5_free_lists` reads
+what they hold and :func:`release_hdf5_free_lists` gives it back to ``malloc``
+(``H5garbage_collect``).
+
 Everything here is a no-op returning None on a C library without these calls (musl, macOS).
 """
 
@@ -22,7 +28,16 @@ from dataclasses import dataclass
 
 from bt_pipeline.exceptions import ConfigError
 
-__all__ = ["HeapInfo", "HeapTrimmer", "heap_info", "trim_heap"]
+__all__ = [
+    "Hdf5FreeLists",
+    "HeapInfo",
+    "HeapTrimmer",
+    "hdf5_free_lists",
+    "heap_info",
+    "release_free_memory",
+    "release_hdf5_free_lists",
+    "trim_heap",
+]
 
 
 class _Mallinfo2(ctypes.Structure):
@@ -57,6 +72,60 @@ class HeapInfo:
     """Bytes of the arenas free but kept (``fordblks``): fragmentation and reusable space."""
 
 
+@dataclass(frozen=True)
+class Hdf5FreeLists:
+    """What HDF5's free lists hold (``H5get_free_list_sizes``) [bytes], by kind of list."""
+
+    regular: int
+    """Fixed-size objects (HDF5's own structures)."""
+    array: int
+    """Arrays of objects."""
+    block: int
+    """Blocks of any size (data and metadata buffers: one list per size)."""
+    factory: int
+    """Factory lists (sizes chosen at run time)."""
+
+    @property
+    def total(self) -> int:
+        """All four [bytes]."""
+        return self.regular + self.array + self.block + self.factory
+
+
+@functools.cache
+def _hdf5() -> ctypes.CDLL | None:
+    """h5py's HDF5 library (the one h5py calls, bundled or the system's), or None."""
+    try:
+        import h5py.h5
+
+        # dlsym on an extension module's handle also searches the libraries it links.
+        library = ctypes.CDLL(h5py.h5.__file__)
+        library.H5get_free_list_sizes.argtypes = [ctypes.POINTER(ctypes.c_size_t)] * 4
+        library.H5garbage_collect.argtypes = []
+    except (ImportError, OSError, AttributeError):
+        return None
+    return library
+
+
+def hdf5_free_lists() -> Hdf5FreeLists | None:
+    """What HDF5's free lists hold now; None without h5py or HDF5 ≥ 1.10.7's call."""
+    library = _hdf5()
+    if library is None:
+        return None
+    sizes = [ctypes.c_size_t() for _ in range(4)]
+    if library.H5get_free_list_sizes(*(ctypes.byref(size) for size in sizes)) < 0:
+        return None
+    return Hdf5FreeLists(*(int(size.value) for size in sizes))
+
+
+def release_hdf5_free_lists() -> bool | None:
+    """Give the blocks on HDF5's free lists back to ``malloc`` (``H5garbage_collect``): whether
+    HDF5 did; None without h5py."""
+    library = _hdf5()
+    if library is None:
+        return None
+    return library.H5garbage_collect() >= 0
+
+
 @functools.cache
 def _libc() -> ctypes.CDLL | None:
     try:
@@ -85,6 +154,14 @@ def trim_heap() -> bool | None:
     if library is None:
         return None
     return bool(library.malloc_trim(0))
+
+
+def release_free_memory() -> None:
+    """:func:`release_hdf5_free_lists`, then :func:`trim_heap`: what HDF5 kept goes back to
+    ``malloc``, and the free pages to the system (a session child after each take it saved or
+    dropped)."""
+    release_hdf5_free_lists()
+    trim_heap()
 
 
 class HeapTrimmer:

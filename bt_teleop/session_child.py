@@ -10,6 +10,8 @@ session, served over a pipe.
             request (status, trail, ...; seq 1, 2, ...): reply (seq, True, value) or
                 (seq, False, error); the app matches a reply to its call by seq, so a reply
                 that comes after the app stopped waiting for it is never taken for another's
+            after stop_and_check / discard: release_free_memory() (HDF5's free lists, the C
+                heap's free pages), once the reply is sent
             close: settle the take as asked, reply (seq, True, path), exit
         EOF (the app died), SIGTERM (its parent, the forkserver, died; or the app gave up on
             this child, session_process.py): the take is settled as a closed tab's (saved
@@ -38,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from bt_pipeline.exceptions import BtError, ConfigError
-from bt_teleop.native_memory import heap_info
+from bt_teleop.native_memory import hdf5_free_lists, heap_info, release_free_memory
 from bt_teleop.rerun_proxy import libc
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.tick_stats import TimedSession, raise_priority, use_realtime
@@ -56,8 +58,15 @@ CALLS = frozenset(
     | {"discard", "close", "tick_stats", "reset"}
 )
 """Requests the child answers (methods, or properties read)."""
-PROCESS_CALLS = {"heap_info": heap_info}
-"""Requests about the child process itself, not its session (its C heap, for benchmarks)."""
+PROCESS_CALLS = {
+    "heap_info": heap_info,
+    "hdf5_free_lists": hdf5_free_lists,
+    "allocated_blocks": sys.getallocatedblocks,
+}
+"""Requests about the child process itself, not its session (its C heap, HDF5's free lists,
+the number of Python objects' memory blocks; for benchmarks and tests)."""
+ENDS_A_TAKE = frozenset({"stop_and_check", "discard"})
+"""Requests after which the child releases free memory (``release_memory_after_take``)."""
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
@@ -120,6 +129,9 @@ def serve_session(
                 continue
             if seq is not None:
                 _send_reply(conn, seq, True, value)
+            if name in ENDS_A_TAKE and config.release_memory_after_take:
+                with session.late_probe.serving("release_memory"):  # after the reply: no wait
+                    release_free_memory()
     except (EOFError, OSError, SystemExit):
         pass
     finally:

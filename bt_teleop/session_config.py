@@ -42,6 +42,11 @@ class SessionConfig:
     """A control tick later than this beyond the period [s] is attributed (what the loop's
     thread and process did meanwhile: :mod:`bt_teleop.late_ticks`); ``inf``: never (the probe
     then reads nothing)."""
+    release_memory_after_take: bool = True
+    """A session in a child process (:mod:`bt_teleop.session_child`), after each take it saved
+    or dropped, empties HDF5's free lists and gives its C heap's free pages back
+    (:func:`bt_teleop.native_memory.release_free_memory`), so what one take needed is not kept
+    resident for the next (docs/security.md, the session children's memory)."""
     ik: IkSettings = field(default_factory=IkSettings)
     """IK weights and limits."""
     take_checks: TakeCheckConfig = field(default_factory=TakeCheckConfig)

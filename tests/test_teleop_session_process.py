@@ -91,6 +91,31 @@ def test_the_child_reports_its_own_c_heap(session: SessionProcess) -> None:
     assert child != heap_info()
 
 
+@pytest.mark.parametrize("release", [True, False])
+def test_a_child_gives_back_what_hdf5_kept_of_each_take(
+    scene: SceneModel, tmp_path: Path, release: bool
+) -> None:
+    """HDF5 keeps the blocks a save freed on free lists of its own, one per size (to malloc
+    they stay in use), so every take of a new length left more in the child. After takes of
+    three lengths a child holds none once its last take is saved (it releases them after each
+    take), and, told not to (``release_memory_after_take=False``: the code before), some."""
+    config = SessionConfig(release_memory_after_take=release)
+    with SessionProcess(scene, tmp_path, config=config) as child:
+        if child.hdf5_free_lists() is None:
+            pytest.skip("needs HDF5 >= 1.10.7 (H5get_free_list_sizes)")
+        child.start()
+        for n_samples in (20, 40, 60):
+            child.start_recording("a")
+            wait_until(lambda n=n_samples: child.status().n_samples >= n, 30.0, "the samples")
+            child.stop_and_check()
+        lists = child.hdf5_free_lists()
+    assert lists is not None
+    if release:
+        assert lists.block == 0 and lists.array == 0
+    else:
+        assert lists.block > 0
+
+
 def test_errors_of_the_child_are_raised_here_with_their_class_and_message(
     session: SessionProcess,
 ) -> None:
