@@ -86,8 +86,12 @@ def sample(session: TabSession) -> Sample:
     """`session`'s memory now: its child's, or this process's for an in-process session."""
     if isinstance(session, SessionProcess):
         assert session.pid is not None
-        pid, heap, blocks = session.pid, session.heap_info(), session.allocated_blocks()
-        lists = session.hdf5_free_lists()
+        pid, heap, blocks = (
+            session.pid,
+            session.process_info("heap_info"),
+            session.process_info("allocated_blocks"),
+        )
+        lists = session.process_info("hdf5_free_lists")
     else:
         pid, heap, blocks = os.getpid(), heap_info(), sys.getallocatedblocks()
         lists = hdf5_free_lists()

@@ -146,7 +146,7 @@ def tree_cpu_s(uis: list[ClientUI]) -> float:
 def session_heaps(uis: list[ClientUI]) -> list[tuple[int, Any]]:
     """(pid, C heap) of each tab's session child (none with the sessions in process)."""
     return [
-        (session.pid, session.heap_info())
+        (session.pid, session.process_info("heap_info"))
         for session in (ui.session for ui in uis)
         if isinstance(session, SessionProcess) and session.pid is not None
     ]

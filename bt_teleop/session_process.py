@@ -53,7 +53,6 @@ from numpy.typing import ArrayLike
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import BtError, ConfigError, SessionBusyError, SessionLostError
 from bt_teleop.forkserver import start_child, start_forkserver
-from bt_teleop.native_memory import Hdf5FreeLists, HeapInfo
 from bt_teleop.scene import SceneModel
 from bt_teleop.session_child import serve_session
 from bt_teleop.session_config import SessionConfig, SessionStatus
@@ -227,19 +226,11 @@ class SessionProcess:
         """The control loop's tick timing so far (gaps, stalls; :mod:`bt_teleop.tick_stats`)."""
         return self._call("tick_stats")
 
-    def heap_info(self) -> HeapInfo | None:
-        """The child's C heap (:func:`bt_teleop.native_memory.heap_info`)."""
-        return self._call("heap_info")
-
-    def hdf5_free_lists(self) -> Hdf5FreeLists | None:
-        """What HDF5's free lists hold in the child
-        (:func:`bt_teleop.native_memory.hdf5_free_lists`)."""
-        return self._call("hdf5_free_lists")
-
-    def allocated_blocks(self) -> int:
-        """Memory blocks Python's allocator has handed out in the child
-        (``sys.getallocatedblocks``; Python objects kept show as a count that grows)."""
-        return self._call("allocated_blocks")
+    def process_info(self, name: str) -> Any:
+        """What the child process reports about itself, not its session: ``heap_info``
+        (HeapInfo | None), ``hdf5_free_lists`` (Hdf5FreeLists | None) or ``allocated_blocks``
+        (int) (session_child.PROCESS_CALLS; for benchmarks and tests)."""
+        return self._call(name)
 
     @property
     def pid(self) -> int | None:

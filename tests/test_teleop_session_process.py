@@ -84,7 +84,7 @@ def test_a_take_recorded_in_the_child_is_saved_and_reads_back(
 
 def test_the_child_reports_its_own_c_heap(session: SessionProcess) -> None:
     """heap_info is the child's (MuJoCo's model and data live there), not this process's."""
-    here, child = heap_info(), session.heap_info()
+    here, child = heap_info(), session.process_info("heap_info")
     if here is None:
         pytest.skip("needs glibc's mallinfo2")
     assert isinstance(child, HeapInfo) and child.in_use > 0
@@ -101,14 +101,14 @@ def test_a_child_gives_back_what_hdf5_kept_of_each_take(
     take), and, told not to (``release_memory_after_take=False``: the code before), some."""
     config = SessionConfig(release_memory_after_take=release)
     with SessionProcess(scene, tmp_path, config=config) as child:
-        if child.hdf5_free_lists() is None:
+        if child.process_info("hdf5_free_lists") is None:
             pytest.skip("needs HDF5 >= 1.10.7 (H5get_free_list_sizes)")
         child.start()
         for n_samples in (20, 40, 60):
             child.start_recording("a")
             wait_until(lambda n=n_samples: child.status().n_samples >= n, 30.0, "the samples")
             child.stop_and_check()
-        lists = child.hdf5_free_lists()
+        lists = child.process_info("hdf5_free_lists")
     assert lists is not None
     if release:
         assert lists.block == 0 and lists.array == 0
