@@ -23,6 +23,7 @@ of the right estimates in sets of 8, against 9-25 % now; ``benchmarks/bench_pref
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -36,6 +37,7 @@ from bt_pipeline.clean.stage1.alignment import apply_preference
 from bt_pipeline.data.demo import Demo, resample_uniform
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.score.losses import DEFAULT_ALPHAS, smoothness_loss, symmetry_loss
+from bt_pipeline.score.utility import RawMetrics
 
 UNCERTAIN = 0.5
 """Confidence below which an estimated θ/ρ is reported as uncertain."""
@@ -289,3 +291,21 @@ def path_symmetry(demo: Demo, loops: float, theta_deg: float | None) -> float:
     x, t = demo.raw_samples()
     n = max(4, round(demo.n_samples * max(float(loops), 1.0)))
     return symmetry_loss(arc_length_resample(resample_uniform(x, t, n), n), theta_deg)
+
+
+def ranking_metrics(
+    demo: Demo, loops: float, plain: RawMetrics, alphas: Sequence[float], derotate: bool
+) -> RawMetrics:
+    """The metrics the cleaner ranks a demo by: `plain` (:func:`raw_metrics` on its N samples,
+    MI kept) with L1 read along the path, L3 per loop and L1-L3 at ρ = 1 (docs/refinement.md).
+
+    ρ is the demonstrator's preference, not a quality: L1 and L2 [m] grow as ρ and L3 as ρ², so
+    a loop drawn small would otherwise rank as the cleaner one.
+    """
+    rho = demo.rho if demo.rho is not None and demo.rho > 0.0 else 1.0
+    return dataclasses.replace(
+        plain,
+        symmetry=path_symmetry(demo, loops, demo.theta_deg if derotate else None) / rho,
+        closure=plain.closure / rho,
+        smoothness=loop_smoothness(demo, loops, alphas) / rho**2,
+    )

@@ -28,11 +28,10 @@ from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.periodic import (
     UNCERTAIN,
     PreferenceEstimate,
-    loop_smoothness,
     output_on_raw_times,
-    path_symmetry,
     phase_loop,
     pool_preferences,
+    ranking_metrics,
     smooth_residual,
     span_demo,
 )
@@ -46,12 +45,12 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.execute import ExecutorConfig
-from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
 from bt_pipeline.score.utility import (
     Normaliser,
     ScoreConfig,
     TaskScores,
     normalised_utility,
+    raw_metrics,
     score_demos,
 )
 
@@ -271,39 +270,17 @@ def clean_demos(
             notes.append(f"{demo.label}: only {segment.cycles:.2f} of a loop was found")
 
     start = time.perf_counter()
-    # The ranking reads L1 along the path and L3 per loop (docs/refinement.md): a demo's speed
-    # profile and loop count do not rank it. Stage 2's normaliser (Eq. 7) reads both on the
-    # N-sample demos it refines, as Stage 2 computes them.
-    alphas, derotate = options.score.alphas, options.score.derotate
-    pairs = list(zip(demos, segments, strict=True))
-    # ρ is the demonstrator's preference, not a quality: L1 and L2 [m] grow as ρ, L3 as ρ², so
-    # each is read at ρ = 1 (a loop drawn small would otherwise rank as cleaner).
-    rhos = [d.rho if d.rho is not None and d.rho > 0.0 else 1.0 for d in demos]
-    scores = score_demos(
-        demos,
-        options.score,
-        symmetry=[
-            path_symmetry(d, s.cycles, d.theta_deg if derotate else None) / r
-            for (d, s), r in zip(pairs, rhos, strict=True)
-        ],
-        closure=[closure_loss(d.positions) / r for d, r in zip(demos, rhos, strict=True)],
-        smoothness=[
-            loop_smoothness(d, s.cycles, alphas) / r**2
-            for (d, s), r in zip(pairs, rhos, strict=True)
-        ],
-    )
-    frozen = Normaliser.from_raw_metrics(
-        [
-            dataclasses.replace(
-                sc.raw,
-                symmetry=symmetry_loss(d.positions, d.theta_deg if derotate else None),
-                closure=closure_loss(d.positions),
-                smoothness=smoothness_loss(d.positions, alphas),
-            )
-            for sc, d in zip(scores.scores, demos, strict=True)
-        ],
-        options.score.delta,
-    )
+    # Stage 2's normaliser (Eq. 7) reads L1-L3 on the N-sample demos it refines, as Stage 2
+    # computes them; the ranking reads them per loop, along the path and at ρ = 1, so a demo's
+    # loop count, speed profile and preference do not rank it (docs/refinement.md).
+    config = options.score
+    plain = [raw_metrics(d.positions, d.actions, d.theta_deg, config) for d in demos]
+    frozen = Normaliser.from_raw_metrics(plain, config.delta)
+    ranked = [
+        ranking_metrics(d, s.cycles, m, config.alphas, config.derotate)
+        for d, s, m in zip(demos, segments, plain, strict=True)
+    ]
+    scores = score_demos(demos, config, metrics=ranked)
     seconds["score"] = time.perf_counter() - start
 
     start = time.perf_counter()

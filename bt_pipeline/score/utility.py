@@ -14,7 +14,6 @@ the intent: the normalised form Eq. (8) is used everywhere (§7 row 10).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -330,9 +329,7 @@ def score_demos(
     demos: Sequence[Demo],
     config: ScoreConfig | None = None,
     *,
-    symmetry: Sequence[float] | None = None,
-    closure: Sequence[float] | None = None,
-    smoothness: Sequence[float] | None = None,
+    metrics: Sequence[RawMetrics] | None = None,
 ) -> TaskScores:
     """Score the raw demos of one task with the normalised demo utility (Eqs. 7-8).
 
@@ -343,11 +340,9 @@ def score_demos(
     Args:
         demos: M ≥ 1 demos, all of the same task.
         config: Score settings; defaults when None.
-        symmetry: Each demo's L1 to rank by, in place of Eq. (4) on its N samples (the cleaner
-            reads it along the path: :func:`bt_pipeline.clean.periodic.path_symmetry`).
-        closure: Each demo's L2 to rank by, in place of Eq. (5) on its N samples.
-        smoothness: Each demo's L3 to rank by, in place of Eq. (6) on its N samples (the
-            cleaner passes it per loop: :func:`bt_pipeline.clean.periodic.loop_smoothness`).
+        metrics: Each demo's raw metrics to rank by, in place of :func:`raw_metrics` on its N
+            samples (the cleaner reads L1-L3 per loop, along the path and at ρ = 1:
+            :func:`bt_pipeline.clean.periodic.ranking_metrics`).
 
     Raises:
         DemoError: No demos.
@@ -366,15 +361,10 @@ def score_demos(
             f"score_demos scores one task at a time; got demos of tasks {', '.join(tasks)} "
             "(split them with bt_pipeline.data.demo.group_by_task)"
         )
-    metrics = [raw_metrics(d.positions, d.actions, d.theta_deg, config) for d in demos]
-    for name, values in (("symmetry", symmetry), ("closure", closure), ("smoothness", smoothness)):
-        if values is not None:
-            if len(values) != len(demos):
-                raise ConfigError(f"{name} holds {len(values)} values for {len(demos)} demos")
-            metrics = [
-                dataclasses.replace(m, **{name: float(v)})
-                for m, v in zip(metrics, values, strict=True)
-            ]
+    if metrics is None:
+        metrics = [raw_metrics(d.positions, d.actions, d.theta_deg, config) for d in demos]
+    elif len(metrics) != len(demos):
+        raise ConfigError(f"{len(metrics)} sets of metrics for {len(demos)} demos")
     normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
     normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
     utility = normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
