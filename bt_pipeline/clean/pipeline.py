@@ -36,6 +36,7 @@ from bt_pipeline.clean.periodic import (
     span_demo,
 )
 from bt_pipeline.clean.segment import Segment
+from bt_pipeline.clean.shape_gate import gate_best, guide_misfit
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
 from bt_pipeline.clean.stage2.chunked import DEFAULT_CHUNK_SIZE, refine_in_chunks
 from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, Variant
@@ -280,7 +281,18 @@ def clean_demos(
         ranking_metrics(d, s.cycles, m, config.alphas, config.derotate)
         for d, s, m in zip(demos, segments, plain, strict=True)
     ]
-    scores = score_demos(demos, config, metrics=ranked)
+    by_utility = score_demos(demos, config, metrics=ranked)
+    # The best demo is taken among those that follow the guide about as closely as any: Ũ is
+    # blind to a slow wobble (bt_pipeline/clean/shape_gate.py).
+    misfits = [guide_misfit(d, s, p) for d, s, p in zip(demos, segments, preferences, strict=True)]
+    scores = gate_best(by_utility, misfits)
+    if scores.best_index != by_utility.best_index:
+        first, best = by_utility.best_index, scores.best_index
+        notes.append(
+            f"{demos[first].label} has the highest Ũ but follows the task's guide less closely "
+            f"(median {100 * misfits[first]:.2f} % of its size off, against "
+            f"{100 * misfits[best]:.2f} %): {demos[best].label} is the best demo"
+        )
     seconds["score"] = time.perf_counter() - start
 
     start = time.perf_counter()

@@ -36,9 +36,14 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    part before (after) the span is kept when it travels on around the loop (80 % of it along
    the guide, in the span's direction, at ≥ 30 % of its phase rate): a bulged side or a drifted
    end of a loop drawn from the first sample to the last.
-6. **Preference.** The guide is fitted again to the kept span with its drift removed (on the path
-   smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops); that fit's
-   θ/ρ are the demo's estimate. A lopsided loop is fitted by consensus (:func:`fit_guide`).
+6. **Preference.** The guide is fitted again to the kept span alone, from every start (on the
+   path smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops), the drift
+   is estimated again over the span against that fit, and the guide fitted once more to the
+   span with that drift removed; that fit's θ/ρ are the demo's estimate. (Before 2026-12-02 the
+   span was fitted from the first fit of the whole moving part, with its drift: on a steady,
+   fast figure-eight that first fit read ρ 6-9 % low, the drift polynomial took up the
+   difference, 8-19 mm on a hand that did not drift, and the refit stayed there.) A lopsided
+   loop is fitted by consensus (:func:`fit_guide`).
 7. **Cycles.** The phase along the guide is tracked sample by sample
    (:func:`track_phase`), and cycles = |phase travelled| / one loop.
 
@@ -198,14 +203,26 @@ def segment_demo(
         fa, fb = _kept_span(clear, distance, along, wide, guide, at_start, at_end)
     phase = track_phase(clear[a : b + 1], guide)
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
-    # θ/ρ from the kept span with its drift removed: approach, retreat and drift no longer bias
-    # them (the same bounded fit, started from the first one).
+    # θ/ρ from the kept span alone (step 6): approach, retreat and drift no longer bias them.
     # Fitted on a lightly smoothed path (σ = 0.03 s): the analysis path's smoothing shrinks
-    # a loop (by ~1 % at a 3 s period), which would bias ρ low.
-    light = gaussian_filter1d(path, _FIT_SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
+    # a loop (by ~1 % at a 3 s period, 5-9 % on fast figure-eights), which would bias ρ low.
+    # The span is fitted from every start (the first fit also saw approach and retreat, and a
+    # fit started from it stayed in its basin), the drift estimated again over the span against
+    # that fit (the moving part's polynomial bends to approach and retreat at its ends), and
+    # θ/ρ fitted once more to the span with that drift removed.
     fa, fb = min(a, fa), max(b, fb)
-    fspan = light[first + fa : first + fb + 1] - drift[fa : fb + 1]
-    fit = fit_guide(fspan, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit)
+    light = gaussian_filter1d(path, _FIT_SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
+    lspan = light[first + fa : first + fb + 1]
+    fit = fit_guide(lspan, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
+    span_drift = drift_along(
+        lspan,
+        fit.guide(task, _TRACK_POINTS),
+        near[fa : fb + 1],
+        min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1),
+    )
+    fit = fit_guide(
+        lspan - span_drift, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
+    )
     # Snap the span to raw sample times: the first and last raw sample inside it.
     i0 = min(int(np.searchsorted(t, clock[first + a] - 1e-9)), t.size - 2)
     i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
