@@ -4,8 +4,8 @@ The paper picks the best demo by Ũ (Eq. 8) from MI and L1-L3 alone. Those losse
 slow wobble of the hand (a few mm over seconds: smooth, nearly closed, nearly symmetric), and
 they move with the sample rate (a 15 Hz demo resampled to N samples has corners that L3 and MI
 read). On sets drawn by a second, independent generator (steady and wobbly operators at
-15-120 Hz, :mod:`bt_pipeline.testing.operator_sets`), Ũ put a wobbly demo first in 10 of 36
-sets, and the steady demo, cleaned towards it, came out 9-30 x farther from its truth.
+15-120 Hz, :mod:`bt_pipeline.testing.operator_sets`), Ũ put a wobbly demo first in 4 of 36
+sets, and the steady demo, cleaned towards it, came out 8-25 x farther from its true shape.
 
 The task's guide is the shape every demo means (under its demonstrator's θ/ρ), so how closely a
 demo follows it is the project's fourth task loss, *shape*. Each demo's kept raw samples are
