@@ -46,6 +46,8 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    loop is fitted by consensus (:func:`fit_guide`).
 7. **Cycles.** The phase along the guide is tracked sample by sample
    (:func:`track_phase`), and cycles = |phase travelled| / one loop.
+8. **Raw ends.** In a span of 1.5 loops or more, each raw end is cut where the samples cut lie
+   mostly off the final fit (:func:`trim_raw_ends`), and the cycles are counted again.
 
 Incomplete single loops are handled (cycles < 1); a demo with no on-loop run keeps its moving
 part and is reported with cycles from the same phase track.
@@ -69,6 +71,7 @@ from bt_pipeline.clean.guide_track import (
     runs_of,
     tangential,
     track_phase,
+    trim_raw_ends,
 )
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
@@ -85,11 +88,7 @@ _LOOSE = 2.0  # The span grows over neighbours within this many tolerances.
 _CONTINUE_ALONG = 0.8  # A part beyond a recording-edge span end that moves along the guide
 _CONTINUE_RATE = 0.3  # this much, at this share of the span's phase rate, is loop (kept).
 _MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
-_EDGE_MEDIANS = 4.0  # A raw end sample farther off the guide than this many medians of the
-_EDGE_P95S = 1.5  # span's middle distances, this many 95th percentiles
-_EDGE_MIN_M = 0.0005  # and this [m] is dropped (step 8),
-_EDGE_MAX_SHARE = 0.25  # at most this share of the span at each end,
-_EDGE_MIN_CYCLES = 1.5  # in spans of at least this many loops.
+_EDGE_MIN_CYCLES = 1.5  # Raw ends are trimmed (step 8) in spans of at least this many loops.
 _DRIFT_MAX_DEGREE = 4  # Highest degree of the drift polynomial (one per loop beyond the first).
 _TRACK_POINTS = 512  # Guide points for the distance and the phase track.
 _TIGHT = 3.0  # On-loop tolerance: this many times the 90th percentile of the on-loop distances,
@@ -238,7 +237,7 @@ def segment_demo(
     j0, j1 = (
         (i0, i1)
         if cycles < _EDGE_MIN_CYCLES
-        else _raw_ends(x, t, span_clock, span_drift, guide, i0, i1)
+        else trim_raw_ends(x, t, span_clock, span_drift, guide, i0, i1)
     )
     if (j0, j1) != (i0, i1):
         i0, i1 = j0, j1
@@ -402,44 +401,3 @@ def span_times(times_s: ArrayLike, segment: Segment) -> np.ndarray:
 
 
 __all__ = ["Segment", "segment_demo", "span_times", "track_phase"]
-
-
-def _raw_ends(
-    x: FloatArray,
-    t: FloatArray,
-    span_clock: FloatArray,
-    span_drift: FloatArray,
-    guide: FloatArray,
-    i0: int,
-    i1: int,
-) -> tuple[int, int]:
-    """The raw span [i0, i1] with each end moved in past raw samples off the fitted guide (step 8).
-
-    Each raw sample's distance to the guide (the span's drift removed) is compared with how
-    closely the middle 60 % of the span follows it: end samples farther than
-    max(4 x the median, 1.5 x the 95th percentile, 0.5 mm) are off. Each end is cut where the
-    samples cut hold the most more off than close (none if no cut does), at most a quarter of
-    the span at each end. Only spans of 1.5 loops or more: a
-    single loop whose bulged side lies at its ends would lose that side (at 6-12 Hz a lopsided
-    pick-and-place loop lost 30 % and scored the set's best closure).
-    """
-    n = i1 - i0 + 1
-    if n < 20:
-        return i0, i1
-    shift = np.stack(
-        [np.interp(t[i0 : i1 + 1], span_clock, span_drift[:, d]) for d in range(2)], axis=1
-    )
-    dist = nearest_distance(guide, x[i0 : i1 + 1] - shift)
-    inner = dist[int(0.2 * n) : int(0.8 * n)]
-    threshold = max(
-        _EDGE_MEDIANS * float(np.median(inner)),
-        _EDGE_P95S * float(np.percentile(inner, 95)),
-        _EDGE_MIN_M,
-    )
-    # Each end is cut where the samples cut are most often off (one off counts +1, one close
-    # -1): a retreat that crosses the loop again on its way out keeps no part of its excursion.
-    score = np.where(dist > threshold, 1.0, -1.0)
-    limit = int(_EDGE_MAX_SHARE * n)
-    lo = int(np.argmax(np.concatenate([[0.0], np.cumsum(score[:limit])])))
-    hi = n - 1 - int(np.argmax(np.concatenate([[0.0], np.cumsum(score[::-1][:limit])])))
-    return i0 + lo, i0 + hi
