@@ -114,7 +114,7 @@ def test_the_best_demo_follows_the_guide_when_a_wobbly_one_scores_higher(task, s
     """Sets of the independent operator generator where a wobbly demo has the highest Ũ (MI and
     L1-L3 do not see a slow wobble): the steady demo is the best, eligible by how closely it
     follows the guide, and so is passed through (timing ratio 1). Cleaned towards the wobbly
-    demo instead, it came out 4-30 x farther from its truth (bench_operator_sets.py)."""
+    demo instead, it came out 8-25 x farther from its true shape (bench_operator_sets.py)."""
     ops = operator_set(task, seed)
     result = clean_demos(
         [o.demo for o in ops.demos], CleanOptions(seed=seed, epochs=2, progress=False)
