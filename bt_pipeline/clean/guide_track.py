@@ -29,7 +29,10 @@ _EDGE_MAX_SHARE = 0.25  # at most this share of the span at each end,
 
 
 def track_phase(
-    points: ArrayLike, loop: ArrayLike, max_step: float = _MAX_PHASE_STEP
+    points: ArrayLike,
+    loop: ArrayLike,
+    max_step: float = _MAX_PHASE_STEP,
+    steps: ArrayLike | None = None,
 ) -> FloatArray:
     """Continuous phase of each point along a closed loop, by nearest point near the last one.
 
@@ -41,6 +44,9 @@ def track_phase(
         points: Path, shape (T, 2), in [m].
         loop: Closed loop sampled once round (endpoint excluded), shape (P, 2), in [m].
         max_step: Most phase change between consecutive points, in loops.
+        steps: How many typical sample intervals lie before each point, shape (T,) (≥ 1; the
+            first is unused): the reach grows with them, so a track resumes after a gap in the
+            samples. None: one each.
 
     Returns:
         Unwrapped phase, shape (T,), in loop samples (P per loop; the sign follows the
@@ -51,11 +57,13 @@ def track_phase(
     p = ring.shape[0]
     reach = max(1, int(max_step * p))
     offsets = np.arange(-reach, reach + 1)
+    scale = np.ones(x.shape[0]) if steps is None else np.maximum(np.asarray(steps, float), 1.0)
     phase = np.empty(x.shape[0])
     current = float(np.argmin(np.sum((ring - x[0]) ** 2, axis=1)))
     phase[0] = current
     for k in range(1, x.shape[0]):
-        candidates = round(current) + offsets
+        wide = min(int(reach * scale[k]), p // 2)
+        candidates = round(current) + (offsets if wide <= reach else np.arange(-wide, wide + 1))
         d2 = np.sum((ring[candidates % p] - x[k]) ** 2, axis=1)
         current = float(candidates[int(np.argmin(d2))])
         phase[k] = current

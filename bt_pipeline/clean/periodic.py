@@ -174,12 +174,41 @@ def retime_reference(
     drift_sigma = _DRIFT_SMOOTH_S * (x.shape[0] - 1) / max(demo.duration_s, 1e-9)
     drift = np.zeros_like(x)
     target = x
+    seen, steps = _sampled(demo)
+    grid = np.arange(x.shape[0], dtype=np.float64)
     for _ in range(_DRIFT_PASSES):  # Track, estimate the slow drift off the reference, re-track.
-        phase = track_phase(smooth_x - drift, dense) / _RETIME_OVERSAMPLE  # Reference samples.
+        tracked = track_phase((smooth_x - drift)[seen], dense, steps=steps) / _RETIME_OVERSAMPLE
+        phase = np.interp(grid, grid[seen], tracked)  # Reference samples.
         phase = gaussian_filter1d(phase, max(sigma, 0.5), mode="nearest")
         target = _read(closed, np.mod(phase, p))
         drift = gaussian_filter1d(x - target, drift_sigma, axis=0, mode="nearest")
     return target
+
+
+def _sampled(demo: Demo) -> tuple[np.ndarray, FloatArray]:
+    """Which of a span demo's N samples lie near a raw sample, and the grid steps between them.
+
+    Inside a gap in the raw samples (more than 2 typical intervals, and 2 grid steps, from the
+    nearest raw sample) the N-sample path is the resampling's bridge, not the hand: a chord across
+    a figure-eight set the phase track off on the wrong branch for 0.4 s after a 0.6 s gap. The
+    phase is tracked on the other samples, with a reach that grows with the gap, and interpolated
+    across it.
+    """
+    n = demo.positions.shape[0]
+    raw_t = demo.raw_times_s
+    everything = np.ones(n, dtype=bool)
+    if raw_t is None or raw_t.size < 3:
+        return everything, np.ones(n)
+    grid_t = np.linspace(raw_t[0], raw_t[-1], n)
+    after = np.clip(np.searchsorted(raw_t, grid_t), 1, raw_t.size - 1)
+    near = np.minimum(grid_t - raw_t[after - 1], raw_t[after] - grid_t)
+    spacing = max(2.0 * float(np.median(np.diff(raw_t))), 2.0 * float(grid_t[1] - grid_t[0]))
+    seen = near <= spacing
+    seen[0] = seen[-1] = True
+    if seen.all():
+        return everything, np.ones(n)
+    index = np.flatnonzero(seen)
+    return seen, np.concatenate([[1.0], np.diff(index).astype(np.float64)])
 
 
 def _read(closed: FloatArray, phase: FloatArray) -> FloatArray:
