@@ -52,7 +52,7 @@ _LOPSIDED = (
 )
 _CONSENSUS_KEEP = 0.4  # Fits are compared by the mean of their 40 % smallest distances.
 _HALF_TRIM = 0.9  # Share of a half's points kept by its refit.
-_CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (smaller ρ wins),
+_CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (see _BULGE),
 _CONSENSUS_FLOOR_M = 0.0005  # or within this of it [m] (a clean loop's costs are near 0).
 _BULGE = 0.06  # The smallest mode wins when its ρ is this share below the median mode's.
 
