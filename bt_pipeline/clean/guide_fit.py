@@ -20,10 +20,10 @@ The fit is a trimmed iterative-closest-point similarity fit:
    centred on the task plane's origin (where the app draws it): of the about equally good
    modes, the smallest ρ when it is more than 6 % below the median mode's (a bulge), else the
    median mode (:func:`_consensus`). Always taking the smallest (before 2026-12-02 evening)
-   suited the human-style generator's lopsided loops but read wobbly hands' ρ 1-9 % low on
+   suited the human-style generator's lopsided loops but read wobbly hands' ρ too small on
    data made two other ways; hidden θ within 5° and ρ within 0.05, human-style / app takes /
-   operator sets (wiping, weaving, pick-and-place): 84, 100, 72 / 69, 91, 72 / 77, 92, 82 % with
-   the smallest always; 77, 100, 62 / 84, 94, 84 / 97, 98, 93 % now.
+   operator sets (wiping, weaving, pick-and-place): 83, 100, 69 / 67, 100, 67 / 77, 92, 82 % with
+   the smallest always; 77, 100, 62 / 83, 100, 83 / 97, 98, 93 % now (README).
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
 """
@@ -222,7 +222,7 @@ def _consensus(
     are exact similarities of half the guide, so one demo alone cannot tell them apart; pooling
     a demonstrator's demos helps). Otherwise the median mode wins: a wobbly hand, or a robot
     that cuts corners, scatters the modes by a few % around the loop it meant, and always taking
-    the smallest read ρ 1-9 % low (module doc). On an arch a bulged
+    the smallest read ρ too small (module doc). On an arch a bulged
     side is nearly a similarity of the whole guide, shifted, so every fit with a free
     translation settles on that compromise; the same fits with the guide centred on the plane's
     origin (t = 0, where the app draws the guide) are candidates too. On a loop without such a
