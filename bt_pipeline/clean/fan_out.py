@@ -106,18 +106,15 @@ def segment_step(demos: Sequence[Demo], allowed: PreferenceRange | None) -> list
 
 
 def retime_step(
-    items: Sequence[tuple[Demo, PreferenceEstimate, FloatArray]],
+    items: Sequence[tuple[Demo, PreferenceEstimate]],
     shared: tuple[FloatArray, FloatArray],
 ) -> list[FloatArray]:
-    """x_i^aligned of each (demo, θ/ρ, offset): x^d retimed to the demo, about c + offset.
+    """x_i^aligned of each (demo, θ/ρ): x^d retimed to the demo, about c.
 
     `shared` is (x^d, c): the canonical motion, shape (N, 2), and the centre, shape (2,) [m].
     """
     global_shape, centre = shared
-    return [
-        retime_reference(global_shape, p.theta_deg, p.rho, centre + offset, demo)
-        for demo, p, offset in items
-    ]
+    return [retime_reference(global_shape, p.theta_deg, p.rho, centre, demo) for demo, p in items]
 
 
 def metrics_step(

@@ -55,9 +55,6 @@ from bt_pipeline.score.utility import (
     score_demos,
 )
 
-_STEADY_CYCLES = 1.5  # Loops a demo needs before its own place can be told from drift,
-_STEADY_OFFSET = 0.015  # A demo's offset is its own when its drift stays within 1.5 % of its size
-_STEADY_MISFIT = 0.03  # and 90 % of its samples within 3 % of its size of the fitted guide.
 MIN_EXTENT_M = 1e-3
 """A demo whose bounding box is smaller than this in both directions does not move [m]."""
 
@@ -305,24 +302,12 @@ def clean_demos(
             "phases of the canonical motion come from the task's guide"
         )
     stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=1.0)
-    # A demo of at least 1.5 loops (fewer cannot tell an offset from a drift) drawn steadily
-    # off-centre keeps its place: its reference is the best demo's centre c
-    # moved by the offset between the two demos' guide fits. A drifting demo (its offset wanders
-    # over more than 1.5 % of the loop's size) or a misshapen one (a tenth of its samples more
-    # than 3 % of the size off the fitted guide: the fit's place is then unsure) is pulled to c,
-    # as in the paper.
-    offsets = [
-        s.guide.translation - segments[best].guide.translation
-        if s.cycles >= _STEADY_CYCLES
-        and s.drift_m <= _STEADY_OFFSET * s.guide.size_m
-        and s.misfit_m <= _STEADY_MISFIT * s.guide.size_m
-        else np.zeros(2)
-        for s in segments
-    ]
+    # Every reference sits at the best demo's centre c, as in the paper (Sec. III-B): a demo's
+    # offset from c is not read as its preference (docs/refinement.md step 5).
     aligned = np.stack(
         per_demo(
             retime_step,
-            list(zip(demos, preferences, offsets, strict=True)),
+            list(zip(demos, preferences, strict=True)),
             (stage1.global_shape, stage1.centre),
             executor=fan_out,
             chunk_size=k_max,
