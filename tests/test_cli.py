@@ -64,7 +64,40 @@ def test_score_json_schema(capsys, wiping_file) -> None:
     assert ranks == [1, 2, 3, 4]
     best = next(d for d in task["demos"] if d["rank"] == 1)
     assert task["best"] == {"file": best["file"], "demo": best["demo"]}
-    assert best["utility"] == max(d["utility"] for d in task["demos"])
+    for demo in task["demos"]:  # the single-loop style: θ/ρ given, about one loop each
+        assert demo["preference_estimated"] is False
+        assert 0.5 < demo["cycles"] < 1.5
+        assert demo["loop_start_s"] < demo["loop_end_s"]
+
+
+def test_score_reads_the_periodic_part_and_picks_the_demo_clean_picks(capsys, tmp_path) -> None:
+    """Human-style weaving, seed 1 (θ/ρ hidden): scored over the whole recordings (rest,
+    approach and retreat included; Eqs. 3-8 as written) demo_3 ranks first; on their periodic
+    parts, with the cleaner's shape gate, the expert-like demo_2 does, as in ``bt clean``."""
+    path = tmp_path / "weaving.hdf5"
+    main(["synth", "--style", "human", "--task", "weaving", "--seed", "1", "--out", str(path)])
+    capsys.readouterr()
+    recording = read_recording(path)
+    expert = next(k for k, d in recording.demos.items() if d.ep_meta["synthetic"]["is_expert"])
+    code, out, _ = run(capsys, "score", str(path), "--json")
+    assert code == 0
+    (task,) = json.loads(out)["tasks"]
+    assert task["best"]["demo"] == expert == "demo_2"
+    for demo in task["demos"]:
+        times = recording.demos[demo["demo"]].timestamps
+        assert times[0] <= demo["loop_start_s"] < demo["loop_end_s"] <= times[-1]
+        assert demo["loop_end_s"] - demo["loop_start_s"] < times[-1] - times[0]  # trimmed
+        assert demo["cycles"] >= 1.0 and demo["preference_estimated"] is True
+    code, out, _ = run(capsys, "score", str(path), "--json", "--whole-demos")
+    assert code == 0
+    (whole,) = json.loads(out)["tasks"]
+    assert whole["best"]["demo"] == "demo_3"
+    assert all(d["cycles"] is None for d in whole["demos"])
+    code, out, _ = run(capsys, "clean", str(path), "--out", str(tmp_path / "out"), "--no-rrd",
+                       "--epochs", "2", "--json")  # fmt: skip
+    assert code == 0
+    (cleaned,) = json.loads(out)["tasks"]
+    assert cleaned["best"]["demo"] == expert
 
 
 def test_score_table_marks_the_best_and_groups_by_task(capsys, tmp_path, wiping_file) -> None:

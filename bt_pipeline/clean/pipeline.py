@@ -2,7 +2,7 @@
 
 Data flow for one task (pure core, :func:`clean_demos`)::
 
-    demos (M, N, 2) ──score (Eqs. 3-8)──> best demo
+    demos (M, N, 2) ──selection (segment, θ/ρ, Eqs. 3-8, shape gate)──> spans, best demo
         └─ Stage 1 (Sec. III-B): DMP x^d ─> V_E, x^g ─> x_i^aligned, L4 (Eq. 9)
         └─ Stage 2 (Sec. III-C): LSTM x_i ─> x̂_i, adaptive β from R̄ (Eq. 11)
         └─ metrics before / after (true KSG, L1-L4, Ũ)
@@ -12,6 +12,7 @@ I/O at the edges (:mod:`bt_pipeline.clean.driver`): read recordings, group by ta
 finishes and publish them only once every task has succeeded, so an error leaves no partial
 output. With ``chunk_executor`` set, a task of more than K demos sends its per-demo steps and
 Stage 2 chunks out as jobs (:mod:`bt_pipeline.clean.fan_out`), with identical results.
+Selection is :mod:`bt_pipeline.clean.selection`, shared with ``bt score``.
 """
 
 from __future__ import annotations
@@ -23,20 +24,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bt_pipeline.clean.fan_out import metrics_step, per_demo, retime_step, segment_step
+from bt_pipeline.clean.fan_out import metrics_step, per_demo, retime_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.periodic import (
-    UNCERTAIN,
     PreferenceEstimate,
     output_on_raw_times,
     phase_loop,
-    pool_preferences,
-    ranking_metrics,
     smooth_residual,
-    span_demo,
 )
 from bt_pipeline.clean.segment import Segment
-from bt_pipeline.clean.shape_gate import gate_best, guide_misfit
+from bt_pipeline.clean.selection import select_best
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
 from bt_pipeline.clean.stage2.chunked import DEFAULT_CHUNK_SIZE, refine_in_chunks
 from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, Variant
@@ -51,8 +48,6 @@ from bt_pipeline.score.utility import (
     ScoreConfig,
     TaskScores,
     normalised_utility,
-    raw_metrics,
-    score_demos,
 )
 
 MIN_EXTENT_M = 1e-3
@@ -236,61 +231,23 @@ def clean_demos(
     if len(demos) == 1:
         notes.append(f"{demos[0].label} is the only demo: it is cleaned against itself")
 
-    seconds: dict[str, float] = {}
-    start = time.perf_counter()
     fan_out = options.chunk_executor if len(demos) > options.chunk_size else None
     k_max, task_label = options.chunk_size, str(demos[0].task)
-    segments = tuple(
-        per_demo(
-            segment_step,
-            demos,
-            options.preference_range,
-            executor=fan_out,
-            chunk_size=k_max,
-            label=f"segment {task_label}",
-        )
+    selection = select_best(
+        demos,
+        options.score,
+        options.preference_range,
+        executor=fan_out,
+        chunk_size=k_max,
     )
-    preferences = pool_preferences(demos, segments)
-    demos = [
-        span_demo(demo, segment, demos[0].n_samples, preference)
-        for demo, segment, preference in zip(demos, segments, preferences, strict=True)
-    ]
-    seconds["segment"] = time.perf_counter() - start
-    for demo, segment, preference in zip(demos, segments, preferences, strict=True):
-        if preference.estimated:
-            doubt = " (uncertain)" if preference.confidence < UNCERTAIN else ""
-            notes.append(
-                f"{demo.label}: θ/ρ missing, estimated{doubt} from the task's guide and pooled "
-                f"over {demo.demonstrator}'s demos as θ = {preference.theta_deg:.1f}°, "
-                f"ρ = {preference.rho:.3f} (confidence {preference.confidence:.2f})"
-            )
-        if segment.cycles < 0.5:
-            notes.append(f"{demo.label}: only {segment.cycles:.2f} of a loop was found")
-
-    start = time.perf_counter()
+    demos = list(selection.demos)
+    segments, preferences, scores = selection.segments, selection.preferences, selection.scores
+    notes += selection.notes
+    seconds = dict(selection.seconds)
     # Stage 2's normaliser (Eq. 7) reads L1-L3 on the N-sample demos it refines, as Stage 2
-    # computes them; the ranking reads them per loop, along the path and at ρ = 1, so a demo's
-    # loop count, speed profile and preference do not rank it (docs/refinement.md).
-    config = options.score
-    plain = [raw_metrics(d.positions, d.actions, d.theta_deg, config) for d in demos]
-    frozen = Normaliser.from_raw_metrics(plain, config.delta)
-    ranked = [
-        ranking_metrics(d, s.cycles, m, config.alphas, config.derotate)
-        for d, s, m in zip(demos, segments, plain, strict=True)
-    ]
-    by_utility = score_demos(demos, config, metrics=ranked)
-    # The best demo is taken among those that follow the guide about as closely as any: Ũ is
-    # blind to a slow wobble (bt_pipeline/clean/shape_gate.py).
-    misfits = [guide_misfit(d, s, p) for d, s, p in zip(demos, segments, preferences, strict=True)]
-    scores = gate_best(by_utility, misfits)
-    if scores.best_index != by_utility.best_index:
-        first, best = by_utility.best_index, scores.best_index
-        notes.append(
-            f"{demos[first].label} has the highest Ũ but follows the task's guide less closely "
-            f"(median {100 * misfits[first]:.2f} % of its size off, against "
-            f"{100 * misfits[best]:.2f} %): {demos[best].label} is the best demo"
-        )
-    seconds["score"] = time.perf_counter() - start
+    # computes them; the ranking reads them per loop, along the path and at ρ = 1
+    # (bt_pipeline.clean.selection).
+    frozen = Normaliser.from_raw_metrics(selection.plain, options.score.delta)
 
     start = time.perf_counter()
     best = scores.best_index

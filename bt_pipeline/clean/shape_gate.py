@@ -14,7 +14,8 @@ trimming of a misshapen side), and its *misfit* is the median distance of the sa
 guide, as a share of the guide's size. A demo is eligible when its misfit is at most
 1.5 x the set's smallest plus 0.1 % of the size; the best is the eligible demo with the highest
 Ũ. Ranks list the eligible demos first, by Ũ, then the others, by Ũ. Ũ itself, the scores and
-Stage 2's normaliser are unchanged, and so is ``bt score`` (the paper's selection).
+Stage 2's normaliser are unchanged; ``bt score`` ranks the same way
+(:mod:`bt_pipeline.clean.selection`), and ``bt score --whole-demos`` as the paper does.
 """
 
 from __future__ import annotations

@@ -18,11 +18,18 @@ def score(
     samples: int = 300,
     strict: bool = False,
     max_distance: float = 10.0,
+    whole_demos: bool = False,
+    theta_max: float = 45.0,
+    rho_min: float = 0.5,
+    rho_max: float = 2.0,
 ) -> None:
     """Score every demo (demo utility score, paper Eq. 8) and mark the best one per task.
 
-    Excluded files are skipped and flagged demos listed with ⚠ but not ranked; unless --strict,
-    unreadable files and demos that cannot be scored are skipped too, each with a note.
+    Each demo is scored on its periodic part (its rest, approach and retreat left out), and the
+    best demo is the one ``bt clean`` picks: the highest Ũ among the demos that follow the task's
+    guide about as closely as any (docs/refinement.md). Excluded files are skipped and flagged
+    demos listed with ⚠ but not ranked; unless --strict, unreadable files and demos that cannot
+    be scored are skipped too, each with a note.
 
     Args:
         paths: Format-v1 recordings: files, directories or glob patterns.
@@ -31,31 +38,56 @@ def score(
         strict: Stop at the first unreadable file or unscorable demo instead of skipping it.
         max_distance: Largest distance [m] of a sample from its task plane's origin; farther is
             an error naming the demo.
+        whole_demos: Score each whole recording with Eqs. (3)-(8) as written and pick the
+            highest Ũ (the paper's selection), without finding its periodic part.
+        theta_max: Largest |θ| [deg] read from a demo whose file lacks θ/ρ (NaN).
+        rho_min: Smallest ρ read from such a demo.
+        rho_max: Largest ρ read from such a demo.
     """
-    from bt_pipeline.data.demo import group_by_task
+    from bt_pipeline.clean.guide_fit import PreferenceRange
+    from bt_pipeline.clean.pipeline import check_usable
+    from bt_pipeline.clean.selection import Selection, select_best
+    from bt_pipeline.data.demo import Demo, group_by_task
     from bt_pipeline.data.limits import ReadLimits
     from bt_pipeline.data.skipping import read_usable, skip_failing
     from bt_pipeline.exceptions import DemoError
-    from bt_pipeline.score.utility import score_demos
+    from bt_pipeline.score.utility import TaskScores, score_demos
     from bt_pipeline.viz.tables import print_score_tables, score_json
 
     require_paths(paths)
+    allowed = PreferenceRange(theta_max, rho_min, rho_max)
     limits = ReadLimits(max_distance_m=max_distance)
     usable = read_usable(paths, samples, strict=strict, limits=limits)
-    results, notes = [], list(usable.notes)
+    results: list[TaskScores] = []
+    selections: dict[str, Selection] = {}
+    notes = list(usable.notes)
+
+    def periodic(demos: list[Demo]) -> Selection:
+        check_usable(demos)
+        return select_best(demos, allowed=allowed)
+
     for group in group_by_task(usable.demos).values():
-        result, skipped = skip_failing(
-            score_demos, group, lambda d: score_demos([d]), strict=strict
-        )
+        if whole_demos:
+            scores, skipped = skip_failing(
+                score_demos, group, lambda d: score_demos([d]), strict=strict
+            )
+        else:
+            selection, skipped = skip_failing(
+                periodic, group, lambda d: periodic([d]), strict=strict
+            )
+            scores = None if selection is None else selection.scores
+            if selection is not None:
+                selections[scores.task] = selection
+                skipped += list(selection.notes)
         notes += skipped
-        if result is not None:
-            results.append(result)
+        if scores is not None:
+            results.append(scores)
     if not results and not usable.flagged:
         raise DemoError(f"no demo could be scored: {'; '.join(notes)}")
     if json:
-        print(jsonlib.dumps(score_json(results, usable.flagged, notes), indent=2))
+        print(jsonlib.dumps(score_json(results, usable.flagged, notes, selections), indent=2))
     else:
-        print_score_tables(results, usable.flagged, notes)
+        print_score_tables(results, usable.flagged, notes, selections)
 
 
 def synth(

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -13,6 +13,7 @@ from rich.table import Table
 
 if TYPE_CHECKING:
     from bt_pipeline.clean.driver import TaskCleanSummary
+    from bt_pipeline.clean.selection import Selection
     from bt_pipeline.data.demo import Demo
     from bt_pipeline.score.utility import TaskScores
 
@@ -37,6 +38,21 @@ def _fmt_pref(value: float | None, digits: int) -> str:
     return "?" if value is None or math.isnan(value) else f"{value:.{digits}f}"
 
 
+def _periodic_json(selection: Selection | None, i: int) -> dict[str, Any]:
+    """Demo i's kept span and how its θ/ρ were found (all None for whole-demo scores)."""
+    if selection is None:
+        keys = ("loop_start_s", "loop_end_s", "cycles", "preference_estimated", "confidence")
+        return dict.fromkeys(keys)
+    segment, preference = selection.segments[i], selection.preferences[i]
+    return {
+        "loop_start_s": segment.start_s,
+        "loop_end_s": segment.end_s,
+        "cycles": segment.cycles,
+        "preference_estimated": preference.estimated,
+        "confidence": preference.confidence,
+    }
+
+
 def _flagged_json(flagged: Flagged, task: str) -> list[dict[str, Any]]:
     return [
         {"file": d.file, "demo": d.name, "demonstrator": d.demonstrator, "flags": list(flags)}
@@ -46,9 +62,17 @@ def _flagged_json(flagged: Flagged, task: str) -> list[dict[str, Any]]:
 
 
 def score_json(
-    results: Sequence[TaskScores], flagged: Flagged = (), notes: Sequence[str] = ()
+    results: Sequence[TaskScores],
+    flagged: Flagged = (),
+    notes: Sequence[str] = (),
+    selections: Mapping[str, Selection] | None = None,
 ) -> dict[str, Any]:
-    """The ``bt score --json`` document (flagged demos per task, unranked; skip notes)."""
+    """The ``bt score --json`` document (flagged demos per task, unranked; skip notes).
+
+    With `selections` (per task), each demo also has its kept span, loops and whether its θ/ρ
+    were estimated; θ/ρ are then the ones used (given or estimated).
+    """
+    selections = selections or {}
     tasks = []
     scored = {result.task for result in results}
     for task in dict.fromkeys(d.task for d, _ in flagged):
@@ -74,7 +98,8 @@ def score_json(
                         "utility": s.utility,
                         "rank": s.rank,
                     }
-                    for s in result.scores
+                    | _periodic_json(selections.get(result.task), i)
+                    for i, s in enumerate(result.scores)
                 ],
             }
         )
@@ -87,14 +112,19 @@ def print_score_tables(
     results: Sequence[TaskScores],
     flagged: Flagged = (),
     notes: Sequence[str] = (),
+    selections: Mapping[str, Selection] | None = None,
     console: Console | None = None,
 ) -> None:
     """One table per task: demo, demonstrator, θ, ρ, MI, L1, L2, L3, Ũ, rank; best marked ★.
 
+    With `selections`, also each demo's loops (its kept span is in the JSON), and estimated θ/ρ
+    marked ≈.
     Flagged demos follow their task's ranked rows, marked ⚠ with their flags and no rank.
     """
     console = console or _console()
+    selections = selections or {}
     for result in results:
+        selection = selections.get(result.task)
         files = {s.demo.file for s in result.scores}
         one_file = len(files) == 1
 
@@ -111,15 +141,24 @@ def print_score_tables(
         )
         for column in ("", "demo", "demonstrator", "θ [°]", "ρ"):
             table.add_column(escape(column))
-        for column in ("MI [nats]", "L1 sym [mm]", "L2 close [mm]", "L3 smooth", "Ũ", "rank"):
+        periodic = ("loops",) if selection is not None else ()
+        for column in (*periodic, "MI [nats]", "L1 sym [mm]", "L2 close [mm]", "L3 smooth"):
+            table.add_column(escape(column), justify="right")
+        for column in ("Ũ", "rank"):
             table.add_column(escape(column), justify="right")
         for index, s in enumerate(result.scores):
+            mark, span = "", ()
+            if selection is not None:
+                segment = selection.segments[index]
+                mark = "≈" if selection.preferences[index].estimated else ""
+                span = (f"{segment.cycles:.2f}",)
             table.add_row(
                 "★" if index == result.best_index else "",
                 label(s.demo.file, s.demo.name),
                 s.demo.demonstrator,
-                _fmt_pref(s.demo.theta_deg, 1),
-                _fmt_pref(s.demo.rho, 2),
+                mark + _fmt_pref(s.demo.theta_deg, 1),
+                mark + _fmt_pref(s.demo.rho, 2),
+                *span,
                 f"{s.mutual_information:.3f}",
                 f"{1e3 * s.symmetry:.2f}",
                 f"{1e3 * s.closure:.2f}",
@@ -135,6 +174,7 @@ def print_score_tables(
                     demo.demonstrator,
                     _fmt_pref(demo.theta_deg, 1),
                     _fmt_pref(demo.rho, 2),
+                    *[""] * (1 if selection is not None else 0),
                     escape(f"flagged: {', '.join(flags)}"),
                     *[""] * 4,
                     "–",

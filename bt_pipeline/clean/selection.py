@@ -1,0 +1,128 @@
+"""Selection (paper Sec. III-A) on each demo's periodic part, for ``bt clean`` and ``bt score``.
+
+Data flow for one task::
+
+    raw demos ──segment──> kept spans, cycles, guide fits ──pool──> θ/ρ per demo (given or
+    estimated) ──> span demos (N samples each) ──score (Eqs. 3-8, L1-L3 per loop, along the
+    path, at ρ = 1)──> Ũ ──shape gate──> ranks and the best demo
+
+Scoring reads the kept span, not the whole recording: a rest, an approach and a retreat are not
+the task (issue 9), and the ranking reads L1-L3 per loop, along the path and at ρ = 1 so a demo's
+loop count, speed profile and preference do not rank it (:func:`periodic.ranking_metrics`). The
+best demo is the eligible one (it follows the task's guide about as closely as any,
+:mod:`bt_pipeline.clean.shape_gate`) with the highest Ũ.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from bt_pipeline.clean.fan_out import per_demo, segment_step
+from bt_pipeline.clean.guide_fit import PreferenceRange
+from bt_pipeline.clean.periodic import (
+    UNCERTAIN,
+    PreferenceEstimate,
+    pool_preferences,
+    ranking_metrics,
+    span_demo,
+)
+from bt_pipeline.clean.segment import Segment
+from bt_pipeline.clean.shape_gate import gate_best, guide_misfit
+from bt_pipeline.data.demo import Demo
+from bt_pipeline.execute import ExecutorConfig
+from bt_pipeline.score.utility import RawMetrics, ScoreConfig, TaskScores, raw_metrics, score_demos
+
+
+@dataclass(frozen=True)
+class Selection:
+    """What selection found for one task."""
+
+    demos: tuple[Demo, ...]
+    """The kept periodic span of each demo, N samples uniform in time, with the θ/ρ used."""
+    segments: tuple[Segment, ...]
+    """The kept span, cycles and guide fit of each raw demo."""
+    preferences: tuple[PreferenceEstimate, ...]
+    """θ/ρ of each demo: given, or estimated and pooled per demonstrator."""
+    plain: tuple[RawMetrics, ...]
+    """Eqs. (3)-(6) on each span demo's N samples, as Stage 2 computes them (its normaliser)."""
+    scores: TaskScores
+    """Ũ of each span demo (ranking metrics), with the shape gate's ranks and best demo."""
+    notes: tuple[str, ...]
+    """Estimated θ/ρ, a partial loop, the gate overriding Ũ."""
+    seconds: dict[str, float]
+    """Wall time of ``segment`` and ``score`` [s]."""
+
+
+def select_best(
+    demos: Sequence[Demo],
+    config: ScoreConfig | None = None,
+    allowed: PreferenceRange | None = None,
+    *,
+    executor: ExecutorConfig | None = None,
+    chunk_size: int = 10**9,
+) -> Selection:
+    """Segment, estimate θ/ρ, score and pick the best demo of one task (module doc).
+
+    Args:
+        demos: M ≥ 1 demos of one task, N samples each (their raw samples are segmented).
+        config: Scoring settings; defaults when None.
+        allowed: Allowed θ/ρ when estimated; defaults when None.
+        executor: Where the per-demo segmentation runs in chunks of `chunk_size` (None: here).
+        chunk_size: Demos per segmentation job.
+
+    Raises:
+        DemoError: A demo that does not move or has no loop (named).
+    """
+    config = config or ScoreConfig()
+    seconds: dict[str, float] = {}
+    start = time.perf_counter()
+    segments = tuple(
+        per_demo(
+            segment_step,
+            list(demos),
+            allowed or PreferenceRange(),
+            executor=executor,
+            chunk_size=chunk_size,
+            label=f"segment {demos[0].task}",
+        )
+    )
+    preferences = pool_preferences(demos, segments)
+    spans = tuple(
+        span_demo(demo, segment, demos[0].n_samples, preference)
+        for demo, segment, preference in zip(demos, segments, preferences, strict=True)
+    )
+    seconds["segment"] = time.perf_counter() - start
+    notes: list[str] = []
+    for demo, segment, preference in zip(spans, segments, preferences, strict=True):
+        if preference.estimated:
+            doubt = " (uncertain)" if preference.confidence < UNCERTAIN else ""
+            notes.append(
+                f"{demo.label}: θ/ρ missing, estimated{doubt} from the task's guide and pooled "
+                f"over {demo.demonstrator}'s demos as θ = {preference.theta_deg:.1f}°, "
+                f"ρ = {preference.rho:.3f} (confidence {preference.confidence:.2f})"
+            )
+        if segment.cycles < 0.5:
+            notes.append(f"{demo.label}: only {segment.cycles:.2f} of a loop was found")
+
+    start = time.perf_counter()
+    plain = tuple(raw_metrics(d.positions, d.actions, d.theta_deg, config) for d in spans)
+    ranked = [
+        ranking_metrics(d, s.cycles, m, config.alphas, config.derotate)
+        for d, s, m in zip(spans, segments, plain, strict=True)
+    ]
+    by_utility = score_demos(spans, config, metrics=ranked)
+    # The best demo is taken among those that follow the guide about as closely as any: Ũ is
+    # blind to a slow wobble (bt_pipeline/clean/shape_gate.py).
+    misfits = [guide_misfit(d, s, p) for d, s, p in zip(spans, segments, preferences, strict=True)]
+    scores = gate_best(by_utility, misfits)
+    if scores.best_index != by_utility.best_index:
+        first, best = by_utility.best_index, scores.best_index
+        notes.append(
+            f"{spans[first].label} has the highest Ũ but follows the task's guide less closely "
+            f"(median {100 * misfits[first]:.2f} % of its size off, against "
+            f"{100 * misfits[best]:.2f} %): {spans[best].label} is the best demo"
+        )
+    seconds["score"] = time.perf_counter() - start
+    return Selection(spans, segments, preferences, plain, scores, tuple(notes), seconds)
