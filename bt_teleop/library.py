@@ -8,9 +8,12 @@ the take-check flags (demo attr ``flags``), whether the file is excluded
 a track's path is read from its file when it is played (:mod:`bt_teleop.track_samples`), so the
 library of a task with thousands of takes stays small (about 1 KiB a take).
 
-Scores (paper Eq. 8, :func:`bt_pipeline.score.utility.score_demos`) are computed over the
-*usable* raw demos only: neither flagged nor excluded. A junk take therefore never shifts the
-others' scores and is never the best demo (★). :func:`library_markdown` renders the table every
+Scores (paper Eq. 8) are computed over the *usable* raw demos only: neither flagged nor
+excluded. A junk take therefore never shifts the others' scores and is never the best demo (★).
+They are read as ``bt clean`` and ``bt score`` read them (:mod:`bt_pipeline.clean.selection`):
+each take on its periodic part (its rest, approach and retreat left out), and the best is the
+take with the highest Ũ among those that follow the guide about as closely as any, so the ★ is
+the demo the Clean button takes as its best. :func:`library_markdown` renders the table every
 tab shows, escaping every text a browser typed (:mod:`bt_teleop.escape`).
 """
 
@@ -37,7 +40,7 @@ from bt_teleop.escape import markdown_text
 from bt_teleop.tracks import FileTracks, ReplayTrack, TrackKind, read_file_tracks
 
 if TYPE_CHECKING:
-    from bt_pipeline.score.utility import RawMetrics
+    from bt_pipeline.clean.selection import TakeScore
 
 __all__ = [
     "ReplayTrack",
@@ -72,9 +75,10 @@ class TaskLibrary:
 
     @property
     def best(self) -> ReplayTrack | None:
-        """The usable raw demo with the highest Ũ (never a flagged or excluded one)."""
+        """The first usable raw demo in the ranking: the highest Ũ among those that follow the
+        guide about as closely as any (never a flagged or excluded one)."""
         scored = [t for t in self.raw if t.usable and t.utility is not None]
-        return max(scored, key=lambda t: t.utility or 0.0) if scored else None
+        return min(scored, key=_order) if scored else None
 
     def find(self, key: str) -> ReplayTrack:
         """The track with label `key`.
@@ -111,7 +115,7 @@ def load_library(
         read: Reads one file's tracks and raw metrics (e.g. from a cache:
             :class:`bt_teleop.library_loader.LibraryLoader`); :func:`read_file_tracks` when None.
             Ũ is then normalised over the task's usable demos (Eqs. 7-8), exactly as
-            :func:`~bt_pipeline.score.utility.score_demos` does.
+            :func:`~bt_pipeline.clean.selection.select_demos` does.
         previous: The task's last library (from the same `read`): a raw demo whose file, Ũ
             and exclusion did not change is listed by that library's very object, so a load
             allocates new tracks only for what changed (Ũ is min-max normalised, Eq. 7: a new
@@ -173,14 +177,12 @@ def _newest_change_ns(files: list[FileTracks]) -> int:
     return newest
 
 
-def _utilities(metrics: list[RawMetrics]) -> FloatArray:
-    """Ũ of each demo from its raw metrics, normalised over all of them (Eqs. 7-8)."""
-    from bt_pipeline.score.utility import Normaliser, ScoreConfig, normalised_utility
+def _utilities(takes: list[TakeScore]) -> tuple[FloatArray, np.ndarray]:
+    """Ũ of each take, normalised over all of them (Eqs. 7-8), and whether each may be the best
+    (the shape gate)."""
+    from bt_pipeline.clean.selection import rank_takes
 
-    config = ScoreConfig()
-    normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
-    normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
-    return normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
+    return rank_takes(takes)
 
 
 def _scored(files: list[FileTracks], before: dict[str, ReplayTrack]) -> tuple[ReplayTrack, ...]:
@@ -192,33 +194,36 @@ def _scored(files: list[FileTracks], before: dict[str, ReplayTrack]) -> tuple[Re
     normalised without it.
     """
     listed: list[tuple[ReplayTrack, bool]] = []
-    scored: list[tuple[int, RawMetrics]] = []
+    scored: list[tuple[int, TakeScore]] = []
     for file in files:
         excluded = is_excluded(file.path)
         for track, metrics in zip(file.tracks, file.metrics, strict=True):
             if not track.flags and not excluded and metrics is not None:
                 scored.append((len(listed), metrics))
             listed.append((track, excluded))
-    utilities: dict[int, float] = {}
+    utilities: dict[int, tuple[float, bool]] = {}
     if scored:
         try:
-            values = _utilities([metrics for _, metrics in scored])
+            values, allowed = _utilities([metrics for _, metrics in scored])
         except BtError as exc:
             LOGGER.warning("cannot score the raw demos: %s", exc)
         else:
-            utilities = {i: float(u) for (i, _), u in zip(scored, values, strict=True)}
+            utilities = {
+                i: (float(u), bool(ok))
+                for (i, _), u, ok in zip(scored, values, allowed, strict=True)
+            }
     tracks: list[ReplayTrack] = []
     for index, (track, excluded) in enumerate(listed):
-        utility = utilities.get(index)
+        utility, eligible = utilities.get(index, (None, True))
         old = before.get(track.key)
         if (
             old is not None
             and (old.file, old.demo, old.stamp) == (track.file, track.demo, track.stamp)
-            and (old.excluded, old.utility) == (excluded, utility)
+            and (old.excluded, old.utility, old.eligible) == (excluded, utility, eligible)
         ):
             tracks.append(old)  # the same file version: the same fields
         elif excluded or utility is not None:
-            tracks.append(replace(track, excluded=excluded, utility=utility))
+            tracks.append(replace(track, excluded=excluded, utility=utility, eligible=eligible))
         else:
             tracks.append(track)
     return tuple(tracks)
@@ -229,14 +234,16 @@ def plural(n: int, noun: str) -> str:
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
-def _order(track: ReplayTrack) -> tuple[int, float]:
+def _order(track: ReplayTrack) -> tuple[int, bool, float]:
+    """Usable demos first (those that may be the best first, then by Ũ), flagged, excluded."""
     group = 0 if track.usable else (1 if not track.excluded else 2)
-    return group, -(track.utility if track.utility is not None else -1.0)
+    return group, not track.eligible, -(track.utility if track.utility is not None else -1.0)
 
 
 def ranked(library: TaskLibrary, limit: int) -> list[ReplayTrack]:
-    """The first `limit` raw demos in the table's order: usable by Ũ (best first), flagged,
-    excluded (``sorted(...)[:limit]`` without sorting them all)."""
+    """The first `limit` raw demos in the table's order: usable ones (those that follow the guide
+    about as closely as any first, each group by Ũ), flagged, excluded (``sorted(...)[:limit]``
+    without sorting them all)."""
     return heapq.nsmallest(limit, library.raw, key=_order)
 
 

@@ -12,8 +12,9 @@ loops. :class:`LibraryLoader` makes that cost one incremental load per change::
         otherwise                                      queue a new one on the app's reader
     the load: load_library(dir, task, read=cached read)
         a file whose (size, mtime, inode) did not change is not read again, nor are its
-        demos' raw metrics (I, L1-L3: 14 ms a demo) computed again; only the normalisation
-        over the task's demos (Eqs. 7-8) is redone
+        demos' ranking inputs (I, L1-L3 on the periodic part and the guide misfit: ~56 ms a
+        browser take, ``bench_take_score.py``) computed again; only the normalisation over
+        the task's demos (Eqs. 7-8) and the shape gate are redone
 
 Loads of a task are also spaced out: the next one starts no sooner than ``max(min_interval_s,
 duty × the last load's time)`` after the last one ended, so with a thousand takes on a loaded
@@ -27,8 +28,8 @@ for the demos whose Ũ it moved, not for every take of the task (:func:`load_lib
 ``previous``; ``bench_save_growth.py``).
 
 The cache holds, per file, what the tabs' libraries list (:class:`~bt_teleop.tracks.FileTracks`:
-names, flags, durations, raw metrics, the file's identity; about 1 KiB a take), never its samples;
-the entries of files that are gone are dropped at each load.
+names, flags, durations, ranking inputs, the file's identity; about 1 KiB a take), never its
+samples; the entries of files that are gone are dropped at each load.
 """
 
 from __future__ import annotations

@@ -291,11 +291,12 @@ def synthetic_task_files(root: Path, task: str, n: int, seed: int = 0) -> dict[P
 
     The files are empty (no HDF5 is written: thousands of takes in a second); each has one
     demo, saved a second after the one before (its mtime), by one of 8 demonstrators, with
-    random raw metrics. Returns file -> :class:`~bt_teleop.tracks.FileTracks`, to serve as
+    random ranking inputs. Returns file -> :class:`~bt_teleop.tracks.FileTracks`, to serve as
     ``load_library(root, task, read=lambda path, kind: files[path])``.
     """
     import os
 
+    from bt_pipeline.clean.selection import TakeScore
     from bt_pipeline.score.utility import RawMetrics
     from bt_teleop.naming import demo_path
     from bt_teleop.tracks import FileTracks, ReplayTrack, file_stamp
@@ -323,7 +324,9 @@ def synthetic_task_files(root: Path, task: str, n: int, seed: int = 0) -> dict[P
             theta_deg=0.0,
             rho=1.0,
         )
-        metrics = RawMetrics(*(float(v) for v in rng.uniform(0.1, 1.0, 4)))
+        metrics = TakeScore(
+            RawMetrics(*(float(v) for v in rng.uniform(0.1, 1.0, 4))), float(rng.uniform(0, 0.01))
+        )
         files[path] = FileTracks(path, stamp, task, (track,), (metrics,))  # type: ignore[arg-type]
     return files
 

@@ -7,7 +7,8 @@ pickers show and what scoring needs, and drops the samples::
 
     <task>/<take>.hdf5 --read_recording--> Recording (all arrays)
         --> FileTracks: per demo a ReplayTrack (key, who, θ, ρ, duration, flags, warnings,
-                        file identity) and its raw metrics (I, L1-L3; paper Eqs. 1, 4-6)
+                        file identity) and its ranking inputs: I, L1-L3 (paper Eqs. 1,
+                        4-6) on its periodic part and its guide misfit, as `bt clean` ranks
         (the Recording is dropped: ~1 KiB kept per take instead of its arrays)
 
 A track's samples are read from its file again when it is played
@@ -28,8 +29,8 @@ from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import BtError, RecordingError
 
 if TYPE_CHECKING:
+    from bt_pipeline.clean.selection import TakeScore
     from bt_pipeline.data.demo import Demo
-    from bt_pipeline.score.utility import RawMetrics
 
 __all__ = [
     "CLAMPED_WARNING_SHARE",
@@ -100,6 +101,9 @@ class ReplayTrack:
     """ρ (NaN when unknown)."""
     utility: float | None = None
     """Ũ (raw: among the task's usable raw demos; cleaned: after cleaning), None if not scored."""
+    eligible: bool = True
+    """A raw demo that may be the best: it follows the guide about as closely as any usable
+    demo (the shape gate, :mod:`bt_pipeline.clean.shape_gate`)."""
     flags: tuple[str, ...] = ()
     """Failed take checks (demo attr ``flags``; ``closed_mid_take`` for ep_meta incomplete)."""
     excluded: bool = False
@@ -130,13 +134,14 @@ class FileTracks:
     tracks: tuple[ReplayTrack, ...]
     """Its demos, in file order (``utility`` and ``excluded`` unset: they depend on the task's
     other files and on the moderation sidecar, so the library sets them at each load)."""
-    metrics: tuple[RawMetrics | None, ...] = ()
-    """Raw metrics of each raw demo without flags (None: flagged, or they could not be
-    computed); empty for a cleaned file."""
+    metrics: tuple[TakeScore | None, ...] = ()
+    """What each raw demo without flags brings to the task's ranking: its metrics on its
+    periodic part and its guide misfit (:func:`bt_pipeline.clean.selection.take_score`; None:
+    flagged, or they could not be computed); empty for a cleaned file."""
 
 
 def read_file_tracks(path: Path, kind: TrackKind) -> FileTracks:
-    """Read `path` and keep its demos' tracks (and, for raw demos, their raw metrics); a cleaned
+    """Read `path` and keep its demos' tracks (and, for raw demos, their ranking inputs); a cleaned
     file's samples are not read (:mod:`bt_teleop.cleaned_listing`).
 
     Args:
@@ -168,7 +173,7 @@ def _raw_file(recording: Recording, path: Path, stamp: FileStamp) -> FileTracks:
 
     several = len(recording.demos) > 1
     tracks: list[ReplayTrack] = []
-    metrics: list[RawMetrics | None] = []
+    metrics: list[TakeScore | None] = []
     try:
         demos: list[Demo | None] = list(demos_from_recording(recording))
     except BtError as exc:  # listed all the same, unscored
@@ -195,17 +200,19 @@ def _raw_file(recording: Recording, path: Path, stamp: FileStamp) -> FileTracks:
             warnings=tuple(warnings),
         )
         tracks.append(track)
-        metrics.append(None if demo is None or track.flags else _metrics_or_none(demo, name))
+        metrics.append(None if demo is None or track.flags else _score_or_none(demo, name))
     return FileTracks(path, stamp, recording.task, tuple(tracks), tuple(metrics))
 
 
-def _metrics_or_none(demo: Demo, name: str) -> RawMetrics | None:
-    """I(S; A) and L1-L3 of `demo` (paper Eqs. 1, 4-6), or None (logged) when they fail."""
-    from bt_pipeline.score.utility import raw_metrics
+def _score_or_none(demo: Demo, name: str) -> TakeScore | None:
+    """`demo`'s part of its task's ranking, as ``bt clean`` reads it (its periodic part), or
+    None (logged) when it has none (no loop, no motion) or the numerics fail."""
+    from bt_pipeline.clean.selection import take_score
+    from bt_pipeline.data.skipping import NUMERIC_ERRORS
 
     try:
-        return raw_metrics(demo.positions, demo.actions, demo.theta_deg)
-    except BtError as exc:
+        return take_score(demo)
+    except (BtError, *NUMERIC_ERRORS) as exc:
         LOGGER.warning("cannot score %s: %s: %s", demo.file, name, exc)
         return None
 

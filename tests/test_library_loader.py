@@ -7,6 +7,8 @@ import concurrent.futures
 import threading
 from pathlib import Path
 
+import numpy as np
+
 from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.synth import make_demo_set
 from bt_teleop.library import load_library
@@ -151,3 +153,24 @@ def test_task_files_lists_what_expand_paths_lists(tmp_path) -> None:
         (folder / name).touch()
     assert task_files(folder) == expand_paths([folder])
     assert len(task_files(folder)) == 31
+
+
+def test_the_best_take_is_the_one_bt_clean_takes(tmp_path) -> None:
+    """★ is the highest Ũ among the takes that follow the guide about as closely as any (the
+    shape gate of ``bt clean`` and ``bt score``), not the highest Ũ overall; the table lists
+    those takes first."""
+    from bt_pipeline.clean.selection import rank_takes
+    from bt_teleop.library import ranked
+    from bt_teleop.testing import synthetic_task_files
+
+    files = synthetic_task_files(tmp_path, "wiping", 60)
+    library = load_library(tmp_path, "wiping", read=lambda path, kind: files[path])
+    takes = [files[t.file].metrics[0] for t in library.raw]
+    utility, eligible = rank_takes(takes)
+    assert not eligible[int(np.argmax(utility))]  # the highest Ũ may not be the best here
+    best = int(np.flatnonzero(eligible)[np.argmax(utility[eligible])])
+    assert library.best is library.raw[best]
+    order = ranked(library, len(library.raw))
+    assert [t.eligible for t in order] == sorted(eligible.tolist(), reverse=True)
+    first = [t.utility for t in order[: int(eligible.sum())]]
+    assert first == sorted(utility[eligible], reverse=True)

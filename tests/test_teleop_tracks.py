@@ -13,10 +13,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from bt_pipeline.clean.selection import select_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.moderation import exclude
 from bt_pipeline.data.recording import read_recording, write_recording
-from bt_pipeline.score.utility import score_demos
+from bt_pipeline.exceptions import DemoError
 from bt_teleop.cleaning import cleaned_path
 from bt_teleop.library import load_library
 from bt_teleop.library_loader import LibraryLoader
@@ -89,16 +90,24 @@ def test_the_listing_matches_the_files(takes: Path) -> None:
 
 
 def test_scores_equal_scoring_the_usable_files_from_scratch(takes: Path) -> None:
+    """The table's Ũ and ★ are what ``bt score`` and ``bt clean`` compute over the usable takes
+    (their periodic parts, the shape gate); a usable take with no loop (it does not move) is
+    listed unscored, as ``bt clean`` leaves it out."""
     exclude(sorted((takes / "wiping").glob("alice_*.hdf5"))[0], reason="test")
     library = load_library(takes, "wiping")
     usable = [t for t in library.raw if t.usable]
-    assert 3 <= len(usable) < len(library.raw)
-    demos = [demos_from_recording(read_recording(t.file))[0] for t in usable]
-    truth = score_demos(demos)
-    for track, score in zip(usable, truth.scores, strict=True):
+    scored = [t for t in usable if t.utility is not None]
+    assert 3 <= len(scored) < len(usable) < len(library.raw)
+    demos = [demos_from_recording(read_recording(t.file))[0] for t in scored]
+    truth = select_demos(demos).scores
+    for track, score in zip(scored, truth.scores, strict=True):
         assert track.utility == pytest.approx(score.utility, abs=1e-9)
-    assert library.best is not None and library.best.file == usable[truth.best_index].file
+    assert library.best is not None and library.best.file == scored[truth.best_index].file
     assert all(t.utility is None for t in library.raw if not t.usable)
+    for track in usable:
+        if track.utility is None:
+            with pytest.raises(DemoError, match="does not move"):
+                select_demos(demos_from_recording(read_recording(track.file)))
 
 
 def test_a_file_replaced_while_it_is_read_is_read_again(takes: Path, monkeypatch) -> None:

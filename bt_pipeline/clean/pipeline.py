@@ -33,7 +33,7 @@ from bt_pipeline.clean.periodic import (
     smooth_residual,
 )
 from bt_pipeline.clean.segment import Segment
-from bt_pipeline.clean.selection import select_best
+from bt_pipeline.clean.selection import select_demos
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
 from bt_pipeline.clean.stage2.chunked import DEFAULT_CHUNK_SIZE, refine_in_chunks
 from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, Variant
@@ -233,7 +233,7 @@ def clean_demos(
 
     fan_out = options.chunk_executor if len(demos) > options.chunk_size else None
     k_max, task_label = options.chunk_size, str(demos[0].task)
-    selection = select_best(
+    selection = select_demos(
         demos,
         options.score,
         options.preference_range,

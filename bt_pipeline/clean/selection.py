@@ -19,6 +19,8 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from bt_pipeline.clean.fan_out import per_demo, segment_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.periodic import (
@@ -29,10 +31,19 @@ from bt_pipeline.clean.periodic import (
     span_demo,
 )
 from bt_pipeline.clean.segment import Segment
-from bt_pipeline.clean.shape_gate import gate_best, guide_misfit
+from bt_pipeline.clean.shape_gate import eligible, gate_best, guide_misfit
 from bt_pipeline.data.demo import Demo
+from bt_pipeline.data.records import FloatArray
 from bt_pipeline.execute import ExecutorConfig
-from bt_pipeline.score.utility import RawMetrics, ScoreConfig, TaskScores, raw_metrics, score_demos
+from bt_pipeline.score.utility import (
+    Normaliser,
+    RawMetrics,
+    ScoreConfig,
+    TaskScores,
+    normalised_utility,
+    raw_metrics,
+    score_demos,
+)
 
 
 @dataclass(frozen=True)
@@ -55,7 +66,7 @@ class Selection:
     """Wall time of ``segment`` and ``score`` [s]."""
 
 
-def select_best(
+def select_demos(
     demos: Sequence[Demo],
     config: ScoreConfig | None = None,
     allowed: PreferenceRange | None = None,
@@ -107,15 +118,15 @@ def select_best(
             notes.append(f"{demo.label}: only {segment.cycles:.2f} of a loop was found")
 
     start = time.perf_counter()
-    plain = tuple(raw_metrics(d.positions, d.actions, d.theta_deg, config) for d in spans)
-    ranked = [
-        ranking_metrics(d, s.cycles, m, config.alphas, config.derotate)
-        for d, s, m in zip(spans, segments, plain, strict=True)
+    parts = [
+        _ranking_inputs(d, s, p, config)
+        for d, s, p in zip(spans, segments, preferences, strict=True)
     ]
-    by_utility = score_demos(spans, config, metrics=ranked)
+    plain = tuple(p for p, _ in parts)
+    by_utility = score_demos(spans, config, metrics=[t.ranked for _, t in parts])
     # The best demo is taken among those that follow the guide about as closely as any: Ũ is
     # blind to a slow wobble (bt_pipeline/clean/shape_gate.py).
-    misfits = [guide_misfit(d, s, p) for d, s, p in zip(spans, segments, preferences, strict=True)]
+    misfits = [t.misfit for _, t in parts]
     scores = gate_best(by_utility, misfits)
     if scores.best_index != by_utility.best_index:
         first, best = by_utility.best_index, scores.best_index
@@ -126,3 +137,52 @@ def select_best(
         )
     seconds["score"] = time.perf_counter() - start
     return Selection(spans, segments, preferences, plain, scores, tuple(notes), seconds)
+
+
+@dataclass(frozen=True)
+class TakeScore:
+    """What one demo brings to its task's ranking, from the demo alone (the app's library)."""
+
+    ranked: RawMetrics
+    """Eqs. (3)-(6) on its periodic part, per loop, along the path and at ρ = 1."""
+    misfit: float
+    """The shape gate's misfit (:func:`~bt_pipeline.clean.shape_gate.guide_misfit`)."""
+
+
+def take_score(
+    demo: Demo, config: ScoreConfig | None = None, allowed: PreferenceRange | None = None
+) -> TakeScore:
+    """:func:`select_demos`'s per-demo part for one demo: segmented, θ/ρ given or fitted to it
+    alone (not pooled), scored on its span. :func:`rank_takes` then ranks a set of them.
+
+    Raises:
+        DemoError: The demo does not move or has no loop.
+    """
+    config = config or ScoreConfig()
+    (segment,) = segment_step([demo], allowed or PreferenceRange())
+    (preference,) = pool_preferences([demo], [segment])
+    span = span_demo(demo, segment, demo.n_samples, preference)
+    return _ranking_inputs(span, segment, preference, config)[1]
+
+
+def rank_takes(
+    takes: Sequence[TakeScore], config: ScoreConfig | None = None
+) -> tuple[FloatArray, np.ndarray]:
+    """Ũ of each take over the set (Eqs. 7-8, as :func:`select_demos` scores) and whether each
+    may be the best (the shape gate's eligibility): shapes (M,), (M,)."""
+    config = config or ScoreConfig()
+    metrics = [t.ranked for t in takes]
+    normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
+    normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
+    utility = normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
+    return utility, eligible(np.array([t.misfit for t in takes]))
+
+
+def _ranking_inputs(
+    span: Demo, segment: Segment, preference: PreferenceEstimate, config: ScoreConfig
+) -> tuple[RawMetrics, TakeScore]:
+    """A span demo's Eqs. (3)-(6) on its N samples (Stage 2's normaliser reads them), and its
+    ranking metrics and misfit."""
+    plain = raw_metrics(span.positions, span.actions, span.theta_deg, config)
+    ranked = ranking_metrics(span, segment.cycles, plain, config.alphas, config.derotate)
+    return plain, TakeScore(ranked, guide_misfit(span, segment, preference))

@@ -46,7 +46,7 @@ def score(
     """
     from bt_pipeline.clean.guide_fit import PreferenceRange
     from bt_pipeline.clean.pipeline import check_usable
-    from bt_pipeline.clean.selection import Selection, select_best
+    from bt_pipeline.clean.selection import Selection, select_demos
     from bt_pipeline.data.demo import Demo, group_by_task
     from bt_pipeline.data.limits import ReadLimits
     from bt_pipeline.data.skipping import read_usable, skip_failing
@@ -64,7 +64,7 @@ def score(
 
     def periodic(demos: list[Demo]) -> Selection:
         check_usable(demos)
-        return select_best(demos, allowed=allowed)
+        return select_demos(demos, allowed=allowed)
 
     for group in group_by_task(usable.demos).values():
         if whole_demos:
@@ -77,7 +77,7 @@ def score(
             )
             scores = None if selection is None else selection.scores
             if selection is not None:
-                selections[scores.task] = selection
+                selections[selection.scores.task] = selection
                 skipped += list(selection.notes)
         notes += skipped
         if scores is not None:
