@@ -47,7 +47,9 @@ def test_a_jittery_demo_pausing_at_corners_is_placed_at_the_sets_centre() -> Non
     times, cleaned = result.on_raw_times(2)
     shape, _ = truth_ratios(record, demos[2].raw_samples(), (times, cleaned))
     assert shape < 0.3, shape
-    truth, _ = truth_of(record)
+    stored = truth_of(record)
+    assert stored is not None
+    truth, _ = stored
     _, raw_t = demos[2].raw_samples()
     offset = np.mean(cleaned - truth[np.searchsorted(raw_t, times)], axis=0)
     assert float(np.linalg.norm(offset)) < 0.0008, offset
