@@ -26,6 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult
+from bt_pipeline.clean.selection import span_attrs
 from bt_pipeline.clean.skipping import clean_skipping
 from bt_pipeline.clean.stage2.chunked import chunk_sizes
 from bt_pipeline.clean.stage2.config import EpochStats
@@ -176,13 +177,7 @@ def _span_attrs(result: TaskCleanResult, i: int) -> dict[str, Any]:
     """The kept span, cycles and preference confidence of demo i (docs/refinement.md)."""
     if not result.segments:
         return {}
-    segment, preference = result.segments[i], result.preferences[i]
-    return {
-        "loop_start_s": segment.start_s,
-        "loop_end_s": segment.end_s,
-        "cycles": segment.cycles,
-        "preference_confidence": preference.confidence,
-    }
+    return span_attrs(result.segments[i], result.preferences[i])
 
 
 def _clean_task(

@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -64,6 +65,13 @@ class Selection:
     """Estimated θ/ρ, a partial loop, the gate overriding Ũ."""
     seconds: dict[str, float]
     """Wall time of ``segment`` and ``score`` [s]."""
+
+    def span_json(self, i: int) -> dict[str, Any]:
+        """Demo i's :func:`span_attrs` and whether its θ/ρ were estimated."""
+        preference = self.preferences[i]
+        return span_attrs(self.segments[i], preference) | {
+            "preference_estimated": preference.estimated
+        }
 
 
 def select_demos(
@@ -186,3 +194,14 @@ def _ranking_inputs(
     plain = raw_metrics(span.positions, span.actions, span.theta_deg, config)
     ranked = ranking_metrics(span, segment.cycles, plain, config.alphas, config.derotate)
     return plain, TakeScore(ranked, guide_misfit(span, segment, preference))
+
+
+def span_attrs(segment: Segment, preference: PreferenceEstimate) -> dict[str, Any]:
+    """A demo's kept span, its loops and its θ/ρ confidence, as the cleaned file's demo attrs
+    and ``bt score --json`` name them (docs/recording-format.md)."""
+    return {
+        "loop_start_s": segment.start_s,
+        "loop_end_s": segment.end_s,
+        "cycles": segment.cycles,
+        "preference_confidence": preference.confidence,
+    }

@@ -41,16 +41,9 @@ def _fmt_pref(value: float | None, digits: int) -> str:
 def _periodic_json(selection: Selection | None, i: int) -> dict[str, Any]:
     """Demo i's kept span and how its θ/ρ were found (all None for whole-demo scores)."""
     if selection is None:
-        keys = ("loop_start_s", "loop_end_s", "cycles", "preference_estimated", "confidence")
-        return dict.fromkeys(keys)
-    segment, preference = selection.segments[i], selection.preferences[i]
-    return {
-        "loop_start_s": segment.start_s,
-        "loop_end_s": segment.end_s,
-        "cycles": segment.cycles,
-        "preference_estimated": preference.estimated,
-        "confidence": preference.confidence,
-    }
+        keys = ("loop_start_s", "loop_end_s", "cycles", "preference_confidence")
+        return dict.fromkeys((*keys, "preference_estimated"))
+    return selection.span_json(i)
 
 
 def _flagged_json(flagged: Flagged, task: str) -> list[dict[str, Any]]:
