@@ -12,7 +12,7 @@ loops. :class:`LibraryLoader` makes that cost one incremental load per change::
         otherwise                                      queue a new one on the app's reader
     the load: load_library(dir, task, read=cached read)
         a file whose (size, mtime, inode) did not change is not read again, nor are its
-        demos' ranking inputs (I, L1-L3 on the periodic part and the guide misfit: ~56 ms a
+        demos' ranking inputs (I, L1-L3 on the periodic part and the guide misfit: ~24 ms a
         browser take, ``bench_take_score.py``) computed again; only the normalisation over
         the task's demos (Eqs. 7-8) and the shape gate are redone
 

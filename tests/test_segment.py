@@ -349,3 +349,37 @@ def test_a_steady_fast_figure_eight_keeps_its_scale(seed) -> None:
     fit = segment_demo(x, t, "weaving", steady.demo.name).guide
     assert abs(fit.rho / steady.rho - 1.0) < 0.02, (fit.rho, steady.rho)
     assert abs(fit.theta_deg - steady.theta_deg) < 2.0, (fit.theta_deg, steady.theta_deg)
+
+
+def _track_by_definition(x: np.ndarray, ring: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """track_phase as its docstring defines it: each point's nearest loop point among the
+    candidates within the reach of the previous phase (the first such minimum)."""
+    p = ring.shape[0]
+    reach = max(1, int(0.05 * p))
+    phase = [int(np.argmin(np.sum((ring - x[0]) ** 2, axis=1)))]
+    for k in range(1, x.shape[0]):
+        wide = max(reach, min(int(reach * max(steps[k], 1.0)), p // 2))
+        candidates = phase[-1] + np.arange(-wide, wide + 1)
+        d2 = np.sum((ring[candidates % p] - x[k]) ** 2, axis=1)
+        phase.append(int(candidates[int(np.argmin(d2))]))
+    return np.array(phase, dtype=np.float64)
+
+
+@pytest.mark.parametrize("task", ["wiping", "weaving", "pick_and_place"])
+def test_the_phase_track_is_its_definition(task: Task) -> None:
+    """The fast track (the loop laid out twice, one slice per window) gives the phases of the
+    plain definition bit for bit: three noisy loops with a speed swing and gaps, run both ways
+    round, and a loop of 37 points (windows round the seam)."""
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.0, 1.0, 1500)
+    phase = 2 * np.pi * (3 * t + 0.2 * np.sin(5 * t))
+    steps = np.where(rng.random(t.size) < 0.02, rng.uniform(1, 30, t.size), 1.0)
+    for n in (512, 37):
+        ring = canonical_loop(task, n)
+        for sign in (1.0, -1.0):
+            x = canonical_loop(task, 4000)[(sign * phase / (2 * np.pi) * 4000).astype(int) % 4000]
+            x = x + rng.normal(0.0, 0.004, x.shape)
+            fast = track_phase(x, ring, steps=steps)
+            assert np.array_equal(fast, _track_by_definition(x, ring, steps))
+            if n == 512:
+                assert abs(fast[-1] - fast[0]) > 2.5 * n  # it followed the loops

@@ -56,16 +56,24 @@ def track_phase(
     ring = np.asarray(loop, dtype=np.float64)
     p = ring.shape[0]
     reach = max(1, int(max_step * p))
-    offsets = np.arange(-reach, reach + 1)
     scale = np.ones(x.shape[0]) if steps is None else np.maximum(np.asarray(steps, float), 1.0)
+    half = np.minimum((reach * scale).astype(np.int64), p // 2)
+    half = np.where(half <= reach, reach, half)  # the window's half-width at each point
     phase = np.empty(x.shape[0])
-    current = float(np.argmin(np.sum((ring - x[0]) ** 2, axis=1)))
+    current = int(np.argmin(np.sum((ring - x[0]) ** 2, axis=1)))
     phase[0] = current
+    # The loop laid out twice (and one more point), so each window, even round the loop's
+    # seam, is one slice; the first minimum in the window's order wins, as np.argmin over the
+    # candidates ``current + arange(-w, w + 1)`` (mod P) did: the same phase, bit for bit.
+    twice = np.concatenate([ring, ring, ring[:1]])
+    ring_u, ring_v = twice[:, 0].copy(), twice[:, 1].copy()
+    widths, us, vs = half.tolist(), x[:, 0].tolist(), x[:, 1].tolist()
     for k in range(1, x.shape[0]):
-        wide = min(int(reach * scale[k]), p // 2)
-        candidates = round(current) + (offsets if wide <= reach else np.arange(-wide, wide + 1))
-        d2 = np.sum((ring[candidates % p] - x[k]) ** 2, axis=1)
-        current = float(candidates[int(np.argmin(d2))])
+        w = widths[k]
+        start = (current - w) % p
+        du = ring_u[start : start + 2 * w + 1] - us[k]
+        dv = ring_v[start : start + 2 * w + 1] - vs[k]
+        current += int((du * du + dv * dv).argmin()) - w
         phase[k] = current
     return phase
 
