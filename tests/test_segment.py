@@ -422,3 +422,16 @@ def test_a_retreat_running_on_along_the_loop_is_trimmed_on_a_dense_guide() -> No
     segment = segment_demo(uv, t, demo.task, theta_deg=demo.theta_deg, rho=demo.rho)
     assert segment.end_s - t[on_loop][-1] < 0.4, (segment.end_s, t[on_loop][-1])
     assert abs(segment.cycles - 4.0) <= 0.02
+
+
+def test_the_end_trim_reads_the_drift_against_the_final_fit() -> None:
+    """Operator sets, weaving seed 8, θ/ρ hidden: the steady operator's fitted ρ is 0.5 %
+    small. With the drift estimated against the span's first fit, its last 0.6 s of loop lay
+    2-3 mm off and the end trim cut them (1.71 of 2 loops kept, shape ratio 2.26); with the
+    drift estimated against the final fit the span keeps both loops."""
+    ops = operator_set("weaving", 8, hidden=True)
+    steady = ops.demos[ops.steady_index]
+    uv, t = steady.demo.raw_samples()
+    segment = segment_demo(uv, t, steady.demo.task)
+    assert abs(segment.end_s - float(t[steady.on_loop][-1])) < 0.1
+    assert abs(segment.cycles - 2.0) <= 0.05

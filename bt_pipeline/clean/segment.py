@@ -236,13 +236,22 @@ def segment_demo(
         i1 = t.size - 1  # The span runs to the recording's end (the clock stops short of it).
     span_clock = clock[first + fa : first + fb + 1]
     guide = fit.guide(task, _TRACK_POINTS)
-    # The end trim compares raw samples' distances of a millimetre or less: measured to the
-    # guide's vertices at 512 points (2-3 mm apart) they read 0.4-1.2 mm more, and an expert's
-    # 0.3 mm hand read a 3.2 mm threshold that kept a retreat running 2-4 mm off.
+    # The end trim reads distances of a millimetre or less: to a dense guide (512 vertices are
+    # 2-3 mm apart) and with the drift against the final fit (docs/refinement.md, step 8).
+    end_drift = (
+        span_drift
+        if cycles < _EDGE_MIN_CYCLES
+        else drift_along(
+            lspan,
+            guide,
+            (distance[fa : fb + 1] <= 2.0 * tight) & along[fa : fb + 1],
+            min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1),
+        )
+    )
     j0, j1 = (
         (i0, i1)
         if cycles < _EDGE_MIN_CYCLES
-        else trim_raw_ends(x, t, span_clock, span_drift, fit.guide(task, _DENSE_POINTS), i0, i1)
+        else trim_raw_ends(x, t, span_clock, end_drift, fit.guide(task, _DENSE_POINTS), i0, i1)
     )
     if (j0, j1) != (i0, i1):
         i0, i1 = j0, j1
