@@ -32,7 +32,6 @@ import numpy as np
 
 from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.paths import RECORDING_SUFFIXES
-from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.cleaning import cleaned_path, task_dir
@@ -177,14 +176,6 @@ def _newest_change_ns(files: list[FileTracks]) -> int:
     return newest
 
 
-def _utilities(takes: list[TakeScore]) -> tuple[FloatArray, np.ndarray]:
-    """Ũ of each take, normalised over all of them (Eqs. 7-8), and whether each may be the best
-    (the shape gate)."""
-    from bt_pipeline.clean.selection import rank_takes
-
-    return rank_takes(takes)
-
-
 def _scored(files: list[FileTracks], before: dict[str, ReplayTrack]) -> tuple[ReplayTrack, ...]:
     """The raw tracks of `files`, marked excluded (moderation) and scored among the usable ones.
 
@@ -193,6 +184,8 @@ def _scored(files: list[FileTracks], before: dict[str, ReplayTrack]) -> tuple[Re
     demo whose raw metrics could not be computed stays unscored (Ũ None); the others are
     normalised without it.
     """
+    from bt_pipeline.clean.selection import rank_takes
+
     listed: list[tuple[ReplayTrack, bool]] = []
     scored: list[tuple[int, TakeScore]] = []
     for file in files:
@@ -204,7 +197,7 @@ def _scored(files: list[FileTracks], before: dict[str, ReplayTrack]) -> tuple[Re
     utilities: dict[int, tuple[float, bool]] = {}
     if scored:
         try:
-            values, allowed = _utilities([metrics for _, metrics in scored])
+            values, allowed = rank_takes([metrics for _, metrics in scored])
         except BtError as exc:
             LOGGER.warning("cannot score the raw demos: %s", exc)
         else:

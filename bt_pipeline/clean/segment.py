@@ -220,12 +220,9 @@ def segment_demo(
     light = gaussian_filter1d(path, _FIT_SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
     lspan = light[first + fa : first + fb + 1]
     fit = fit_guide(lspan, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
-    span_drift = drift_along(
-        lspan,
-        fit.guide(task, _TRACK_POINTS),
-        (distance[fa : fb + 1] <= 2.0 * tight) & along[fa : fb + 1],
-        min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1),
-    )
+    followed = (distance[fa : fb + 1] <= 2.0 * tight) & along[fa : fb + 1]
+    degree = min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1)
+    span_drift = drift_along(lspan, fit.guide(task, _TRACK_POINTS), followed, degree)
     fit = fit_guide(
         lspan - span_drift, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
     )
@@ -236,23 +233,13 @@ def segment_demo(
         i1 = t.size - 1  # The span runs to the recording's end (the clock stops short of it).
     span_clock = clock[first + fa : first + fb + 1]
     guide = fit.guide(task, _TRACK_POINTS)
-    # The end trim reads distances of a millimetre or less: to a dense guide (512 vertices are
-    # 2-3 mm apart) and with the drift against the final fit (docs/refinement.md, step 8).
-    end_drift = (
-        span_drift
-        if cycles < _EDGE_MIN_CYCLES
-        else drift_along(
-            lspan,
-            guide,
-            (distance[fa : fb + 1] <= 2.0 * tight) & along[fa : fb + 1],
-            min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1),
-        )
-    )
-    j0, j1 = (
-        (i0, i1)
-        if cycles < _EDGE_MIN_CYCLES
-        else trim_raw_ends(x, t, span_clock, end_drift, fit.guide(task, _DENSE_POINTS), i0, i1)
-    )
+    j0, j1 = i0, i1
+    if cycles >= _EDGE_MIN_CYCLES:
+        # The end trim reads distances of a millimetre or less: to a dense guide (512 vertices
+        # are 2-3 mm apart), with the drift against the final fit (docs/refinement.md, step 8).
+        end_drift = drift_along(lspan, guide, followed, degree)
+        dense = fit.guide(task, _DENSE_POINTS)
+        j0, j1 = trim_raw_ends(x, t, span_clock, end_drift, dense, i0, i1)
     if (j0, j1) != (i0, i1):
         i0, i1 = j0, j1
         a = max(a, int(np.searchsorted(clock, t[i0])) - first)

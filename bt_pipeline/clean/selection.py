@@ -37,13 +37,12 @@ from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.execute import ExecutorConfig
 from bt_pipeline.score.utility import (
-    Normaliser,
     RawMetrics,
     ScoreConfig,
     TaskScores,
-    normalised_utility,
     raw_metrics,
     score_demos,
+    set_utilities,
 )
 
 
@@ -179,10 +178,7 @@ def rank_takes(
     """Ũ of each take over the set (Eqs. 7-8, as :func:`select_demos` scores) and whether each
     may be the best (the shape gate's eligibility): shapes (M,), (M,)."""
     config = config or ScoreConfig()
-    metrics = [t.ranked for t in takes]
-    normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
-    normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
-    utility = normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
+    utility, _ = set_utilities([t.ranked for t in takes], config)
     return utility, eligible(np.array([t.misfit for t in takes]))
 
 

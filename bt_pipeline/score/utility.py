@@ -365,9 +365,7 @@ def score_demos(
         metrics = [raw_metrics(d.positions, d.actions, d.theta_deg, config) for d in demos]
     elif len(metrics) != len(demos):
         raise ConfigError(f"{len(metrics)} sets of metrics for {len(demos)} demos")
-    normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
-    normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
-    utility = normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
+    utility, normaliser = set_utilities(metrics, config)
     order = np.argsort(-utility, kind="stable")  # stable: ties go to the lower index
     ranks = np.empty(len(demos), dtype=np.int64)
     ranks[order] = np.arange(1, len(demos) + 1)
@@ -384,6 +382,17 @@ def score_demos(
         for demo, m, u, r in zip(demos, metrics, utility, ranks, strict=True)
     )
     return TaskScores(task=tasks[0], scores=scores, best_index=int(order[0]), normaliser=normaliser)
+
+
+def set_utilities(
+    metrics: Sequence[RawMetrics], config: ScoreConfig
+) -> tuple[FloatArray, Normaliser]:
+    """Ũ of each demo of a set from its raw metrics (Eqs. 7-8, normalised over the set), and
+    the normaliser."""
+    normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
+    normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
+    utility = normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
+    return utility, normaliser
 
 
 def select_best(demos: Sequence[Demo], config: ScoreConfig | None = None) -> int:
