@@ -257,8 +257,12 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
             mark = "⊘"
         pref = "?" if math.isnan(track.theta_deg) else f"{track.theta_deg:.0f}°, {track.rho:.2f}"
         score = "–" if track.utility is None else f"{track.utility:.2f}"
+        unscored = ["no loop found"] if track.usable and track.utility is None else []
         note = ", ".join(
-            (["excluded"] if track.excluded else []) + list(track.flags) + list(track.warnings)
+            (["excluded"] if track.excluded else [])
+            + list(track.flags)
+            + list(track.warnings)
+            + unscored
         )
         who = markdown_text(track.demonstrator, 24)
         rows.append(

@@ -19,7 +19,7 @@ from bt_pipeline.data.moderation import exclude
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.exceptions import DemoError
 from bt_teleop.cleaning import cleaned_path
-from bt_teleop.library import load_library
+from bt_teleop.library import library_markdown, load_library
 from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.testing import reachable, shared_dir
 from bt_teleop.tracks import file_stamp, read_file_tracks
@@ -104,6 +104,8 @@ def test_scores_equal_scoring_the_usable_files_from_scratch(takes: Path) -> None
         assert track.utility == pytest.approx(score.utility, abs=1e-9)
     assert library.best is not None and library.best.file == scored[truth.best_index].file
     assert all(t.utility is None for t in library.raw if not t.usable)
+    shown = library_markdown(library, len(library.raw))
+    assert shown.count("no loop found") == len(usable) - len(scored)
     for track in usable:
         if track.utility is None:
             with pytest.raises(DemoError, match="does not move"):
