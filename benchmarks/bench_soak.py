@@ -341,7 +341,12 @@ def main() -> None:
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
         refusals = [Refusals(ui) for ui in uis]
         time.sleep(2.0)
-        sampler = Sampler(args.sample_every, lambda: session_heaps(uis), args.memory_log)
+        sampler = Sampler(
+            args.sample_every,
+            lambda: session_heaps(uis),
+            args.memory_log,
+            reader_pid=lambda: app.reader.pid if app.reader is not None else None,
+        )
         pauses = GcLog(maxlen=None)
         steal = StealSampler()
         cpu_start, app_cpu_start = tree_cpu_s(uis), process.cpu_times()

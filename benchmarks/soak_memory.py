@@ -40,7 +40,7 @@ import psutil
 
 from bt_teleop.native_memory import HeapInfo, heap_info
 
-KINDS = ("app", "forkserver", "session", "clean", "other")
+KINDS = ("app", "forkserver", "session", "reader", "clean", "other")
 FIELDS = (
     *("rss", "pss", "uss", "pss_heap", "pss_anon", "pss_file", "heap_in_use", "heap_free"),
     "heap_mmapped",
@@ -49,12 +49,16 @@ FIELDS = (
 MIB = 2**20
 
 
-def kind_of(process: psutil.Process, app_pid: int, session_pids: set[int]) -> str:
+def kind_of(
+    process: psutil.Process, app_pid: int, session_pids: set[int], reader_pid: int | None = None
+) -> str:
     """Which kind of the app's tree `process` is."""
     if process.pid == app_pid:
         return "app"
     if process.pid in session_pids:
         return "session"
+    if process.pid == reader_pid:  # the library's reader child (bt_teleop/reader_process.py)
+        return "reader"
     command = " ".join(process.cmdline())
     if "multiprocessing.forkserver" in command:
         return "forkserver"
@@ -137,11 +141,13 @@ class Sampler:
         every_s: float,
         session_heaps: Callable[[], list[tuple[int, HeapInfo | None]]] | None = None,
         log: Path | None = None,
+        reader_pid: Callable[[], int | None] | None = None,
     ) -> None:
         self.rows: list[tuple[float, ...]] = []
         self.by_kind: list[dict[str, dict[str, float]]] = []
         self._session_heaps = session_heaps
         self._log = log
+        self._reader_pid = reader_pid or (lambda: None)
         self._process = psutil.Process()
         self._t0 = time.monotonic()
         self._stop = threading.Event()
@@ -160,9 +166,10 @@ class Sampler:
         kinds: dict[str, dict[str, float]] = {
             kind: dict.fromkeys(("n", *FIELDS), 0.0) for kind in KINDS
         }
+        reader = self._reader_pid()
         for process in [self._process, *self._process.children(recursive=True)]:
             try:
-                kind = kind_of(process, self._process.pid, set(heaps) - {os.getpid()})
+                kind = kind_of(process, self._process.pid, set(heaps) - {os.getpid()}, reader)
                 full = process.memory_full_info()
                 mapped = smaps_pss(process.pid)
             except (psutil.Error, OSError):  # ended meanwhile (a clean job)

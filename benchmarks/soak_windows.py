@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-KINDS = ("app", "forkserver", "session", "other")
+KINDS = ("app", "forkserver", "session", "reader", "other")
 """The process kinds that stay (clean jobs come and go)."""
 COLUMNS = (
     "load",
@@ -37,7 +37,7 @@ def samples(path: Path) -> np.ndarray:
     for line in path.read_text().splitlines():
         d = json.loads(line)
         app = d["app"]
-        kept = sum(d[k]["pss_heap"] + d[k]["pss_anon"] for k in KINDS)
+        kept = sum(d[k]["pss_heap"] + d[k]["pss_anon"] for k in KINDS if k in d)
         rows.append(
             (
                 d["t"],

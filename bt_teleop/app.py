@@ -16,10 +16,11 @@
                                 incomplete (or discarded: save_incomplete=False)
       shared by the tabs: CleanRunner (one clean job at a time, in a process),
                           RerunHub (live viewer / .rrd files / off),
-                          a one-thread executor for reading and scoring a task's demos
+                          a one-thread executor for loading a task's library, whose files
+                          are read and scored in a reader child (bt_teleop/reader_process.py)
 
 Stopping closes every tab the same way a closed tab is closed, then stops viser, the clean job,
-Rerun's gRPC server and the executor.
+Rerun's gRPC server, the executor and the reader child.
 """
 
 from __future__ import annotations
@@ -42,8 +43,10 @@ from bt_teleop.cleaning import CleanRunner
 from bt_teleop.connections import ConnectionWatch
 from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.native_memory import HeapTrimmer
+from bt_teleop.reader_process import ReaderProcess
 from bt_teleop.rerun_live import RerunHub
 from bt_teleop.session_process import start_forkserver
+from bt_teleop.tracks import read_file_tracks
 from bt_teleop.ui import ClientUI
 from bt_teleop.ui_context import TaskVersions, UiContext
 
@@ -108,6 +111,8 @@ class TeleopApp:
             on_finish=lambda job: self.versions.bump(job.task),
         )
         self._background = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-read")
+        # Files are read and scored in a child when the sessions are (bt_teleop/reader_process.py)
+        self.reader = ReaderProcess() if options.session_processes else None
         self.server = viser.ViserServer(
             host=options.host, port=options.port, label="bt teleop", verbose=False
         )
@@ -117,7 +122,11 @@ class TeleopApp:
             cleaner=self.cleaner,
             rerun=self.rerun,
             background=self._background,
-            libraries=LibraryLoader(options.recordings, self._background),
+            libraries=LibraryLoader(
+                options.recordings,
+                self._background,
+                read_file=self.reader.read if self.reader is not None else read_file_tracks,
+            ),
             versions=self.versions,
             session_config=options.session,
             session_processes=options.session_processes,
@@ -192,6 +201,8 @@ class TeleopApp:
         self.cleaner.close()
         self.context.libraries.close()  # a load waiting its turn runs now, not later
         self._background.shutdown(wait=True)
+        if self.reader is not None:
+            self.reader.close()
         self.rerun.close()
 
     def _on_connect(self, client: viser.ClientHandle) -> None:

@@ -29,7 +29,11 @@ for the demos whose Ũ it moved, not for every take of the task (:func:`load_lib
 
 The cache holds, per file, what the tabs' libraries list (:class:`~bt_teleop.tracks.FileTracks`:
 names, flags, durations, ranking inputs, the file's identity; about 1 KiB a take), never its
-samples; the entries of files that are gone are dropped at each load.
+samples, or the error its read gave (a file that cannot be read, or whose read timed out, is not
+read again until it changes); the entries of files that are gone are dropped at each load.
+
+The app reads files in a process of its own (:class:`bt_teleop.reader_process.ReaderProcess`,
+the loader's `read_file`), so what a read allocates never stays in the app's heap.
 """
 
 from __future__ import annotations
@@ -41,9 +45,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from bt_pipeline.exceptions import BtError
 from bt_teleop.cleaning import cleaned_path, task_dir
 from bt_teleop.library import TaskLibrary, load_library
-from bt_teleop.tracks import FileTracks, TrackKind, file_stamp, read_file_tracks
+from bt_teleop.reader_process import ReaderLost
+from bt_teleop.tracks import FileStamp, FileTracks, TrackKind, file_stamp, read_file_tracks
 
 __all__ = ["LibraryLoader"]
 
@@ -58,6 +64,7 @@ class LibraryLoader:
         recordings_dir: Path,
         executor: concurrent.futures.Executor,
         *,
+        read_file: Callable[[Path, TrackKind], FileTracks] = read_file_tracks,
         min_interval_s: float = 1.0,
         duty: float = 3.0,
         clock: Callable[[], float] = time.monotonic,
@@ -68,6 +75,8 @@ class LibraryLoader:
         Args:
             recordings_dir: Root folder of the recordings.
             executor: Where loads run.
+            read_file: Reads one file's tracks (:func:`~bt_teleop.tracks.read_file_tracks`, or
+                a :class:`~bt_teleop.reader_process.ReaderProcess`'s ``read``).
             min_interval_s: Least time between the end of a task's load and the next [s].
             duty: The next load also waits `duty` × the last load's duration.
             clock: Monotonic time [s] (tests).
@@ -81,7 +90,9 @@ class LibraryLoader:
         self._next_start: dict[str, float] = {}
         self._lock = threading.Lock()
         self._queued: dict[str, tuple[object, concurrent.futures.Future[TaskLibrary]]] = {}
+        self._read_file = read_file
         self._files: dict[Path, FileTracks] = {}
+        self._failed: dict[Path, tuple[FileStamp, BtError]] = {}
         self._last: dict[str, TaskLibrary] = {}
         """Each task's last library: its unchanged tracks are reused by the next load."""
         self.loads = 0
@@ -134,25 +145,34 @@ class LibraryLoader:
             self._next_start[task] = ended + pause
             folder = task_dir(self.recordings_dir, library.task)
             cleaned = cleaned_path(self.recordings_dir, library.task)
-            for path in [p for p in self._files if p.parent == folder or p == cleaned]:
-                if path not in seen:  # deleted (or no longer listed) since the last load
-                    del self._files[path]
+            for cache in (self._files, self._failed):
+                for path in [p for p in cache if p.parent == folder or p == cleaned]:
+                    if path not in seen:  # deleted (or no longer listed) since the last load
+                        del cache[path]
         return library
 
     def _read(self, path: Path, kind: TrackKind) -> FileTracks:
         """`path`'s tracks, from the cache when the file did not change.
 
         Raises:
-            RecordingError: The file cannot be read (not cached: a file being replaced may be
-                readable next time).
+            BtError: The file cannot be read (again, when it did not change since).
         """
         stamp = file_stamp(path)
         with self._lock:
-            cached = self._files.get(path)
+            cached, failed = self._files.get(path), self._failed.get(path)
         if cached is not None and cached.stamp == stamp:
             return cached
-        tracks = read_file_tracks(path, kind)
+        if failed is not None and failed[0] == stamp:
+            raise failed[1]
+        try:
+            tracks = self._read_file(path, kind)
+        except BtError as exc:
+            if not isinstance(exc, ReaderLost):  # the same bytes give the same error
+                with self._lock:
+                    self._failed[path] = (stamp, exc)
+            raise
         with self._lock:
+            self._failed.pop(path, None)
             self._files[path] = tracks
             self.files_read += 1
         return tracks

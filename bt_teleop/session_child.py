@@ -45,7 +45,14 @@ from bt_teleop.rerun_proxy import libc
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.tick_stats import TimedSession, raise_priority, use_realtime
 
-__all__ = ["CALLS", "ONE_WAY", "PROCESS_CALLS", "portable_error", "serve_session"]
+__all__ = [
+    "CALLS",
+    "ONE_WAY",
+    "PROCESS_CALLS",
+    "die_with_parent",
+    "portable_error",
+    "serve_session",
+]
 
 Reply = tuple[int | None, bool, Any]
 """(the request's seq, or None for the path saved at EOF or SIGTERM; ok; value or error)."""
@@ -88,7 +95,7 @@ def serve_session(
     gc.freeze()  # what the forkserver imported: never traversed here, so its pages stay shared
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the app closes us itself
     signal.signal(signal.SIGTERM, _Term.on_sigterm)
-    _die_with_parent()
+    die_with_parent()
     # The thread serving the app's requests takes the GIL the control loop needs: it runs at the
     # loop's raised priority too (the loop's thread, started from it, inherits it). At a lower
     # one, preempted while holding the GIL, it stalled the loop (a priority inversion).
@@ -197,7 +204,7 @@ class _Term:
             cls.waiting = False
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """Get SIGTERM when the forkserver (our parent; it exits with the app) dies (Linux)."""
     if not sys.platform.startswith("linux"):
         return

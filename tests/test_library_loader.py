@@ -13,6 +13,7 @@ from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.synth import make_demo_set
 from bt_teleop.library import load_library
 from bt_teleop.library_loader import LibraryLoader
+from bt_teleop.tracks import read_file_tracks
 
 
 def _write(root: Path, name: str, seed: int) -> Path:
@@ -72,6 +73,26 @@ def test_an_unreadable_file_is_skipped_and_read_again_once_fixed(tmp_path) -> No
         assert len(loader.request("wiping").result(60).raw) == 1
         _write(tmp_path, "bad.hdf5", 1)
         assert len(loader.request("wiping").result(60).raw) == 2
+
+
+def test_an_unreadable_file_is_not_read_again_until_it_changes(tmp_path) -> None:
+    _write(tmp_path, "good.hdf5", 0)
+    bad = tmp_path / "wiping" / "bad.hdf5"
+    bad.write_bytes(b"not hdf5")
+    reads: list[str] = []
+
+    def read_file(path: Path, kind):
+        reads.append(path.name)
+        return read_file_tracks(path, kind)
+
+    with concurrent.futures.ThreadPoolExecutor(1) as executor:
+        loader = LibraryLoader(tmp_path, executor, read_file=read_file, min_interval_s=0.0)
+        for _ in range(3):
+            assert len(loader.request("wiping").result(60).raw) == 1
+        assert sorted(reads) == ["bad.hdf5", "good.hdf5"]  # once each, not at every load
+        bad.unlink()
+        loader.request("wiping").result(60)
+        assert bad not in loader._failed  # gone: forgotten
 
 
 def test_loads_of_a_task_are_spaced_by_their_own_duration(tmp_path, monkeypatch) -> None:

@@ -189,6 +189,10 @@ def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
     listed = ui.controls.library_text.content
     assert "10°, 1.20" in listed and "★" in listed
     assert ui.controls.replay_input.options == (ui.library.raw[0].key,)  # type: ignore[union-attr]
+    assert app.reader is not None and app.reader.pid is not None  # read and scored in the child
+    pid = app.reader.pid
+    app.stop()
+    assert app.reader.pid is None and not Path(f"/proc/{pid}").exists()
 
 
 # -- clean and replay ---------------------------------------------------------------------------
