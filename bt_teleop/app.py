@@ -113,6 +113,8 @@ class TeleopApp:
         self._background = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-read")
         # Files are read and scored in a child when the sessions are (bt_teleop/reader_process.py)
         self.reader = ReaderProcess() if options.session_processes else None
+        if self.reader is not None:  # its imports run while the first tab connects
+            self._background.submit(self.reader.start)
         self.server = viser.ViserServer(
             host=options.host, port=options.port, label="bt teleop", verbose=False
         )

@@ -45,7 +45,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from bt_pipeline.exceptions import BtError
+from bt_pipeline.exceptions import BtError, RecordingError
 from bt_teleop.cleaning import cleaned_path, task_dir
 from bt_teleop.library import TaskLibrary, load_library
 from bt_teleop.reader_process import ReaderLost
@@ -92,7 +92,8 @@ class LibraryLoader:
         self._queued: dict[str, tuple[object, concurrent.futures.Future[TaskLibrary]]] = {}
         self._read_file = read_file
         self._files: dict[Path, FileTracks] = {}
-        self._failed: dict[Path, tuple[FileStamp, BtError]] = {}
+        self._failed: dict[Path, tuple[FileStamp, str]] = {}
+        """Files whose read failed: the version read and the error's message."""
         self._last: dict[str, TaskLibrary] = {}
         """Each task's last library: its unchanged tracks are reused by the next load."""
         self.loads = 0
@@ -163,13 +164,13 @@ class LibraryLoader:
         if cached is not None and cached.stamp == stamp:
             return cached
         if failed is not None and failed[0] == stamp:
-            raise failed[1]
+            raise RecordingError(failed[1])  # a new error: one raised again keeps every traceback
         try:
             tracks = self._read_file(path, kind)
         except BtError as exc:
             if not isinstance(exc, ReaderLost):  # the same bytes give the same error
                 with self._lock:
-                    self._failed[path] = (stamp, exc)
+                    self._failed[path] = (stamp, str(exc))
             raise
         with self._lock:
             self._failed.pop(path, None)

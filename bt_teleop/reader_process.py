@@ -14,6 +14,11 @@ went"). Here they happen in a child forked from the session forkserver::
         the child died: ReaderLost naming the file; the next read starts a new child
         after max_reads reads the child exits and the next read starts a new one
 
+The child runs at ``nice`` +10, as clean jobs do, and the app starts it as it starts (its imports
+then run while the first tab connects). At nice 0 and started by the first save, a 10-minute
+8-tab soak on the idle machine had 30 ticks more than 50 ms late, all in the first two minutes,
+all during a library load, 28 of them waiting for a CPU (docs/security.md).
+
 What crosses the pipe is what the library keeps of a file (names, flags, durations, ranking
 inputs: about 1 KiB a take), never its samples. A file whose read timed out is not read again
 until it changes (:class:`bt_teleop.library_loader.LibraryLoader` caches the failure; not a
@@ -22,7 +27,9 @@ until it changes (:class:`bt_teleop.library_loader.LibraryLoader` caches the fai
 
 from __future__ import annotations
 
+import ctypes
 import gc
+import importlib
 import logging
 import multiprocessing.connection
 import signal
@@ -32,14 +39,28 @@ from pathlib import Path
 from typing import Any
 
 from bt_pipeline.exceptions import RecordingError
+from bt_teleop.cleaning import CLEAN_NICE, lower_priority
 from bt_teleop.forkserver import start_child
 from bt_teleop.native_memory import release_free_memory
+from bt_teleop.rerun_proxy import libc
 from bt_teleop.session_child import die_with_parent, portable_error
 from bt_teleop.tracks import FileTracks, TrackKind, read_file_tracks
 
-__all__ = ["ReaderLost", "ReaderProcess", "serve_reads"]
+__all__ = ["READER_NAME", "READER_NICE", "ReaderLost", "ReaderProcess", "serve_reads"]
 
 LOGGER = logging.getLogger("bt.teleop")
+_READ_IMPORTS = (
+    "bt_pipeline.clean.selection",
+    "bt_pipeline.data.demo",
+    "bt_pipeline.data.recording",
+    "bt_teleop.cleaned_listing",
+)
+"""What :func:`~bt_teleop.tracks.read_file_tracks` imports when first called."""
+READER_NAME = "bt-reader"
+"""The child's process name (``comm``, as ps and psutil show it)."""
+_PR_SET_NAME = 15  # linux/prctl.h
+READER_NICE = CLEAN_NICE
+"""The reader child runs at ``nice`` +10, as clean jobs do: it is background work."""
 
 
 class ReaderLost(RecordingError):
@@ -101,6 +122,11 @@ class ReaderProcess:
         tracks: FileTracks = value
         return tracks
 
+    def start(self) -> None:
+        """Start the child now (it imports the scoring code at once), not at the first read."""
+        with self._lock:
+            self._child()
+
     def close(self) -> None:
         """End the child (a later read starts a new one)."""
         with self._lock:
@@ -142,6 +168,11 @@ def serve_reads(conn: multiprocessing.connection.Connection, log_level: int) -> 
     gc.freeze()  # what the forkserver imported stays shared
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the app closes us itself
     die_with_parent()
+    if sys.platform.startswith("linux"):  # its name in ps and top (comm): not a session child
+        libc().prctl(_PR_SET_NAME, ctypes.c_char_p(READER_NAME.encode()), 0, 0, 0)
+    lower_priority(READER_NICE)  # the control loops first: 30 late ticks at nice 0 (module doc)
+    for module in _READ_IMPORTS:  # now, not during the first read
+        importlib.import_module(module)
     while True:
         try:
             path, kind = conn.recv()

@@ -8,9 +8,11 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.synth import make_demo_set
+from bt_pipeline.exceptions import RecordingError
 from bt_teleop.library import load_library
 from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.tracks import read_file_tracks
@@ -90,6 +92,9 @@ def test_an_unreadable_file_is_not_read_again_until_it_changes(tmp_path) -> None
         for _ in range(3):
             assert len(loader.request("wiping").result(60).raw) == 1
         assert sorted(reads) == ["bad.hdf5", "good.hdf5"]  # once each, not at every load
+        with pytest.raises(RecordingError, match="bad"):
+            loader._read(bad, "raw")  # the same message, from the cache
+        assert len(reads) == 2
         bad.unlink()
         loader.request("wiping").result(60)
         assert bad not in loader._failed  # gone: forgotten

@@ -16,7 +16,8 @@ import pytest
 from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.exceptions import RecordingError
-from bt_teleop.reader_process import ReaderLost, ReaderProcess
+from bt_teleop.reader_process import READER_NAME, READER_NICE, ReaderLost, ReaderProcess
+from bt_teleop.testing import wait_until
 from bt_teleop.tracks import read_file_tracks
 
 
@@ -99,5 +100,19 @@ def test_a_child_that_dies_mid_read_is_reported_and_replaced(takes) -> None:
         assert "take_2.hdf5" in str(errors[0]) and "exit code" in str(errors[0])
         assert reader.read(takes[1], "raw").tracks
         assert reader.pid not in (None, pid)
+    finally:
+        reader.close()
+
+
+def test_the_child_starts_named_and_below_the_control_loops_priority() -> None:
+    import psutil
+
+    reader = ReaderProcess()
+    try:
+        reader.start()
+        assert reader.pid is not None
+        child = psutil.Process(reader.pid)
+        wait_until(lambda: child.nice() == min(19, os.nice(0) + READER_NICE), 30.0, "nice")
+        assert child.name() == READER_NAME
     finally:
         reader.close()

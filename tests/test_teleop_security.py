@@ -24,6 +24,7 @@ from bt_pipeline.testing.sockets import is_loopback_address, listening
 from bt_teleop import app as app_module
 from bt_teleop.app import AppOptions, is_loopback, start_app
 from bt_teleop.cleaning import CleanRunner
+from bt_teleop.reader_process import READER_NAME
 from bt_teleop.recorder import DemoInfo
 from bt_teleop.script import run_script
 from bt_teleop.testing import FakeTab, wait_until
@@ -213,6 +214,7 @@ def test_ctrl_c_of_bt_teleop_ends_every_session_process(tmp_path) -> None:
         app = psutil.Process(process.pid)
         tabs = [FakeTab(port) for _ in range(2)]
         wait_until(lambda: len(_session_processes(app)) == 2, 60.0, "2 session processes")
+        wait_until(lambda: len(_forked(app)) == 3, 60.0, "the library's reader process")
         children = app.children(recursive=True)
         os.killpg(process.pid, signal.SIGINT)
         assert process.wait(60) == 0
@@ -226,7 +228,12 @@ def test_ctrl_c_of_bt_teleop_ends_every_session_process(tmp_path) -> None:
 
 
 def _session_processes(app: psutil.Process) -> list[psutil.Process]:
-    """The app's session processes: the forkserver's children."""
+    """The app's session processes: the forkserver's children but the library's reader."""
+    return [child for child in _forked(app) if child.name() != READER_NAME]
+
+
+def _forked(app: psutil.Process) -> list[psutil.Process]:
+    """Every child of the app's forkserver (sessions and the reader)."""
     return [
         child
         for server in app.children()
