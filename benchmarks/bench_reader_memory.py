@@ -33,20 +33,9 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from bench_child_memory import KIB, smaps_rollup  # this folder is on sys.path
 
-KIB = 1024.0
 ARMS = ("in-process", "reader")
-
-
-def smaps_rollup(pid: int) -> dict[str, float]:
-    """``/proc/<pid>/smaps_rollup`` [bytes] by field (Rss, Pss_Anon, ...)."""
-    out: dict[str, float] = {}
-    with open(f"/proc/{pid}/smaps_rollup") as lines:
-        for line in lines:
-            parts = line.split()
-            if len(parts) == 3 and parts[0].endswith(":") and parts[2] == "kB":
-                out[parts[0][:-1]] = KIB * int(parts[1])
-    return out
 
 
 def memory(pid: int) -> list[float]:
