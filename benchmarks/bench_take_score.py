@@ -15,10 +15,9 @@ runs per demo, then the median over the demos, and the ratio new / old::
 from __future__ import annotations
 
 import argparse
-import time
-from collections.abc import Callable
 
 import numpy as np
+from bench_clean_overheads import median_s  # this folder is on sys.path
 
 from bt_pipeline.clean.selection import take_score
 from bt_pipeline.data.demo import Demo, demos_from_recording, load_demos
@@ -26,15 +25,6 @@ from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.exceptions import DemoError
 from bt_pipeline.score.utility import raw_metrics
 from bt_teleop.testing import shared_dir
-
-
-def _median_s(call: Callable[[], object], runs: int) -> float:
-    times = []
-    for _ in range(runs):
-        start = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def _demos() -> dict[str, list[Demo]]:
@@ -63,9 +53,9 @@ def main() -> None:
     print("| demos | n | whole take: raw_metrics [ms] | periodic part: take_score [ms] | ratio |")
     print("|---|---|---|---|---|")
     for label, demos in _demos().items():
-        old = [_median_s(lambda d=d: raw_metrics(d.positions, d.actions, d.theta_deg), args.runs)
+        old = [median_s(lambda d=d: raw_metrics(d.positions, d.actions, d.theta_deg), args.runs)
                for d in demos]  # fmt: skip
-        new = [_median_s(lambda d=d: take_score(d), args.runs) for d in demos]
+        new = [median_s(lambda d=d: take_score(d), args.runs) for d in demos]
         old_ms, new_ms = 1e3 * float(np.median(old)), 1e3 * float(np.median(new))
         print(f"| {label} | {len(demos)} | {old_ms:.1f} | {new_ms:.1f} | {new_ms / old_ms:.1f} |")
 

@@ -256,7 +256,8 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
         if track.excluded:
             mark = "⊘"
         pref = "?" if math.isnan(track.theta_deg) else f"{track.theta_deg:.0f}°, {track.rho:.2f}"
-        score = "–" if track.utility is None else f"{track.utility:.2f}"
+        # An en space before Ũ: the page draws the table's cells unpadded ("3.0 s0.50" without it)
+        score = "\u2002" + ("–" if track.utility is None else f"{track.utility:.2f}")
         unscored = ["no loop found"] if track.usable and track.utility is None else []
         note = ", ".join(
             (["excluded"] if track.excluded else [])
