@@ -2,10 +2,11 @@
 
 Each of the 8 tabs is a real viser websocket client (:class:`bt_teleop.testing.FakeTab`) that
 reads everything the server sends; a driver thread per tab does what a person does, through the
-app's own handles: drags the target along a circle (``session.set_target``, what the gizmo
-callback calls) at 30 Hz, presses Record, records a take of a few seconds, presses Stop & save,
-and again; every ``--clean-every`` seconds one tab presses Clean (the cleaner then competes for
-the CPU, as in real use).
+app's own handles: drags the target along the task's guide, a loop every 4 s
+(``session.set_target``, what the gizmo callback calls) at 30 Hz, presses Record, records a
+take of 4-8 s (1-2 loops: it passes the take checks, so the library scores it and Clean cleans
+it), presses Stop & save, and again; every ``--clean-every`` seconds one tab presses Clean (the
+cleaner then competes for the CPU, as in real use).
 
 Reported:
 
@@ -43,10 +44,12 @@ Reported:
   time for a 2-4 s take: give longer takes (``--take-s 15``) and use such a run to find what
   grows, not for the stall or RSS numbers.
 
-The fake tabs and their drivers run in the benchmark's (the app's) process, as threads: real
-browsers are not in the server's interpreter, so they add load to the app's process that real
-use does not (it is the process the session processes left; their control loops no longer
-share its GIL).
+The fake tabs (their websocket clients) run in a process of their own (``soak_tabs.py``), as
+real browsers do; ``--tabs-in-app`` runs them as threads of the app's process, as the soak did
+before 2026-12-03 (their receive buffers then counted as the app's memory). Their drivers run in
+the benchmark's (the app's) process, as threads: they act through the app's handles, as the
+gizmo's callbacks do, and add load to the app's process that real use does not (it is the
+process the session processes left; their control loops no longer share its GIL).
 
 Aims (issue 10): no stall > 50 ms, memory flat, 0 lost takes. The app trims its C heap every
 ``--trim-heap-every-s`` (the app's default, 60 s; ``inf``: never, the code before that change).
@@ -74,6 +77,7 @@ import psutil
 from soak_late import AppEvents, StealSampler, write_log
 from soak_late import report as late_report
 from soak_memory import Sampler
+from soak_tabs import TabsProcess
 
 import bt_teleop.library
 import bt_teleop.library_loader
@@ -84,7 +88,14 @@ from bt_teleop.cleaning import task_dir
 from bt_teleop.late_ticks import GcLog
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.session_process import SessionProcess
-from bt_teleop.testing import app_factory, circle_uv, reachable, tab_factory, wait_until
+from bt_teleop.testing import (
+    app_factory,
+    circle_uv,
+    guide_uv,
+    reachable,
+    tab_factory,
+    wait_until,
+)
 from bt_teleop.tick_stats import TickReport
 from bt_teleop.ui import ClientUI
 
@@ -215,9 +226,14 @@ def drive(
     counts: dict[str, int],
     take_s: float,
     discard: bool = False,
+    path: str = "guide",
 ) -> None:
-    """Record takes of `take_s`-2 `take_s` seconds (wall time), the target on a circle, until
-    `stop`; save each (or, with `discard`, press Discard instead)."""
+    """Record takes of `take_s`-2 `take_s` seconds (wall time) until `stop`; save each (or, with
+    `discard`, press Discard instead). The target follows the guide (`path` "guide": the takes
+    pass the take checks, so the library scores each and Clean cleans them, as a careful
+    person's) or a circle ("circle": every take flagged incomplete, the soak before 2026-12-03).
+    """
+    trace = guide_uv if path == "guide" else circle_uv
     rng = np.random.default_rng(seed)
     plane = ui.session.scene.plane
     t0 = time.perf_counter()
@@ -226,7 +242,7 @@ def drive(
         ui.wait_idle()
         end = time.perf_counter() + float(rng.uniform(take_s, 2.0 * take_s))
         while time.perf_counter() < end and not stop.is_set():
-            ui.session.set_target(plane.to_world(circle_uv(time.perf_counter() - t0)))
+            ui.session.set_target(plane.to_world(trace(time.perf_counter() - t0)))
             time.sleep(1.0 / 30.0)
         if stop.is_set():
             break
@@ -266,7 +282,17 @@ def main() -> None:
         "--tracemalloc", type=int, default=0, help="frames to trace (0: off); see the docstring"
     )
     parser.add_argument(
-        "--take-s", type=float, default=2.0, help="takes last U(take_s, 2 take_s) s of wall time"
+        "--take-s",
+        type=float,
+        default=4.0,
+        help="takes last U(take_s, 2 take_s) s of wall time (2.0 before 2026-12-03)",
+    )
+    parser.add_argument(
+        "--path",
+        choices=("guide", "circle"),
+        default="guide",
+        help="what the target follows: the guide, one loop in 4 s (takes pass the checks), or a "
+        "circle (every take flagged incomplete: the soak before 2026-12-03)",
     )
     parser.add_argument(
         "--discard",
@@ -311,6 +337,12 @@ def main() -> None:
         help="run the control loops under SCHED_RR at this priority (0: off)",
     )
     parser.add_argument("--late-log", type=Path, help="append each late tick as a JSON line")
+    parser.add_argument(
+        "--tabs-in-app",
+        action="store_true",
+        help="the tabs' websocket clients as threads of the app's process (as before "
+        "2026-12-03; by default they run in a process of their own, soak_tabs.py)",
+    )
     args = parser.parse_args()
     process = psutil.Process()
     loads, events = Timed(), AppEvents()
@@ -337,7 +369,10 @@ def main() -> None:
             ),
         )
         app.heap_trimmer._trim = events.wrap("heap trim", app.heap_trimmer._trim)
-        tabs = [open_tab(app, decode=False) for _ in range(args.sessions)]
+        tabs = [
+            open_tab(app, decode=False) for _ in range(args.sessions if args.tabs_in_app else 0)
+        ]
+        tab_process = None if args.tabs_in_app else TabsProcess(app.port, args.sessions)
         uis = list(app.wait_for_sessions(args.sessions, 120.0).values())
         refusals = [Refusals(ui) for ui in uis]
         time.sleep(2.0)
@@ -355,7 +390,9 @@ def main() -> None:
         counts = [{"intended": 0} for _ in uis]
         drivers = [
             threading.Thread(
-                target=drive, args=(ui, stop, k, counts[k], args.take_s, args.discard), daemon=True
+                target=drive,
+                args=(ui, stop, k, counts[k], args.take_s, args.discard, args.path),
+                daemon=True,
             )
             for k, ui in enumerate(uis)
         ]
@@ -403,6 +440,8 @@ def main() -> None:
         saved_ui = sum(ui.takes.saved_count for ui in uis)
         files = len(list((Path(tmp) / "rec" / "wiping").glob("*.hdf5")))
         held = held_by_loader(app, uis)
+        # Closed after the takes are counted: a tab closed mid-take saves it (flagged)
+        received += tab_process.close() if tab_process is not None else 0
     period = ticks.period_s
     intended = sum(c["intended"] for c in counts)
     where = "in the app's process" if args.in_process else "one child process per session"

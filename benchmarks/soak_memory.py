@@ -41,6 +41,7 @@ import psutil
 from bt_teleop.native_memory import HeapInfo, heap_info
 
 KINDS = ("app", "forkserver", "session", "reader", "clean", "other")
+"""Kinds of the app's process tree (the benchmark's tab process, ``soak_tabs.py``, is not one)."""
 FIELDS = (
     *("rss", "pss", "uss", "pss_heap", "pss_anon", "pss_file", "heap_in_use", "heap_free"),
     "heap_mmapped",
@@ -60,6 +61,8 @@ def kind_of(
     if process.pid == reader_pid:  # the library's reader child (bt_teleop/reader_process.py)
         return "reader"
     command = " ".join(process.cmdline())
+    if "soak_tabs.py" in command:  # the benchmark's browsers, not the app
+        return "tabs"
     if "multiprocessing.forkserver" in command:
         return "forkserver"
     if "multiprocessing.spawn" in command:
@@ -170,6 +173,8 @@ class Sampler:
         for process in [self._process, *self._process.children(recursive=True)]:
             try:
                 kind = kind_of(process, self._process.pid, set(heaps) - {os.getpid()}, reader)
+                if kind not in kinds:  # not the app's
+                    continue
                 full = process.memory_full_info()
                 mapped = smaps_pss(process.pid)
             except (psutil.Error, OSError):  # ended meanwhile (a clean job)

@@ -19,6 +19,7 @@ Playwright is imported only by :func:`chromium_page` (a dev dependency; never
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time
@@ -51,6 +52,7 @@ __all__ = [
     "circle_uv",
     "decode_frame",
     "guide_script",
+    "guide_uv",
     "reachable",
     "shared_dir",
     "synthetic_task_files",
@@ -251,6 +253,25 @@ def shared_dir() -> Path:
 
     override = os.environ.get("BT_SHARED_DIR")
     return Path(override) if override else Path(__file__).resolve().parents[2] / "shared"
+
+
+def guide_uv(t_s: float, task: str = "wiping", period_s: float = 4.0) -> FloatArray:
+    """The task's guide (its canonical loop at θ = 0, ρ = 1, centred on the plane origin, as
+    the page draws it) traced at uniform phase, one loop every `period_s`, at time `t_s` [s]:
+    (u, v), shape (2,) [m]. Takes that follow it pass the take checks, as a careful person's."""
+    loop = _guide_loop(task)
+    position = (t_s / period_s % 1.0) * len(loop)
+    k = int(position) % len(loop)
+    w = position - int(position)
+    return (1.0 - w) * loop[k] + w * loop[(k + 1) % len(loop)]
+
+
+@functools.cache
+def _guide_loop(task: str) -> FloatArray:
+    from bt_pipeline.data.shapes import canonical_loop
+    from bt_pipeline.data.tasks import parse_task
+
+    return canonical_loop(parse_task(task), 360)
 
 
 def circle_uv(t_s: float, radius_m: float = 0.06, period_s: float = 4.0) -> FloatArray:

@@ -121,7 +121,7 @@ class ReplayTrack:
         return not self.flags and not self.excluded
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)  # one per take file in the app: no __dict__
 class FileTracks:
     """What the app keeps of one recording file (no samples)."""
 

@@ -160,3 +160,18 @@ def test_loop_share_against_the_guide_itself() -> None:
 def test_bad_thresholds_are_refused_by_name(bad: dict) -> None:
     with pytest.raises(ConfigError, match=next(iter(bad))):
         TakeCheckConfig(**bad)
+
+
+def test_the_soak_drivers_guide_trace_passes_the_checks_and_a_circle_does_not() -> None:
+    """bench_soak.py's tabs follow `guide_uv` so that their takes are scored and cleaned: a
+    take of 1.2 loops of it passes every check, and the circle the soak drew before does not."""
+    from bt_teleop.testing import circle_uv, guide_uv
+
+    plane = default_plane("wiping")
+    times = np.arange(0.0, 4.8, 1.0 / 50.0)
+    guide = np.stack([plane.to_world(guide_uv(t)) for t in times])
+    circle = np.stack([plane.to_world(circle_uv(t)) for t in times])
+    kwargs = {"task": "wiping", "plane": plane, "theta_deg": 0.0, "rho": 1.0}
+    assert np.allclose(guide_uv(0.0), guide_uv(4.0))  # one loop every 4 s
+    assert check_take(guide, times, **kwargs).flags == ()
+    assert "incomplete" in check_take(circle, times, **kwargs).flags

@@ -146,7 +146,7 @@ def select_demos(
     return Selection(spans, segments, preferences, plain, scores, tuple(notes), seconds)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)  # one per take in the app's library: no __dict__
 class TakeScore:
     """What one demo brings to its task's ranking, from the demo alone (the app's library)."""
 

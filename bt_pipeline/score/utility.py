@@ -131,7 +131,7 @@ def normalised_utility(
     return (1.0 - b) * i_norm + b * ((1.0 - l_norm) @ w)  # Eq. (8)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)  # one per take in the app's library: no __dict__
 class RawMetrics:
     """Unnormalised metrics of one demo."""
 
