@@ -17,10 +17,13 @@ loops. :class:`LibraryLoader` makes that cost one incremental load per change::
         the task's demos (Eqs. 7-8) and the shape gate are redone
 
 Loads of a task are also spaced out: the next one starts no sooner than ``max(min_interval_s,
-duty × the last load's time)`` after the last one ended, so with a thousand takes on a loaded
-machine (a load then takes seconds of wall time) the reader thread still leaves the CPU and the
-GIL to the control loops most of the time; the table then lags the saves by that much (the save
-notice itself is immediate).
+duty × the CPU time the last load took in the app)`` after the last one ended, so with thousands
+of takes on a loaded machine the loader thread still leaves the app's CPU and GIL to the tabs
+most of the time; the table then lags the saves by that much (the save notice itself is
+immediate). The time a load waits for the reader child is not counted: spacing by wall time (as
+before 2026-12-03) made a load slowed by a Clean job (the child and the job share the CPU at
+nice +10) push the next one back three times as long, and a 30-minute soak's table lagged its
+saves by up to 85 s.
 
 Each load also reuses the last library's track objects for the demos that did not change
 (same file version, same Ũ, same exclusion): a save then allocates objects for its own take and
@@ -69,6 +72,7 @@ class LibraryLoader:
         duty: float = 3.0,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], object] | None = None,
+        cpu_clock: Callable[[], float] = time.thread_time,
     ) -> None:
         """Load `recordings_dir`'s tasks on `executor` (the app's one reader thread).
 
@@ -78,15 +82,18 @@ class LibraryLoader:
             read_file: Reads one file's tracks (:func:`~bt_teleop.tracks.read_file_tracks`, or
                 a :class:`~bt_teleop.reader_process.ReaderProcess`'s ``read``).
             min_interval_s: Least time between the end of a task's load and the next [s].
-            duty: The next load also waits `duty` × the last load's duration.
+            duty: The next load also waits `duty` × the CPU time the last load took.
             clock: Monotonic time [s] (tests).
             sleep: Waits [s] (tests); by default a wait that :meth:`close` cuts short.
+            cpu_clock: The loading thread's CPU time [s] (tests): what a load costs the app,
+                without its waits for the reader child.
         """
         self.recordings_dir = Path(recordings_dir)
         self._executor = executor
         self.min_interval_s, self.duty = min_interval_s, duty
         self._closed = threading.Event()
         self._clock, self._sleep = clock, sleep or self._closed.wait
+        self._cpu_clock = cpu_clock
         self._next_start: dict[str, float] = {}
         self._lock = threading.Lock()
         self._queued: dict[str, tuple[object, concurrent.futures.Future[TaskLibrary]]] = {}
@@ -128,7 +135,7 @@ class LibraryLoader:
         with self._lock:  # reading from now on: later requests need a newer load
             if self._queued.get(task, (None,))[0] is token:
                 del self._queued[task]
-        started = self._clock()
+        started = self._cpu_clock()
         seen: set[Path] = set()
 
         def read(path: Path, kind: TrackKind) -> FileTracks:
@@ -138,12 +145,12 @@ class LibraryLoader:
         with self._lock:
             previous = self._last.get(task)
         library = load_library(self.recordings_dir, task, read=read, previous=previous)
-        ended = self._clock()
+        busy = self._cpu_clock() - started
         with self._lock:
             self._last[task] = library
             self.loads += 1
-            pause = max(self.min_interval_s, self.duty * (ended - started))
-            self._next_start[task] = ended + pause
+            pause = max(self.min_interval_s, self.duty * busy)
+            self._next_start[task] = self._clock() + pause
             folder = task_dir(self.recordings_dir, library.task)
             cleaned = cleaned_path(self.recordings_dir, library.task)
             for cache in (self._files, self._failed):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -101,7 +102,7 @@ def test_an_unreadable_file_is_not_read_again_until_it_changes(tmp_path) -> None
 
 
 def test_loads_of_a_task_are_spaced_by_their_own_duration(tmp_path, monkeypatch) -> None:
-    """The next load waits max(min_interval_s, duty × the last load's time) after it ended."""
+    """The next load waits max(min_interval_s, duty × the last load's CPU time) after it ended."""
     import bt_teleop.library_loader as module
 
     _write(tmp_path, "a.hdf5", 0)
@@ -114,14 +115,20 @@ def test_loads_of_a_task_are_spaced_by_their_own_duration(tmp_path, monkeypatch)
 
     real_load = module.load_library
 
-    def slow_load(*args, **kwargs):  # a load that takes 2 s of the fake clock
+    def slow_load(*args, **kwargs):  # a load that takes 2 s of the fake clocks (busy all along)
         now[0] += 2.0
         return real_load(*args, **kwargs)
 
     monkeypatch.setattr(module, "load_library", slow_load)
     with concurrent.futures.ThreadPoolExecutor(1) as executor:
         loader = LibraryLoader(
-            tmp_path, executor, min_interval_s=1.0, duty=3.0, clock=lambda: now[0], sleep=sleep
+            tmp_path,
+            executor,
+            min_interval_s=1.0,
+            duty=3.0,
+            clock=lambda: now[0],
+            sleep=sleep,
+            cpu_clock=lambda: now[0],
         )
         loader.request("wiping").result(60)
         assert sleeps == []  # the first load starts at once
@@ -133,6 +140,37 @@ def test_loads_of_a_task_are_spaced_by_their_own_duration(tmp_path, monkeypatch)
         assert sleeps == [5.5]  # long after: at once
         assert loader.request("weaving").result(60).task == "weaving"  # other tasks: own clock
         assert sleeps == [5.5]
+
+
+def test_a_load_waiting_for_its_reads_does_not_push_the_next_one_back(tmp_path) -> None:
+    """A load slowed by the reader child (its reads wait, the app's thread idles) is followed by
+    the next one after min_interval_s, not after duty × its wall time: with the reader child
+    sharing the CPU with a Clean job, spacing by wall time made the table lag by minutes."""
+    from bt_teleop.tracks import read_file_tracks
+
+    files = [_write(tmp_path, name, seed) for seed, name in enumerate(("a.hdf5", "b.hdf5"))]
+    read = {path: read_file_tracks(path, "raw") for path in files}  # the child's answers
+    files[1].rename(tmp_path / "later")
+    sleeps: list[float] = []
+
+    def slow_read(path, kind):  # the child's answer takes 0.3 s; this thread waits, idle
+        time.sleep(0.3)
+        return read[path]
+
+    with concurrent.futures.ThreadPoolExecutor(1) as executor:
+        loader = LibraryLoader(
+            tmp_path,
+            executor,
+            read_file=slow_read,
+            min_interval_s=0.05,
+            duty=3.0,
+            sleep=lambda s: sleeps.append(s),
+        )
+        loader.request("wiping").result(60)
+        (tmp_path / "later").rename(files[1])  # a new take
+        assert len(loader.request("wiping").result(60).raw) == 2
+    assert len(sleeps) == 1
+    assert sleeps[0] < 0.3  # wall-time spacing would wait 3 × ≥ 0.3 s
 
 
 def test_close_ends_the_wait_of_a_spaced_load(tmp_path) -> None:
