@@ -83,7 +83,7 @@ import bt_teleop.library
 import bt_teleop.library_loader
 from bt_pipeline.data.tasks import parse_task
 from bt_pipeline.exceptions import BtError
-from bt_teleop.app import AppOptions, TeleopApp
+from bt_teleop.app import AppOptions, TeleopApp, freeze_startup_objects
 from bt_teleop.cleaning import task_dir
 from bt_teleop.late_ticks import GcLog
 from bt_teleop.session_config import SessionConfig
@@ -369,6 +369,7 @@ def main() -> None:
             ),
         )
         app.heap_trimmer._trim = events.wrap("heap trim", app.heap_trimmer._trim)
+        freeze_startup_objects()  # as `bt teleop` (app.serve) does once the app is up
         tabs = [
             open_tab(app, decode=False) for _ in range(args.sessions if args.tabs_in_app else 0)
         ]

@@ -26,6 +26,7 @@ Rerun's gRPC server, the executor and the reader child.
 from __future__ import annotations
 
 import concurrent.futures
+import gc
 import ipaddress
 import logging
 import secrets
@@ -325,6 +326,7 @@ def serve(options: AppOptions | None = None) -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, _interrupt)
     app = start_app(options)
+    freeze_startup_objects()
     print(f"bt teleop: open {app.url}", flush=True)
     if app.rerun.viewer_url is not None:
         print(
@@ -342,8 +344,18 @@ def serve(options: AppOptions | None = None) -> None:
         app.stop()
 
 
+def freeze_startup_objects() -> None:
+    """Leave what the app has loaded so far (modules, the scene, the server: ~190,000 objects)
+    out of every later garbage collection (``gc.freeze``). A full collection of the app's
+    process walked them all: 113 ms on the idle machine, a 544 ms pause in a soak, during which
+    the web server answered no tab. Objects made later (takes, libraries) are collected as
+    before; the frozen ones live as long as the app anyway."""
+    gc.collect()
+    gc.freeze()
+
+
 def _interrupt(signum: int, _frame: object) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-__all__ = ["AppOptions", "TeleopApp", "serve", "start_app"]
+__all__ = ["AppOptions", "TeleopApp", "freeze_startup_objects", "serve", "start_app"]

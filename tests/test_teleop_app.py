@@ -349,3 +349,24 @@ def test_session_logger_drops_instead_of_blocking() -> None:
     release.set()
     logger.close()
     assert logger.dropped == 4
+
+
+def test_the_objects_loaded_at_start_are_left_out_of_later_collections() -> None:
+    """``serve`` freezes what the app loaded before serving: a later full collection walks only
+    what was made since, not the ~190,000 objects of the imports (in a process of its own: a
+    freeze in the test process would keep every earlier test's garbage)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import gc, bt_teleop.app as app\n"
+        "loaded = len(gc.get_objects())\n"
+        "app.freeze_startup_objects()\n"
+        "kept = [[k] for k in range(1000)]\n"
+        "print(loaded, gc.get_freeze_count(), len(gc.get_objects()))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    loaded, frozen, tracked = map(int, out.stdout.split())
+    assert loaded > 50_000
+    assert frozen >= 0.9 * loaded
+    assert 1000 <= tracked < 5_000  # the new lists, not the imports
