@@ -369,6 +369,8 @@ def main() -> None:
             ),
         )
         app.heap_trimmer._trim = events.wrap("heap trim", app.heap_trimmer._trim)
+        app.cleaner.start = events.wrap("clean job start", app.cleaner.start)  # spawns it
+        app.cleaner._finished = events.wrap("clean job end", app.cleaner._finished)
         freeze_startup_objects()  # as `bt teleop` (app.serve) does once the app is up
         tabs = [
             open_tab(app, decode=False) for _ in range(args.sessions if args.tabs_in_app else 0)
