@@ -11,23 +11,13 @@ from __future__ import annotations
 
 import argparse
 import gc
-import statistics
 import tempfile
-import time
 from pathlib import Path
+
+from bench_clean_overheads import median_s  # this folder is on sys.path
 
 from bt_teleop.app import freeze_startup_objects
 from bt_teleop.testing import app_factory
-
-
-def full_collections_ms(repeats: int) -> float:
-    """Median time of a full collection [ms]."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        gc.collect()
-        times.append(1e3 * (time.perf_counter() - start))
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -37,9 +27,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp, app_factory(Path(tmp)) as make:
         make()
         walked = len(gc.get_objects())
-        before = full_collections_ms(args.repeats)
+        before = 1e3 * median_s(gc.collect, args.repeats)
         freeze_startup_objects()
-        after = full_collections_ms(args.repeats)
+        after = 1e3 * median_s(gc.collect, args.repeats)
         print(f"objects the collector walks: {walked:,} before, {len(gc.get_objects()):,} after")
         print(
             f"full collection, median of {args.repeats}: {before:.1f} ms before, "

@@ -32,11 +32,6 @@ class TabsProcess:
             self._child.kill()
             raise RuntimeError(f"the tabs' process did not open its tabs: {line!r}")
 
-    @property
-    def pid(self) -> int:
-        """The tabs' process."""
-        return self._child.pid
-
     def close(self) -> int:
         """Close the tabs; the bytes they received."""
         out, _ = self._child.communicate(timeout=60.0)
