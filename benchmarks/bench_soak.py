@@ -74,6 +74,7 @@ from typing import Any
 
 import numpy as np
 import psutil
+from soak_control import ControlLoops
 from soak_late import AppEvents, StealSampler, write_log
 from soak_late import report as late_report
 from soak_memory import Sampler
@@ -338,6 +339,13 @@ def main() -> None:
     )
     parser.add_argument("--late-log", type=Path, help="append each late tick as a JSON line")
     parser.add_argument(
+        "--control-loops",
+        type=int,
+        default=2,
+        help="control loops beside the sessions: processes that only wake up every period, at "
+        "the control loops' priority (soak_control.py); a late tick they share is the machine's",
+    )
+    parser.add_argument(
         "--tabs-in-app",
         action="store_true",
         help="the tabs' websocket clients as threads of the app's process (as before "
@@ -387,6 +395,13 @@ def main() -> None:
         )
         pauses = GcLog(maxlen=None)
         steal = StealSampler()
+        control = ControlLoops(
+            args.control_loops,
+            uis[0].session.dt_s,
+            args.late_ms / 1e3,
+            args.priority_boost,
+            args.realtime_priority,
+        )
         cpu_start, app_cpu_start = tree_cpu_s(uis), process.cpu_times()
         wall_start = time.monotonic()
         stop = threading.Event()
@@ -433,6 +448,7 @@ def main() -> None:
         )
         cpu_end, app_cpu_end = tree_cpu_s(uis), process.cpu_times()
         steal.stop()
+        machine = control.close()
         growth_text = ""
         if tracemalloc.is_tracing():
             gc.collect()
@@ -468,9 +484,11 @@ def main() -> None:
     print(
         f"tick compute: p50 {c50:.2f} ms, p99 {c99:.2f} ms, max {1e3 * ticks.max_compute_s:.0f} ms"
     )
-    print(late_report(ticks.late, events, args.late_ms / 1e3, shown=15, steal=steal))
+    print(
+        late_report(ticks.late, events, args.late_ms / 1e3, shown=15, steal=steal, control=machine)
+    )
     if args.late_log:
-        write_log(args.late_log, ticks.late, events, steal)
+        write_log(args.late_log, ticks.late, events, steal, machine)
     print(f"gc pauses (the app's process): {gc_summary(pauses)}")
     trimmer = app.heap_trimmer
     print(

@@ -19,6 +19,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from soak_control import ControlReport
+
 from bt_teleop.late_ticks import LateTick, cause_counts
 
 AIM_S = 0.05
@@ -81,7 +83,11 @@ class StealSampler:
 
     def during(self, tick: LateTick, slack_s: float = 0.1) -> float:
         """Steal [s of CPU] between the samples around `tick`'s gap (widened by `slack_s`)."""
-        t0, t1 = tick.at_s - tick.gap_s - slack_s, tick.at_s + slack_s
+        return self.during_gap(tick.at_s, tick.gap_s, slack_s)
+
+    def during_gap(self, at_s: float, gap_s: float, slack_s: float = 0.1) -> float:
+        """Steal [s of CPU] between the samples around the gap of `gap_s` ending at `at_s`."""
+        t0, t1 = at_s - gap_s - slack_s, at_s + slack_s
         inside = [v for t, v in self.samples if t0 <= t <= t1]
         before = [v for t, v in self.samples if t < t0]
         if not inside or not before:
@@ -99,12 +105,15 @@ def report(
     threshold_s: float,
     shown: int,
     steal: StealSampler | None = None,
+    control: ControlReport | None = None,
 ) -> str:
-    """Counts of the causes of the late ticks, of the app events beside them, and the
-    `shown` latest ticks in full."""
+    """Counts of the causes of the late ticks, of the app events beside them, of those the
+    control loops shared, and the `shown` latest ticks in full."""
     lines = [f"late ticks (> {1e3 * threshold_s:.0f} ms beyond the period): {len(late)}"]
+    if control is not None:
+        lines += machine_lines(late, control, threshold_s, steal)
     if not late:
-        return lines[0]
+        return "\n".join(lines)
     lines.append("  by cause: " + ", ".join(f"{c} {n}" for c, n in cause_counts(late).items()))
     over_aim = [t for t in late if t.late_s > AIM_S]
     if threshold_s < AIM_S:
@@ -138,12 +147,50 @@ def report(
         extra = ", ".join(events.during(tick, slack_s=0.5)) or "-"
         if steal is not None:
             extra += f"; steal {1e3 * steal.during(tick):.0f} ms"
+        if control is not None:
+            shared = control.beside(tick.at_s, tick.gap_s)
+            extra += (
+                f"; control loops late {1e3 * max((c.late_s for c in shared), default=0):.0f} ms"
+            )
         lines.append(f"    {stamp} {tick.describe()}; app: {extra}")
     return "\n".join(lines)
 
 
+def machine_lines(
+    late: tuple[LateTick, ...],
+    control: ControlReport,
+    threshold_s: float,
+    steal: StealSampler | None = None,
+) -> list[str]:
+    """The control loops' own lateness, and which late ticks were the machine's: the control
+    loops were late at the same moment, or the VM's steal time beside the gap covers at least
+    half the lateness (a vCPU not run by the hypervisor: the control loops, on the other one,
+    may have run meanwhile)."""
+
+    def stolen(tick: LateTick) -> bool:
+        return steal is not None and steal.during(tick) >= 0.5 * tick.late_s
+
+    shared = [t for t in late if control.beside(t.at_s, t.gap_s)]
+    own = [t for t in late if t not in shared and not stolen(t)]
+    return [
+        f"  control loops (wake-ups only, at the sessions' priority): largest lateness "
+        f"{1e3 * control.largest_late_s:.1f} ms; {len(control.stalls)} wake-ups > "
+        f"{1e3 * threshold_s:.0f} ms late, {sum(s.late_s > AIM_S for s in control.stalls)} "
+        f"> {1e3 * AIM_S:.0f} ms",
+        f"  late ticks the machine explains: {len(late) - len(own)} of {len(late)} (the control "
+        f"loops were late too: {len(shared)}; else steal time beside the gap >= half the "
+        f"lateness: {len(late) - len(own) - len(shared)})",
+        f"  late ticks of bt's own (neither): {len(own)}, the latest "
+        f"{1e3 * max((t.late_s for t in own), default=0.0):.1f} ms late",
+    ]
+
+
 def write_log(
-    path: Path, late: tuple[LateTick, ...], events: AppEvents, steal: StealSampler | None = None
+    path: Path,
+    late: tuple[LateTick, ...],
+    events: AppEvents,
+    steal: StealSampler | None = None,
+    control: ControlReport | None = None,
 ) -> None:
     """Every late tick as a JSON line: its fields, its cause and the app events beside it."""
     with path.open("a", encoding="utf-8") as out:
@@ -152,5 +199,8 @@ def write_log(
                 "cause": tick.cause,
                 "app": events.during(tick, slack_s=0.5),
                 "steal_s": steal.during(tick) if steal is not None else None,
+                "control_late_s": [
+                    c.late_s for c in (control.beside(tick.at_s, tick.gap_s) if control else [])
+                ],
             }
             out.write(json.dumps(row) + "\n")

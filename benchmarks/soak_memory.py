@@ -41,7 +41,8 @@ import psutil
 from bt_teleop.native_memory import HeapInfo, heap_info
 
 KINDS = ("app", "forkserver", "session", "reader", "clean", "other")
-"""Kinds of the app's process tree (the benchmark's tab process, ``soak_tabs.py``, is not one)."""
+"""Kinds of the app's process tree (the benchmark's tab process, ``soak_tabs.py``, and its
+control loops, ``soak_control.py``, are not)."""
 FIELDS = (
     *("rss", "pss", "uss", "pss_heap", "pss_anon", "pss_file", "heap_in_use", "heap_free"),
     "heap_mmapped",
@@ -63,6 +64,8 @@ def kind_of(
     command = " ".join(process.cmdline())
     if "soak_tabs.py" in command:  # the benchmark's browsers, not the app
         return "tabs"
+    if "soak_control.py" in command:  # the benchmark's control loops, not the app
+        return "control"
     if "multiprocessing.forkserver" in command:
         return "forkserver"
     if "multiprocessing.spawn" in command:

@@ -1,0 +1,79 @@
+"""The soak's control loops (benchmarks/soak_control.py): loops that only wake up every period,
+beside the sessions, so that a late tick they shared is told apart as the machine's. A pause of
+a loop's process must show as its stall, at the right moment, and be matched to the late ticks
+it overlapped and to no others."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import signal
+import sys
+import time
+import types
+from pathlib import Path
+
+from bt_teleop.late_ticks import LateTick
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _benchmark(name: str) -> types.ModuleType:
+    """A module of benchmarks/ (which import each other by their bare names)."""
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _soak_control() -> types.ModuleType:
+    return _benchmark("soak_control")
+
+
+def test_a_paused_control_loop_reports_its_stall_and_the_late_ticks_beside_it() -> None:
+    loops = _soak_control().ControlLoops(2, 0.01, 0.05)
+    try:
+        time.sleep(0.3)
+        paused = loops.pids[0]
+        os.kill(paused, signal.SIGSTOP)
+        stopped_at = time.time()
+        time.sleep(0.3)
+        os.kill(paused, signal.SIGCONT)
+        time.sleep(0.3)
+    except BaseException:
+        loops.kill()
+        raise
+    report = loops.close()
+    assert report.ticks > 50
+    stall = max(report.stalls, key=lambda s: s.late_s)
+    assert stall.loop == 0
+    assert 0.25 <= stall.late_s < 1.0
+    assert abs((stall.at_s - stall.gap_s) - stopped_at) < 0.1
+    # A session tick late over the same 0.3 s is the machine's; one a second later is not.
+    assert stall in report.beside(stopped_at + 0.32, 0.3)
+    assert report.beside(stopped_at + 1.5, 0.3) == []
+
+
+def test_late_ticks_are_the_machines_when_the_control_loops_or_steal_time_explain_them() -> None:
+    control, late = _soak_control(), _benchmark("soak_late")
+    stall = control.ControlStall(loop=0, at_s=100.0, gap_s=0.12, late_s=0.11, runqueue_s=0.0)
+    report = control.ControlReport(ticks=1000, largest_late_s=0.11, stalls=(stall,))
+    steal = late.StealSampler()
+    steal.stop()
+    # Steal so far [s], sampled every 50 ms: 60 ms of it between 199.95 and 200.0, none else.
+    steal.samples = [(100.0 + 0.05 * k, 0.06 if k >= 2000 else 0.0) for k in range(4000)]
+
+    def tick(at_s: float, late_s: float) -> LateTick:
+        return LateTick(at_s, late_s + 0.01, late_s, 0.0, 0.0, 0.0, 0.0, 0.001)
+
+    ticks = (tick(100.02, 0.1), tick(200.02, 0.09), tick(300.0, 0.07))
+    lines = late.machine_lines(ticks, report, 0.05, steal)
+    assert (
+        "late ticks the machine explains: 2 of 3 (the control loops were late too: 1;" in (lines[1])
+    )
+    assert "steal time beside the gap >= half the lateness: 1)" in lines[1]
+    assert "late ticks of bt's own (neither): 1, the latest 70.0 ms late" in lines[2]
