@@ -149,8 +149,11 @@ def report(
             extra += f"; steal {1e3 * steal.during(tick):.0f} ms"
         if control is not None:
             shared = control.beside(tick.at_s, tick.gap_s)
-            extra += (
-                f"; control loops late {1e3 * max((c.late_s for c in shared), default=0):.0f} ms"
+            extra += "; control loops late " + (
+                ", ".join(
+                    f"{1e3 * c.late_s:.0f} (run queue {1e3 * c.runqueue_s:.0f})" for c in shared
+                )
+                or "-"
             )
         lines.append(f"    {stamp} {tick.describe()}; app: {extra}")
     return "\n".join(lines)
@@ -199,8 +202,9 @@ def write_log(
                 "cause": tick.cause,
                 "app": events.during(tick, slack_s=0.5),
                 "steal_s": steal.during(tick) if steal is not None else None,
-                "control_late_s": [
-                    c.late_s for c in (control.beside(tick.at_s, tick.gap_s) if control else [])
+                "control_late_runqueue_s": [  # the control loops' lateness, run-queue wait
+                    (c.late_s, c.runqueue_s)
+                    for c in (control.beside(tick.at_s, tick.gap_s) if control else [])
                 ],
             }
             out.write(json.dumps(row) + "\n")
