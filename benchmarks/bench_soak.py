@@ -38,6 +38,13 @@ Reported:
   nothing (no file is read or scored, tables and pickers stay empty), and with ``read-new``
   they read and score each new file as the app does and list nothing: controls that tell the
   memory of saving a take, of reading it, and of listing the task's takes apart;
+* with ``--keep-takes N`` the benchmark moves all but the N newest takes out of the
+  recordings folder every second, as a lab archives old takes: the takes on disk, the
+  library's listing and each Clean job's input stay bounded, so memory that still grows grows
+  with time, not with the data (a control for "memory flat");
+* the late ticks the machine explains: ``--control-loops`` processes (``soak_control.py``)
+  that only wake up every period at the sessions' priority; a late tick they shared, or that
+  the VM's steal time beside it covers by half, is the machine's, the rest are bt's own;
 * with ``--tracemalloc N``: what was allocated after a third of the run and is still held at
   its end, by the Python lines that allocated it (N frames of traceback; tracing starts at the
   third). Tracing slows the app down several times, so the starved loops simulate too little
@@ -273,6 +280,16 @@ def read_new_files(
     return empty_library(recordings_dir, task)
 
 
+def archive_oldest(folder: Path, keep: int, archive: Path) -> int:
+    """Move all but the `keep` newest takes of `folder` to `archive`, as a lab moves old takes
+    out of the recordings folder (so the takes on disk stay bounded); how many were moved."""
+    takes = sorted(folder.glob("*.hdf5"), key=lambda p: p.stat().st_mtime_ns)
+    archive.mkdir(exist_ok=True)
+    for take in takes[: max(len(takes) - keep, 0)]:
+        take.rename(archive / take.name)
+    return max(len(takes) - keep, 0)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--minutes", type=float, default=10.0)
@@ -338,6 +355,14 @@ def main() -> None:
         help="run the control loops under SCHED_RR at this priority (0: off)",
     )
     parser.add_argument("--late-log", type=Path, help="append each late tick as a JSON line")
+    parser.add_argument(
+        "--keep-takes",
+        type=int,
+        default=0,
+        help="every second, move all but this many newest takes out of the recordings folder "
+        "(0: keep all): the takes on disk, the library's listing and each Clean job stay "
+        "bounded, a control that tells growth with the data from growth with time",
+    )
     parser.add_argument(
         "--control-loops",
         type=int,
@@ -418,10 +443,13 @@ def main() -> None:
             thread.start()
         end = time.monotonic() + 60.0 * args.minutes
         next_clean = time.monotonic() + args.clean_every if args.clean_every else None
-        cleans = 0
+        cleans = archived = 0
+        task_folder = Path(tmp) / "rec" / "wiping"
         trace_at = time.monotonic() + 20.0 * args.minutes  # a third of the run
         while time.monotonic() < end:
             time.sleep(1.0)
+            if args.keep_takes:
+                archived += archive_oldest(task_folder, args.keep_takes, Path(tmp) / "archive")
             if args.tracemalloc and not tracemalloc.is_tracing() and time.monotonic() >= trace_at:
                 gc.collect()
                 tracemalloc.start(args.tracemalloc)
@@ -457,7 +485,7 @@ def main() -> None:
         wall = time.monotonic() - wall_start
         received = sum(tab.bytes for tab in tabs)
         saved_ui = sum(ui.takes.saved_count for ui in uis)
-        files = len(list((Path(tmp) / "rec" / "wiping").glob("*.hdf5")))
+        files = len(list(task_folder.glob("*.hdf5"))) + archived
         held = held_by_loader(app, uis)
         # Closed after the takes are counted: a tab closed mid-take saves it (flagged)
         received += tab_process.close() if tab_process is not None else 0
@@ -529,7 +557,10 @@ def main() -> None:
     print(
         f"kept anon PSS growth per saved take: {1024 * growth / max(saved_ui, 1):.0f} KiB; {held}"
     )
-    print(f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk")
+    print(
+        f"takes: {intended} intended, {saved_ui} saved by the tabs, {files} files on disk"
+        + (f" ({archived} of them moved out: --keep-takes {args.keep_takes})" if archived else "")
+    )
     print(
         f"session children lost: {len(lost)} ({len(recoveries)} replaced; takes in progress "
         f"lost: {sum(r.take_lost for r in recoveries)}, "
