@@ -1,11 +1,14 @@
 """Control loops for the soak's stalls: processes that only sleep one control period at a time.
 
-A session's control loop can be late for reasons of its own (its GIL, its requests, its
-collections) or of the whole machine (other processes on its CPUs, or a pause of the virtual
-machine itself). A loop that does nothing but wake up every period, at the control loops'
-priority, separates the two: a late tick that such a loop shared at the same moment was the
-machine's, not bt's. On this benchmark's VM (2 vCPUs), 8 such loops on an otherwise idle
-machine stall together by up to ~70 ms a few times in 10 minutes (``bench_machine_stalls.py``).
+A session's control loop can be late for reasons of its own process (its GIL, its requests,
+its collections) or of the whole machine (a pause of the virtual machine itself, or load that
+delays any loop at that priority). A loop that does nothing but wake up every period, at the
+control loops' priority, separates the two: a late tick that such a loop shared at the same
+moment was the machine's. The machine's load includes bt's other processes (the app, Clean
+jobs), so a shared tick is not by itself proof that bt had no part in it: the steal time and
+run-queue wait beside it say which. On this benchmark's VM (2 vCPUs), 8 such loops on an
+otherwise idle machine stalled together by up to 67.7 ms in one 10-minute run, and by at most
+17.5 ms in the next (``bench_machine_stalls.py``; docs/security.md).
 
 ::
 
