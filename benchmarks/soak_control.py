@@ -98,7 +98,11 @@ class ControlLoops:
         ticks, largest, stalls = 0, 0.0, []
         for k, child in enumerate(self._children):
             out, _ = child.communicate(timeout=60.0)
-            row: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
+            try:
+                row: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
+            except (IndexError, json.JSONDecodeError):  # it died: the soak's report still counts
+                print(f"control loop {k} ended with no report (exit {child.returncode})")
+                continue
             ticks += row["ticks"]
             largest = max(largest, row["largest_late_s"])
             stalls += [ControlStall(k, *s) for s in row["stalls"]]
