@@ -8,9 +8,11 @@ A job runs in a spawned process (torch training holds a core; the sessions' cont
 the other) at a lower CPU priority (``nice`` +10, :data:`CLEAN_NICE`), with one thread in the
 app reading its progress queue::
 
-    CleanRunner.start(task) -> process: read raw demos -> clean_demos(on_epoch -> queue)
-                                         -> write <task>.cleaned.hdf5 (+ .rrd) -> queue(result)
-                            -> thread:  queue -> CleanJob.progress() (the UI polls it)
+    CleanRunner.start(task, rerun) -> process: read raw demos -> clean_demos(on_epoch -> queue)
+                                      -> write <task>.cleaned.hdf5 (+ .rrd)
+                                      -> log the result to the tab's Rerun recording
+                                      -> queue("done", output, notes)
+                                   -> thread:  queue -> CleanJob.progress() (the UI polls it)
 
 At most one job runs per task; jobs of different tasks run side by side, so a slow or stuck job
 never blocks another task or tab. Every job has a time limit (``timeout_s``, 15 min by default)
@@ -34,10 +36,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
-from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult
+from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.data.tasks import Task, parse_task
 from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.clean_task import CLEANED_DIRNAME, clean_task, cleaned_dir, cleaned_path, task_dir
+from bt_teleop.rerun_clean_log import CleanLogTarget, log_clean_to
 
 LOGGER = logging.getLogger("bt.teleop")
 
@@ -80,8 +83,6 @@ class CleanJob:
         self.task = task
         self.owner = owner
         """Who started it (the UI uses it to notify that session only)."""
-        self.result: TaskCleanResult | None = None
-        """The cleaner's full result, once done (for the Rerun log)."""
         self._lock = threading.Lock()
         self._done = threading.Event()
         self._progress = CleanProgress(task, "running", 0, epochs, "starting")
@@ -95,13 +96,6 @@ class CleanJob:
         """Block until the job ends (or `timeout_s` [s] passes); the latest snapshot."""
         self._done.wait(timeout_s)
         return self.progress()
-
-    def take_result(self) -> TaskCleanResult | None:
-        """The cleaner's full result, handed out once (the job then lets go of it: it holds
-        every demo of the task, and a finished job is kept until the task's next Clean)."""
-        with self._lock:
-            result, self.result = self.result, None
-        return result
 
     @property
     def finished(self) -> bool:
@@ -167,8 +161,11 @@ class CleanRunner:
         with self._lock:
             return list(self._jobs.values())
 
-    def start(self, task: str, owner: object = None) -> CleanJob:
-        """Start cleaning `task`'s recordings in the background.
+    def start(
+        self, task: str, owner: object = None, rerun: CleanLogTarget | None = None
+    ) -> CleanJob:
+        """Start cleaning `task`'s recordings in the background; the job logs its result to
+        `rerun` (the starting tab's recording) itself, and the app never holds it.
 
         Raises:
             ConfigError: A job for `task` is already running, or the runner is closed.
@@ -192,7 +189,7 @@ class CleanRunner:
                 messages = context.Queue()
                 process = context.Process(
                     target=run_clean_job,
-                    args=(self.recordings_dir, parsed, self.options, messages, True),
+                    args=(self.recordings_dir, parsed, self.options, messages, True, rerun),
                     name=f"bt-clean-{parsed}",
                     daemon=True,
                 )
@@ -201,7 +198,7 @@ class CleanRunner:
                 target, args = self._read_process, (job, messages, process)
             else:
                 messages = queue.Queue()
-                target, args = self._run_inline, (job, messages)
+                target, args = self._run_inline, (job, messages, rerun)
             thread = threading.Thread(
                 target=target, args=args, name=f"bt-clean-{parsed}", daemon=True
             )
@@ -234,10 +231,12 @@ class CleanRunner:
         for thread in threads:
             thread.join(timeout_s)
 
-    def _run_inline(self, job: CleanJob, messages: queue.Queue[Any]) -> None:
+    def _run_inline(
+        self, job: CleanJob, messages: queue.Queue[Any], rerun: CleanLogTarget | None
+    ) -> None:
         worker = threading.Thread(
             target=run_clean_job,
-            args=(self.recordings_dir, job.task, self.options, messages, False),
+            args=(self.recordings_dir, job.task, self.options, messages, False, rerun),
             daemon=True,
         )
         worker.start()
@@ -281,8 +280,7 @@ class CleanRunner:
             elif kind == "stage":
                 job._update(message=payload[0])
             elif kind == "done":
-                job.result = payload[1]
-                job._update(state="done", output=Path(payload[0]), message="done", notes=payload[2])
+                job._update(state="done", output=Path(payload[0]), message="done", notes=payload[1])
                 return
             else:
                 job._update(state="failed", message=str(payload[0]))
@@ -309,11 +307,15 @@ def run_clean_job(
     options: CleanOptions,
     messages: Any,
     single_thread: bool,
+    rerun: CleanLogTarget | None = None,
 ) -> None:
-    """Clean `task`'s raw recordings and write the output; report through `messages`.
+    """Clean `task`'s raw recordings, write the output and log the result to `rerun` (a
+    failure there is a note: the outputs stand); report through `messages`.
 
     Messages are tuples: ``("stage", text)``, ``("epoch", k)``, then ``("done", output path,
-    TaskCleanResult, notes)`` or ``("failed", message)``. Runs in the job's process (or thread).
+    notes)`` or ``("failed", message)``. Runs in the job's process (or thread). The result
+    itself never goes back: it holds every demo of the task, and the app would keep the pages
+    it was unpickled and logged in (:mod:`bt_teleop.rerun_clean_log`).
     """
     try:
         if single_thread:
@@ -330,7 +332,14 @@ def run_clean_job(
             on_epoch=lambda k: messages.put(("epoch", k)),
             notes=notes,
         )
-        messages.put(("done", str(output), result, tuple(notes)))
+        if rerun is not None:
+            messages.put(("stage", "sending the result to the Rerun viewer"))
+            try:
+                log_clean_to(rerun, result, options.seed)
+            except Exception as exc:  # the viewer is optional: the cleaned file is written
+                LOGGER.warning("clean job for %s: Rerun logging failed", task, exc_info=True)
+                notes.append(f"the Rerun viewer did not get the result ({type(exc).__name__})")
+        messages.put(("done", str(output), tuple(notes)))
     except BtError as exc:
         messages.put(("failed", str(exc)))
     except Exception as exc:  # reported in the UI; the app keeps running

@@ -5,7 +5,7 @@ and the layout itself is a few messages per view that a viewer ingests, one or a
 before the data behind them. With the cleaner's full layout per task for all three tasks (43
 views), the web viewer in headless Chromium (software WebGL) stayed tens of seconds behind one
 session. So a session starts with the robot view alone, and gains a tab of five views for each
-task it cleans (:meth:`bt_teleop.rerun_live.SessionLogger.log_clean_result`). The cleaner's
+task it cleans (:meth:`bt_teleop.rerun_live.SessionLogger.show_cleaned`). The cleaner's
 full layout (every metric, the training curves, the notes) is in each Clean's
 ``<recordings>/.cleaned/<task>.rrd``.
 

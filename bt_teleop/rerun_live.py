@@ -26,7 +26,8 @@ Entities of a session's recording (timeline ``sim_time``, simulation seconds of 
 ``/demos/<file stem>`` (static LineStrips3D) when a demo is saved; ``/replay/<raw|cleaned>``
 (LineStrips3D) when a demo is replayed on the robot; after Clean everything
 :func:`bt_pipeline.viz.rerun_clean.log_clean_result` logs under ``/<task>``, plus Stage 1's DMP
-rollouts behind the value map V_E under ``/<task>/plane/rollouts``. The blueprint
+rollouts behind the value map V_E under ``/<task>/plane/rollouts``, sent by the Clean job's own
+process (:mod:`bt_teleop.rerun_clean_log`; :meth:`SessionLogger.clean_target`). The blueprint
 (:func:`session_blueprint`) puts the 3-D robot content in a 3-D view and each task's 2-D plane
 content in 2-D views (:mod:`bt_teleop.rerun_layout`). It starts with the robot view alone and
 grows a tab for each task whose Clean result is logged: every view costs the web viewer time,
@@ -48,19 +49,17 @@ from typing import Literal, get_args
 import numpy as np
 import rerun as rr
 
-from bt_pipeline.clean.pipeline import TaskCleanResult
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError
-from bt_teleop.escape import display_text, markdown_text
+from bt_teleop.escape import display_text
 from bt_teleop.naming import utc_stamp
+from bt_teleop.rerun_clean_log import APP_ID, CleanLogTarget
 from bt_teleop.rerun_layout import SIM_TIMELINE, session_blueprint
 from bt_teleop.rerun_proxy import RerunProxy
 
 RerunMode = Literal["serve", "save", "off"]
 """Where sessions log: a live viewer, .rrd files, or nowhere."""
 RERUN_MODES: tuple[RerunMode, ...] = get_args(RerunMode)
-APP_ID = "bt_teleop"
-"""Rerun application id of every teleop recording."""
 RRD_DIRNAME = "rerun"
 """Folder under the recordings root for ``save`` mode's .rrd files."""
 
@@ -77,8 +76,6 @@ of ms in software WebGL: one message per state (60 a second per tab) left it min
 two a second keep it at the present (docs/teleop.md, "Live Rerun latency")."""
 SESSION_MEMORY_LIMIT = "64MiB"
 """Log data a session's proxy keeps for viewers that open late (the oldest is dropped)."""
-ROLLOUTS_SHOWN = 20
-"""DMP rollouts of the value map drawn per task (of its ``n_rollouts``)."""
 
 
 class SessionLogger:
@@ -89,10 +86,13 @@ class SessionLogger:
         rec: rr.RecordingStream | None,
         queue_size: int = 64,
         on_close: Callable[[], None] | None = None,
+        target: CleanLogTarget | None = None,
     ) -> None:
         """Start the worker for `rec` (None: a logger that drops everything, for ``off``);
-        `on_close` runs after the stream is closed (e.g. stops the session's proxy)."""
+        `on_close` runs after the stream is closed (e.g. stops the session's proxy); `target`
+        is where the session's Clean jobs log their results (:meth:`clean_target`)."""
         self.rec = rec
+        self.target = target
         self._on_close = on_close
         self.cleaned_tasks: list[str] = []
         """Tasks whose Clean result was logged (each has a tab in the layout), in order."""
@@ -153,26 +153,21 @@ class SessionLogger:
         strips = rr.LineStrips3D([path], labels=[label], colors=[color])
         self._submit(lambda rec: rec.log(entity, strips))
 
-    def log_clean_result(self, result: TaskCleanResult, seed: int = 0) -> None:
-        """Queue a Clean job's result (scores, value map, aligned references, cleaned demos)
-        and Stage 1's DMP rollouts behind V_E (reproduced with the job's `seed`)."""
-        from bt_pipeline.viz.rerun_clean import log_clean_result
+    def clean_target(self) -> CleanLogTarget | None:
+        """Where a Clean job started by this session logs its result (None: ``off``): the
+        job's process logs it there itself (:mod:`bt_teleop.rerun_clean_log`)."""
+        if self.target is None:
+            return None
+        return replace(self.target, tasks=tuple(self.cleaned_tasks))
 
-        # Names typed in browsers reach the viewer's Markdown summary: escape them (escape.py).
-        demos = tuple(
-            replace(d, demonstrator=markdown_text(d.demonstrator, 40)) for d in result.demos
-        )
-        shown = replace(result, demos=demos)
+    def show_cleaned(self, task: str) -> None:
+        """Grow the layout by a tab for `task`, whose Clean result the job logged."""
 
         def job(rec: rr.RecordingStream) -> None:
-            log_clean_result(rec, shown)
-            # White over V_E: in V_E's own colours they vanish into the ridge they made.
-            strips = rr.LineStrips2D(_rollouts(result, seed), colors=[(255, 255, 255, 150)])
-            rec.log(f"{result.task}/plane/rollouts", strips)
-            if result.task not in self.cleaned_tasks:  # the layout grows a tab for the task
-                layout = session_blueprint([*self.cleaned_tasks, result.task])
+            if task not in self.cleaned_tasks:
+                layout = session_blueprint([*self.cleaned_tasks, task])
                 rec.send_blueprint(layout, make_active=True, make_default=True)
-                self.cleaned_tasks.append(result.task)
+                self.cleaned_tasks.append(task)
 
         self._submit(job)
 
@@ -320,10 +315,13 @@ class RerunHub:
                 self._sessions[session_id] = proxy
             rec.connect_grpc(proxy.grpc_url, default_blueprint=session_blueprint())
             on_close = lambda: self._end_session(session_id)  # noqa: E731
+            target = CleanLogTarget(session_id, grpc_url=proxy.grpc_url)
         else:
-            rec.save(self.rrd_path(session_id), default_blueprint=session_blueprint())
+            rrd = self.rrd_path(session_id)
+            rec.save(rrd, default_blueprint=session_blueprint())
+            target = CleanLogTarget(session_id, session_rrd=rrd)
         rec.send_recording_name(f"bt teleop session {session_id}")
-        return SessionLogger(rec, queue_size, on_close)
+        return SessionLogger(rec, queue_size, on_close, target)
 
     def rrd_path(self, session_id: str) -> Path:
         """Where ``save`` mode writes a session: ``<recordings>/rerun/<UTC time>_<id>.rrd``."""
@@ -347,17 +345,6 @@ class RerunHub:
             proxy = self._sessions.pop(session_id, None)
         if proxy is not None:
             proxy.close()
-
-
-def _rollouts(result: TaskCleanResult, seed: int) -> list[FloatArray]:
-    """Stage 1's DMP rollouts behind V_E (paper Sec. III-B step 3), as the cleaner ran them
-    (default value-map settings, the job's seed): the first :data:`ROLLOUTS_SHOWN`, (spp, 2)."""
-    from bt_pipeline.clean.stage1.value_map import ValueMapConfig, rollout_states
-
-    config = ValueMapConfig()
-    states = rollout_states(result.stage1.dmp, result.stage1.reference, config, seed)
-    paths = states.reshape(config.n_rollouts, config.samples_per_period, 2)
-    return [p.astype(np.float32) for p in paths[:ROLLOUTS_SHOWN]]
 
 
 __all__ = ["APP_ID", "RERUN_MODES", "RerunHub", "RerunMode", "SessionLogger", "session_blueprint"]

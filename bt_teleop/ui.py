@@ -371,7 +371,7 @@ class ClientUI:
         self.tab_scene.trail.clear()
 
     def _do_clean(self) -> None:
-        self.ctx.cleaner.start(self.task, owner=self)
+        self.ctx.cleaner.start(self.task, owner=self, rerun=self.logger.clean_target())
         self._notify("Cleaning", f"cleaning the {self.task} recordings in the background")
 
     def _do_cancel_clean(self) -> None:

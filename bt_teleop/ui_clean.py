@@ -1,6 +1,6 @@
 """A tab's view of its clean jobs (:class:`bt_teleop.cleaning.CleanRunner`): the progress of
-its task's job, and a notice once for each job the tab started that finished (the cleaned demos
-go to Rerun)."""
+its task's job, and a notice once for each job the tab started that finished (the job's process
+logs the cleaned demos to the tab's Rerun recording; the tab's layout then grows the task's tab)."""
 
 from __future__ import annotations
 
@@ -43,8 +43,6 @@ class CleanWatch:
             progress = job.progress()
             if progress.state == "done":
                 self.notify("Clean done", clean_done_text(job.task, progress))
-                result = job.take_result()  # the job lets go of it (every demo of the task)
-                if result is not None:
-                    self.logger.log_clean_result(result, cleaner.options.seed)
+                self.logger.show_cleaned(job.task)  # the job logged the result itself
             else:
                 self.notify(f"Clean {progress.state}", progress.message, color="red")

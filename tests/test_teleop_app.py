@@ -8,6 +8,7 @@ behaves like a tab. GUI actions are driven through the same handles the browser 
 from __future__ import annotations
 
 import math
+import socket
 import threading
 import urllib.request
 from pathlib import Path
@@ -23,6 +24,7 @@ from bt_pipeline.exceptions import ConfigError
 from bt_teleop.app import AppOptions, TeleopApp
 from bt_teleop.cleaning import CleanRunner, cleaned_path
 from bt_teleop.replay import load_library, replay_sync
+from bt_teleop.rerun_clean_log import CleanLogTarget
 from bt_teleop.rerun_live import RerunHub, SessionLogger
 from bt_teleop.script import run_script
 from bt_teleop.session import Session
@@ -207,8 +209,11 @@ def three_recordings(tmp_path: Path) -> Path:
 
 
 def test_clean_runs_in_a_process_and_writes_outside_the_raw_folder(three_recordings) -> None:
+    from rerun.chunk import RrdReader
+
     runner = CleanRunner(three_recordings, CleanOptions(epochs=2, write_rrd=False), processes=True)
-    job = runner.start("wiping")
+    session_rrd = three_recordings.parent / "rr" / "tab.rrd"
+    job = runner.start("wiping", rerun=CleanLogTarget("tab", session_rrd=session_rrd))
     with pytest.raises(ConfigError, match="running"):
         runner.start("wiping")
     progress = job.wait(240.0)
@@ -217,7 +222,25 @@ def test_clean_runs_in_a_process_and_writes_outside_the_raw_folder(three_recordi
     output = progress.output
     assert output is not None and output == cleaned_path(three_recordings, "wiping")
     cleaned = read_recording(output)
-    assert len(cleaned.demos) == 3 and job.result is not None
+    assert len(cleaned.demos) == 3
+    # The job's process logged the result into the tab's recording (the app never held it).
+    (logged,) = session_rrd.parent.glob("tab_clean_wiping_*.rrd")
+    paths = {str(c.entity_path) for c in RrdReader(logged).stream().to_chunks()}
+    assert {"/wiping/plane/rollouts", "/wiping/summary"} <= paths
+    assert {r.recording_id for r in RrdReader(logged).recordings()} == {"tab"}
+    assert not hasattr(job, "result") and progress.notes == ()
+
+
+def test_a_clean_whose_viewer_is_gone_is_done_with_a_note(three_recordings) -> None:
+    runner = CleanRunner(three_recordings, CleanOptions(epochs=1, write_rrd=False), processes=True)
+    with socket.socket() as probe:  # a port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        url = f"rerun+http://127.0.0.1:{probe.getsockname()[1]}/proxy"
+    progress = runner.start("wiping", rerun=CleanLogTarget("tab", grpc_url=url)).wait(240.0)
+    runner.close()
+    assert progress.state == "done", progress.message
+    assert progress.output is not None and len(read_recording(progress.output).demos) == 3
+    assert progress.notes == ("the Rerun viewer did not get the result (RuntimeError)",)
     library = load_library(three_recordings, "wiping")
     assert len(library.raw) == 3 and len(library.cleaned) == 3  # cleaned file is not raw input
     assert {t.key.removeprefix("cleaned · ") for t in library.cleaned} == {
@@ -226,11 +249,14 @@ def test_clean_runs_in_a_process_and_writes_outside_the_raw_folder(three_recordi
 
 
 def test_clean_button_then_replay_a_cleaned_demo(three_recordings, make_app, tabs) -> None:
-    app = make_app(recordings=three_recordings, clean_in_subprocess=False)
+    app = make_app(recordings=three_recordings, clean_in_subprocess=False, rerun="save")
     tabs(app)
     ui = only_session(app)
     ui.controls.clean_button.value = True
     wait_until(lambda: "Clean done" in [m[0] for m in ui.messages], 240.0, "clean")
+    # The job logged the result beside the tab's .rrd, and the tab's layout grew its tab.
+    assert len(list((three_recordings / "rerun").glob("*_clean_wiping_*.rrd"))) == 1
+    wait_until(lambda: ui.logger.cleaned_tasks == ["wiping"], what="the layout to grow")
     wait_until(lambda: ui.library is not None and ui.library.cleaned, what="cleaned demos")
     key = ui.library.cleaned[0].key  # type: ignore[union-attr]
     ui.controls.replay_input.value = key

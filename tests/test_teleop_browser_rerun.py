@@ -26,6 +26,7 @@ from playwright.sync_api import Page, expect
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.data.tasks import TASKS
 from bt_teleop.clean_task import clean_task
+from bt_teleop.rerun_clean_log import log_clean_to
 from bt_teleop.rerun_layout import session_blueprint
 from bt_teleop.rerun_live import RerunHub
 from bt_teleop.script import run_script
@@ -133,8 +134,12 @@ def test_no_view_of_the_session_blueprint_reports_an_error(tmp_path: Path, page:
             logger.log_state(k / 30.0, path[k % 50], np.zeros(7))
         logger.log_demo("demo_file", path)
         logger.log_replay("raw: demo_file", path, "raw")
-        logger.log_clean_result(result)
-        wait_until(lambda: logger.cleaned_tasks == ["wiping"], 60.0, "the Clean to be logged")
+        # As a Clean job's process does: a second stream into the tab's recording.
+        target = logger.clean_target()
+        assert target is not None
+        assert log_clean_to(target, result, seed=0) == "the live viewer"
+        logger.show_cleaned("wiping")
+        wait_until(lambda: logger.cleaned_tasks == ["wiping"], 60.0, "the layout to grow")
         # Show every view of every task's layout at once (reports come from shown views),
         # beside a control view that wrongly puts 2-D plane content in a 3-D view.
         views = all_views(session_blueprint(TASKS))

@@ -21,6 +21,7 @@ from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_teleop.app import TeleopApp
 from bt_teleop.cleaning import clean_task
 from bt_teleop.library import library_markdown, load_library
+from bt_teleop.rerun_clean_log import log_clean_to
 from bt_teleop.rerun_layout import session_blueprint
 from bt_teleop.rerun_live import RerunHub, SessionLogger
 from bt_teleop.script import run_script
@@ -135,13 +136,19 @@ def test_clean_skips_flagged_and_excluded_demos(tmp_path: Path) -> None:
     # The live viewer gets the result with the names escaped, and the DMP rollouts.
     import rerun as rr
 
+    # (The job's process logs it, to a file of its own beside the session's in save mode.)
     hub = RerunHub("save", tmp_path / "rr")
     logger = hub.session_logger("clean")
-    logger.log_clean_result(result, seed=0)
+    target = logger.clean_target()
+    assert target is not None
+    written = log_clean_to(target, result, seed=0)
+    logger.show_cleaned("wiping")
     logger.close()
-    (rrd,) = (tmp_path / "rr" / "rerun").glob("*.rrd")
-    summary, rollouts = "", 0
-    for chunk in rr.chunk.RrdReader(rrd).stream().to_chunks():
+    clean_rrd = tmp_path / "rr" / "rerun" / written
+    (rrd,) = set((tmp_path / "rr" / "rerun").glob("*.rrd")) - {clean_rrd}
+    assert clean_rrd.stem.startswith(rrd.stem + "_clean_wiping_")
+    summary, rollouts, ids = "", 0, set()
+    for chunk in rr.chunk.RrdReader(clean_rrd).stream().to_chunks():
         batch = chunk.to_record_batch()
         if str(chunk.entity_path) == "/wiping/summary":
             summary += " ".join(str(v) for v in batch.column(batch.num_columns - 1).to_pylist())
@@ -149,6 +156,9 @@ def test_clean_skips_flagged_and_excluded_demos(tmp_path: Path) -> None:
             rollouts += chunk.num_rows
     assert "&#60;script&#62;" in summary and "<script>" not in summary
     assert rollouts >= 1
+    for path in (rrd, clean_rrd):  # one recording, in two files
+        ids |= {s.recording_id for s in rr.chunk.RrdReader(path).recordings()}
+    assert ids == {"clean"}
     assert logger.cleaned_tasks == ["wiping"]  # the layout grew the task's tab
     assert len(rr.chunk.RrdReader(rrd).blueprints()) == 2  # the robot's, then with wiping
 
