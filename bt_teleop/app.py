@@ -40,7 +40,7 @@ import viser
 
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_teleop.app_options import AppOptions
-from bt_teleop.cleaning import CleanRunner
+from bt_teleop.cleaning import CleanRunner, lower_thread_priority
 from bt_teleop.connections import ConnectionWatch
 from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.native_memory import HeapTrimmer
@@ -111,7 +111,15 @@ class TeleopApp:
             processes=options.clean_in_subprocess,
             on_finish=lambda job: self.versions.bump(job.task),
         )
-        self._background = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-read")
+        # Library loads list every take of a task on this thread. With the sessions in processes
+        # of their own it runs at nice +10, below their control loops (docs/security.md, "Library
+        # loads below the control loops"); with them in this process it must not hold their GIL
+        # while waiting for a CPU, so it stays at the app's priority.
+        self._background = concurrent.futures.ThreadPoolExecutor(
+            1,
+            thread_name_prefix="bt-read",
+            initializer=lower_thread_priority if options.session_processes else None,
+        )
         # Files are read and scored in a child when the sessions are (bt_teleop/reader_process.py)
         self.reader = ReaderProcess() if options.session_processes else None
         if self.reader is not None:  # its imports run while the first tab connects

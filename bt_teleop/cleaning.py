@@ -301,6 +301,17 @@ def lower_priority(increment: int = CLEAN_NICE) -> None:
             LOGGER.debug("could not lower the clean job's priority", exc_info=True)
 
 
+def lower_thread_priority(increment: int = CLEAN_NICE) -> None:
+    """Lower the calling thread's CPU priority by `increment` (Linux keeps a nice value per
+    thread; elsewhere nothing): the app's library loads run below the sessions' control loops."""
+    if hasattr(os, "setpriority") and hasattr(threading, "get_native_id"):
+        tid = threading.get_native_id()
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + increment)
+        except OSError:
+            LOGGER.debug("could not lower the thread's priority", exc_info=True)
+
+
 def run_clean_job(
     recordings_dir: Path,
     task: Task,

@@ -8,6 +8,7 @@ behaves like a tab. GUI actions are driven through the same handles the browser 
 from __future__ import annotations
 
 import math
+import os
 import socket
 import threading
 import urllib.request
@@ -192,6 +193,11 @@ def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
     assert "10°, 1.20" in listed and "★" in listed
     assert ui.controls.replay_input.options == (ui.library.raw[0].key,)  # type: ignore[union-attr]
     assert app.reader is not None and app.reader.pid is not None  # read and scored in the child
+    # The loads list the takes on a thread below the sessions' control loops (nice +10).
+    (loader,) = [t for t in threading.enumerate() if t.name.startswith("bt-read")]
+    assert loader.native_id is not None
+    loader_nice = os.getpriority(os.PRIO_PROCESS, loader.native_id)
+    assert loader_nice == min(19, os.getpriority(os.PRIO_PROCESS, 0) + 10)
     pid = app.reader.pid
     app.stop()
     assert app.reader.pid is None and not Path(f"/proc/{pid}").exists()
