@@ -6,6 +6,7 @@ it overlapped and to no others."""
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 import signal
 import sys
@@ -70,6 +71,17 @@ def test_late_ticks_are_the_machines_when_the_control_loops_or_steal_time_explai
     def tick(at_s: float, late_s: float) -> LateTick:
         return LateTick(at_s, late_s + 0.01, late_s, 0.0, 0.0, 0.0, 0.0, 0.001)
 
+    assert abs(steal.during_gap(200.02, 0.11) - 0.06) < 1e-12
+    assert steal.during_gap(150.0, 0.01) == 0.0 and math.isnan(steal.during_gap(100.02, 0.11))
+    # The sampler keeps only the samples whose value changed, and the same answers come back.
+    kept = late.StealSampler()
+    kept.stop()
+    kept.samples = []
+    for at_s, steal_s in steal.samples:
+        kept.record(at_s, steal_s)
+    assert kept.samples == [(100.0, 0.0), (200.0, 0.06)]
+    for at_s in (150.0, 200.02, 250.0):
+        assert kept.during_gap(at_s, 0.11) == steal.during_gap(at_s, 0.11)
     ticks = (tick(100.02, 0.1), tick(200.02, 0.09), tick(300.0, 0.07))
     lines = late.machine_lines(ticks, report, 0.05, steal)
     assert (
