@@ -108,7 +108,7 @@ class StealSampler:
 
     def total(self) -> float:
         """Steal over the sampling [s of CPU]."""
-        return self.samples[-1][1] - self.samples[0][1] if len(self.samples) > 1 else math.nan
+        return self.samples[-1][1] - self.samples[0][1] if self.samples else math.nan
 
 
 def report(

@@ -79,9 +79,13 @@ def test_late_ticks_are_the_machines_when_the_control_loops_or_steal_time_explai
     kept.samples = []
     for at_s, steal_s in steal.samples:
         kept.record(at_s, steal_s)
-    assert kept.samples == [(100.0, 0.0), (200.0, 0.06)]
+    assert kept.samples == [(100.0, 0.0), (200.0, 0.06)] and kept.total() == 0.06
     for at_s in (150.0, 200.02, 250.0):
         assert kept.during_gap(at_s, 0.11) == steal.during_gap(at_s, 0.11)
+    kept.samples = kept.samples[:1]  # no steal at all: one sample kept, and none stolen
+    assert kept.total() == 0.0
+    kept.samples = kept.samples[:0]
+    assert math.isnan(kept.total())
     ticks = (tick(100.02, 0.1), tick(200.02, 0.09), tick(300.0, 0.07))
     lines = late.machine_lines(ticks, report, 0.05, steal)
     assert (
