@@ -41,7 +41,7 @@ import viser
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_teleop.app_options import AppOptions
 from bt_teleop.cleaning import CleanRunner, lower_thread_priority
-from bt_teleop.connections import ConnectionWatch
+from bt_teleop.connections import ConnectionWatch, loop_safe_wakeups
 from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.native_memory import HeapTrimmer
 from bt_teleop.reader_process import ReaderProcess
@@ -154,6 +154,7 @@ class TeleopApp:
         self.connections = ConnectionWatch(
             self.server, options.idle_timeout_s, busy=self._busy, notify=self._notify_idle
         )
+        loop_safe_wakeups(self.server._websock_server.get_message_buffer())  # see connections.py
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
         self.heap_trimmer = HeapTrimmer(options.trim_heap_every_s)
@@ -217,6 +218,7 @@ class TeleopApp:
         self.rerun.close()
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
+        loop_safe_wakeups(client._websock_connection.get_message_buffer())  # before our threads
         self.connections.touch(client.client_id)
         with self._lock:
             full = len(self._uis) + len(self._pending) >= self.options.max_sessions

@@ -23,7 +23,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Coroutine
-from typing import Any
+from typing import Any, cast
 
 import viser
 
@@ -34,6 +34,39 @@ IDLE_NOTICE_S = 1.0
 """How long an idle tab's socket stays open after its notice, so the notice arrives [s]."""
 IDLE_CLOSE_CODE = 1001
 """Websocket close code of an idle tab ("going away")."""
+
+
+class LoopSafeEvent(asyncio.Event):
+    """An :class:`asyncio.Event` whose ``set()`` does nothing unless called on its own event
+    loop's thread (:func:`loop_safe_wakeups` puts it under viser's message buffers).
+
+    viser 1.1.1's ``AsyncMessageBuffer.push`` calls ``message_event.set()`` directly from
+    whichever thread queues a message (our tabs' publisher threads), then again on the loop
+    through ``call_soon_threadsafe`` (at once, or at the end of an ``atomic()`` block).
+    ``asyncio.Event`` is not thread-safe: the direct call raced the loop adding a waiter
+    ("RuntimeError: deque mutated during iteration" in a soak, 2026-12-03 19:20), and such a
+    race can leave the waiter unresolved with the flag already set, after which every ``set()``
+    is a no-op and that tab gets no message again. The loop-side call that always follows
+    wakes the consumer; nothing in viser reads the flag off the loop."""
+
+    _bt_loop: asyncio.AbstractEventLoop | None = None
+
+    def set(self) -> None:
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            return  # a thread without a loop: the loop-side set() that follows wakes it
+        if self._bt_loop is None or running is self._bt_loop:
+            super().set()
+
+
+def loop_safe_wakeups(buffer: Any) -> None:
+    """Make `buffer`'s (a viser ``AsyncMessageBuffer``) message wake-ups thread-safe
+    (:class:`LoopSafeEvent`); a buffer without the attributes is left alone."""
+    event, loop = getattr(buffer, "message_event", None), getattr(buffer, "event_loop", None)
+    if type(event) is asyncio.Event:
+        event.__class__ = LoopSafeEvent  # the same object: waiters already queued stay
+        cast(LoopSafeEvent, event)._bt_loop = loop
 
 
 class ConnectionWatch:

@@ -244,3 +244,33 @@ def _forked(app: psutil.Process) -> list[psutil.Process]:
 
 def _now() -> datetime:
     return datetime.now(UTC)
+
+
+def test_a_tab_thread_never_sets_viser_message_events_off_their_loop(make_app, tabs) -> None:
+    """viser's message buffers set an asyncio.Event from the thread that queues a message,
+    which raced the loop (connections.LoopSafeEvent): off the loop the set waits for the
+    loop-side set that viser schedules next."""
+    import asyncio
+
+    from bt_teleop.connections import LoopSafeEvent
+
+    app = make_app()
+    tabs(app)
+    wait_until(lambda: len(app.sessions()) == 1, what="the tab's session")
+    (ui,) = app.sessions().values()
+    for buffer in (
+        app.server._websock_server.get_message_buffer(),
+        ui.client._websock_connection.get_message_buffer(),
+    ):
+        assert type(buffer.message_event) is LoopSafeEvent
+    loop = asyncio.new_event_loop()
+    event = LoopSafeEvent()
+    event._bt_loop = loop
+    waiter = loop.create_task(event.wait())
+    loop.run_until_complete(asyncio.sleep(0))  # the waiter is queued
+    event.set()  # off the loop: nothing happens
+    assert not event.is_set() and not waiter.done()
+    loop.call_soon_threadsafe(event.set)  # what viser schedules next
+    loop.run_until_complete(asyncio.wait_for(waiter, 5.0))
+    assert event.is_set()
+    loop.close()
