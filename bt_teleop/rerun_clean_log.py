@@ -20,7 +20,6 @@ A :class:`CleanLogTarget` says where the tab's recording lives:
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -36,7 +35,6 @@ from bt_teleop.rerun_layout import session_blueprint
 
 __all__ = ["APP_ID", "ROLLOUTS_SHOWN", "CleanLogTarget", "log_clean_to"]
 
-LOGGER = logging.getLogger("bt.teleop")
 APP_ID = "bt_teleop"
 """Rerun application id of every teleop recording."""
 ROLLOUTS_SHOWN = 20
@@ -58,10 +56,10 @@ class CleanLogTarget:
     tasks: tuple[str, ...] = ()
     """Tasks the tab's layout has tabs for before this Clean (``save``: the file's layout)."""
 
-    def rrd_for(self, task: str, now: datetime | None = None) -> Path:
-        """``save``: the file a Clean of `task` writes, beside the session's."""
+    def rrd_for(self, task: str) -> Path:
+        """``save``: the file a Clean of `task` writes now, beside the session's."""
         assert self.session_rrd is not None
-        stamp = utc_stamp(now or datetime.now(UTC))
+        stamp = utc_stamp(datetime.now(UTC))
         return self.session_rrd.with_name(f"{self.session_rrd.stem}_clean_{task}_{stamp}.rrd")
 
 
