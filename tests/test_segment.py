@@ -83,6 +83,44 @@ def test_lopsided_arch_is_fitted_centred_where_the_app_draws_the_guide() -> None
         assert abs(fit.rho - rho) < 0.05 and abs(fit.theta_deg - theta) < 5.0, (seed, fit)
 
 
+def test_lopsided_arches_are_read_from_centred_fits_alone() -> None:
+    """Noisy arches (3 mm) drawn bigger on one side: with the loop near the origin, only fits
+    centred there are modes, so the shifted compromise no longer wins. 20 seeds: 19 within
+    5° and 0.05 (11 with every fit a candidate, the rule before 2026-12-03 evening)."""
+    from bt_pipeline.data.shapes import canonical_shape
+    from bt_pipeline.data.synth import lopsided
+
+    phases = np.linspace(0.0, 2 * np.pi, 400, endpoint=False)
+    hits = 0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        bulged, _ = lopsided(canonical_shape("pick_and_place", phases), "pick_and_place", rng)
+        theta, rho = rng.uniform(-30, 30), rng.uniform(0.75, 1.35)
+        drawn = similarity_transform(bulged, theta, rho) + rng.normal(0.0, 0.003, (400, 2))
+        fit = fit_guide(drawn, "pick_and_place")
+        hits += abs(fit.rho - rho) < 0.05 and abs(fit.theta_deg - theta) < 5.0
+    assert hits >= 17
+
+
+@pytest.mark.parametrize("offset_m", [0.03, 0.09])
+def test_a_wobbly_loop_off_the_origin_is_not_pulled_to_it(offset_m: float) -> None:
+    """A wobbly arch drawn 3 or 9 cm off the plane's origin (an imported file's origin is the
+    mean of its samples): too far (9 cm, 25 % of its size), or fitting the origin far worse
+    than its own centre (3 cm), the centred fits do not decide, and θ/ρ stay right."""
+    from bt_pipeline.data.shapes import canonical_shape
+
+    t = np.linspace(0.0, 8.0, 800)
+    rng = np.random.default_rng(5)
+    wobble = sum(
+        rng.uniform(0.002, 0.004)
+        * np.sin(2 * np.pi * rng.uniform(0.1, 0.6) * t[:, None] + rng.uniform(0, 7, 2))
+        for _ in range(3)
+    )
+    loop = similarity_transform(canonical_shape("pick_and_place", 2 * np.pi * t / 4.0), 15.0, 1.2)
+    fit = fit_guide(loop + wobble + np.array([offset_m, -0.3 * offset_m]), "pick_and_place")
+    assert abs(fit.rho - 1.2) < 0.05 and abs(fit.theta_deg - 15.0) < 5.0, fit
+
+
 def test_drift_does_not_bias_the_estimate() -> None:
     """Three loops drifting 3 cm sideways: θ/ρ still within 5° and 0.05, the drift measured."""
     from bt_pipeline.data.shapes import canonical_shape

@@ -55,6 +55,8 @@ _HALF_TRIM = 0.9  # Share of a half's points kept by its refit.
 _CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (see _BULGE),
 _CONSENSUS_FLOOR_M = 0.0005  # or within this of it [m] (a clean loop's costs are near 0).
 _BULGE = 0.06  # The smallest mode wins when its ρ is this share below the median mode's.
+_CENTRED_REACH = 0.15  # Centred fits alone count when the fit's centre is this share of the
+_CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this factor as well.
 
 
 @dataclass(frozen=True)
@@ -236,6 +238,7 @@ def _consensus(
     local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
     halves = [points[side * local[:, axis] > 0.0] for axis in range(2) for side in (-1.0, 1.0)]
     found: list[tuple[float, GuideFit]] = []
+    kinds: list[bool] = []  # Whether each fit in `found` is centred on the origin.
     for centred in (False, True):
         starts = [(fit.theta_deg, fit.rho, np.zeros(2))] if centred else []
         for half in halves:
@@ -277,7 +280,18 @@ def _consensus(
             if math.isfinite(residual):
                 candidate = GuideFit(th, r, t, residual, r * size)
                 found.append((_trimmed_cost(points, tree, candidate, keep), candidate))
+                kinds.append(centred)
     found.append((base, fit))
+    kinds.append(False)
+    centred_costs = [c for (c, _), k in zip(found, kinds, strict=True) if k]
+    free_low = min(c for (c, _), k in zip(found, kinds, strict=True) if not k)
+    if (
+        float(np.linalg.norm(fit.translation)) <= _CENTRED_REACH * fit.size_m
+        and centred_costs
+        and min(centred_costs) <= _CENTRED_SLACK * free_low
+    ):
+        # The loop is centred where the app draws the guide: only centred fits count.
+        found = [f for f, k in zip(found, kinds, strict=True) if k]
     low = min(c for c, _ in found)
     tie = max(_CONSENSUS_TIE * low, low + _CONSENSUS_FLOOR_M)
     modes = sorted((f for c, f in found if c <= tie), key=lambda f: f.rho)
