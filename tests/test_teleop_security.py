@@ -184,6 +184,11 @@ def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
         tab = FakeTab(port)
         app = psutil.Process(process.pid)
         wait_until(lambda: _session_processes(app), 60.0, "the tab's session process")
+        # The reader names itself just after its fork; on a busy machine that can take a while,
+        # and until then it looks like a second session.
+        wait_until(
+            lambda: any(c.name() == READER_NAME for c in _forked(app)), 60.0, "the named reader"
+        )
         time.sleep(1.0)  # let Rerun's servers come up
         sockets = listening(process.pid)
         assert sockets, "bt teleop listens on nothing"

@@ -23,7 +23,11 @@ The fit is a trimmed iterative-closest-point similarity fit:
    suited the human-style generator's lopsided loops but read wobbly hands' ρ too small on
    data made two other ways; hidden θ within 5° and ρ within 0.05, human-style / app takes /
    operator sets (wiping, weaving, pick-and-place): 83, 100, 69 / 67, 100, 67 / 77, 92, 82 % with
-   the smallest always; 77, 100, 62 / 83, 100, 83 / 97, 98, 93 % now (README).
+   the smallest always; 77, 100, 62 / 83, 100, 83 / 97, 98, 93 % with the median rule.
+5. When that loop's fit lies near the plane's origin (within 15 % of its size) and the best
+   centred fit costs at most 3 x the best free one, only the centred fits are modes: a lopsided
+   arch's shifted compromise no longer outweighs them (2026-12-03 evening; the same three:
+   83, 97, 81 / 100, …, … / 97, 100, 97 %; README).
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
 """
@@ -227,8 +231,12 @@ def _consensus(
     the smallest read ρ too small (module doc). On an arch a bulged
     side is nearly a similarity of the whole guide, shifted, so every fit with a free
     translation settles on that compromise; the same fits with the guide centred on the plane's
-    origin (t = 0, where the app draws the guide) are candidates too. On a loop without such a
-    defect every fit lands on the same mode and nothing changes.
+    origin (t = 0, where the app draws the guide) are candidates too. When the loop's fit lies
+    within 15 % of its size of the origin and the best centred fit costs at most 3 x the best
+    free one, the centred fits alone are modes (the compromise had outweighed them); a loop far
+    from the origin (an imported file's origin is the mean of its samples) or one that fits it
+    far worse (a drifting single loop, a hand drawn off-centre) keeps every fit. On a loop
+    without such a defect every fit lands on the same mode and nothing changes.
     """
     size = float(np.max(np.ptp(guide, axis=0)))
     keep = max(3, int(_CONSENSUS_KEEP * points.shape[0]))
