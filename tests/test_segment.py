@@ -84,22 +84,23 @@ def test_lopsided_arch_is_fitted_centred_where_the_app_draws_the_guide() -> None
 
 
 def test_lopsided_arches_are_read_from_centred_fits_alone() -> None:
-    """Noisy arches (3 mm) drawn bigger on one side: with the loop near the origin, only fits
-    centred there are modes, so the shifted compromise no longer wins. 20 seeds: 19 within
-    5° and 0.05 (11 with every fit a candidate, the rule before 2026-12-03 evening)."""
+    """Noisy arches (5 mm) drawn bigger on one side: with the loop near the origin, only fits
+    centred there are modes, so the shifted compromise no longer wins, and among them the
+    smallest ρ wins from 3 % below the median's. 30 seeds: 30 within 5° and 0.05 (26 from 6 %
+    below; 13 with every fit a candidate, the rule before 2026-12-03 evening)."""
     from bt_pipeline.data.shapes import canonical_shape
     from bt_pipeline.data.synth import lopsided
 
     phases = np.linspace(0.0, 2 * np.pi, 400, endpoint=False)
     hits = 0
-    for seed in range(20):
+    for seed in range(30):
         rng = np.random.default_rng(seed)
         bulged, _ = lopsided(canonical_shape("pick_and_place", phases), "pick_and_place", rng)
         theta, rho = rng.uniform(-30, 30), rng.uniform(0.75, 1.35)
-        drawn = similarity_transform(bulged, theta, rho) + rng.normal(0.0, 0.003, (400, 2))
+        drawn = similarity_transform(bulged, theta, rho) + rng.normal(0.0, 0.005, (400, 2))
         fit = fit_guide(drawn, "pick_and_place")
         hits += abs(fit.rho - rho) < 0.05 and abs(fit.theta_deg - theta) < 5.0
-    assert hits >= 17
+    assert hits >= 29
 
 
 @pytest.mark.parametrize("offset_m", [0.03, 0.09])

@@ -27,7 +27,8 @@ The fit is a trimmed iterative-closest-point similarity fit:
 5. When that loop's fit lies near the plane's origin (within 15 % of its size) and the best
    centred fit costs at most 3 x the best free one, only the centred fits are modes: a lopsided
    arch's shifted compromise no longer outweighs them (2026-12-03 evening; the same three:
-   83, 97, 81 / 100, …, … / 97, 100, 97 %; README).
+   89, 97, 89 / 100, 100, 92 / 97, 100, 97 %; README). Among the centred modes the smallest wins
+   from 3 % below the median mode (they hold no shifted compromise between the two sides).
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
 """
@@ -60,7 +61,8 @@ _CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (se
 _CONSENSUS_FLOOR_M = 0.0005  # or within this of it [m] (a clean loop's costs are near 0).
 _BULGE = 0.06  # The smallest mode wins when its ρ is this share below the median mode's.
 _CENTRED_REACH = 0.15  # Centred fits alone count when the fit's centre is this share of the
-_CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this factor as well.
+_CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this factor as well;
+_CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
 
 
 @dataclass(frozen=True)
@@ -233,7 +235,9 @@ def _consensus(
     translation settles on that compromise; the same fits with the guide centred on the plane's
     origin (t = 0, where the app draws the guide) are candidates too. When the loop's fit lies
     within 15 % of its size of the origin and the best centred fit costs at most 3 x the best
-    free one, the centred fits alone are modes (the compromise had outweighed them); a loop far
+    free one, the centred fits alone are modes (the compromise had outweighed them), and the
+    smallest of them wins from 3 % below the median (no compromise sits between the two
+    sides' fits any more, so a smaller gap tells a bulge from a wobble's scatter); a loop far
     from the origin (an imported file's origin is the mean of its samples) or one that fits it
     far worse (a drifting single loop, a hand drawn off-centre) keeps every fit. On a loop
     without such a defect every fit lands on the same mode and nothing changes.
@@ -300,11 +304,14 @@ def _consensus(
     ):
         # The loop is centred where the app draws the guide: only centred fits count.
         found = [f for f, k in zip(found, kinds, strict=True) if k]
+        bulge = _CENTRED_BULGE
+    else:
+        bulge = _BULGE
     low = min(c for c, _ in found)
     tie = max(_CONSENSUS_TIE * low, low + _CONSENSUS_FLOOR_M)
     modes = sorted((f for c, f in found if c <= tie), key=lambda f: f.rho)
     middle = modes[(len(modes) - 1) // 2]
-    return modes[0] if modes[0].rho < (1.0 - _BULGE) * middle.rho else middle
+    return modes[0] if modes[0].rho < (1.0 - bulge) * middle.rho else middle
 
 
 def _icp(
