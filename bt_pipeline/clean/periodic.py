@@ -52,6 +52,7 @@ _POOL_THETA_DEG = 2.5  # Estimates this close in θ [deg] and
 _POOL_RHO = 0.025  # in ρ agree when a demonstrator's demos are pooled.
 _RETIME_OVERSAMPLE = 4  # Points of the dense reference per reference sample.
 _MIN_LOOPS = 0.25  # loop_smoothness counts an incomplete loop as at least this many loops.
+_GAP_STEPS = 4.0  # A cycle skips phases between kept samples this many median steps apart.
 
 
 @dataclass(frozen=True)
@@ -224,9 +225,12 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     have misaligned cycles. Each sample's phase along the fitted guide is tracked
     (:func:`track_phase`); every cycle is read (interpolated along the demo) at the same N − 1
     phases and the cycles are averaged, so every cycle counts. Samples more than
-    max(8 mm, 6 % of its size) off the guide (an excursion) are left out. Phases no sample
-    reached (an incomplete loop) take the fitted guide's point at that phase. The loop starts
-    at the demo's first phase and is closed (N samples).
+    max(8 mm, 6 % of its size) off the guide (an excursion) are left out, and so are the
+    N-sample path's bridges across gaps in the raw samples (:func:`_sampled`); a cycle does not
+    cover the phases between kept samples more than 4 median steps apart, where it would only
+    add a chord (a wobbly figure-eight's 0.2-0.5 s gaps bent its canonical loop's lobe in by
+    2-3 cm: docs/quality.md). Phases no cycle covers (an incomplete loop) take the fitted guide's
+    point at that phase. The loop starts at the demo's first phase and is closed (N samples).
 
     Returns:
         The loop as a demo of N samples, and whether any bin was filled from the guide.
@@ -243,12 +247,19 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     tolerance = max(0.008, 0.06 * segment.guide.size_m)
     mono = np.maximum.accumulate(loops)
     keep = (off <= tolerance) & np.concatenate([[True], np.diff(mono) > 1e-9])
+    keep &= _sampled(demo)[0]  # Not the resampling's bridge across a gap in the raw samples.
     if keep.sum() < 2:
         keep[:] = np.concatenate([[True], np.diff(mono) > 1e-9])
     # Each cycle read at the same N − 1 phases (interpolated along the demo), then averaged.
     cycle = np.arange(math.floor(mono[0]), math.ceil(mono[-1]))[:, None]
     grid = cycle + (np.arange(bins) + 0.5) / bins  # (cycles, bins), in loops
     covered = (grid >= mono[keep][0]) & (grid <= mono[keep][-1])
+    # A cycle covers a phase only where kept samples lie close on both sides: across a gap (in
+    # the raw samples, or an excursion left out) the interpolation would draw a chord, and the
+    # other cycles (or the guide) fill that phase instead.
+    kept = mono[keep]
+    after = np.clip(np.searchsorted(kept, grid), 1, kept.size - 1)
+    covered &= kept[after] - kept[after - 1] <= _GAP_STEPS * float(np.median(np.diff(kept)))
     values = np.stack([np.interp(grid, mono[keep], x[keep, d]) for d in range(2)], axis=-1)
     counts = covered.sum(axis=0)
     sums = np.einsum("cb,cbd->bd", covered.astype(np.float64), values)
