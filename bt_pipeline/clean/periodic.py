@@ -258,8 +258,9 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     # the raw samples, or an excursion left out) the interpolation would draw a chord, and the
     # other cycles (or the guide) fill that phase instead.
     kept = mono[keep]
-    after = np.clip(np.searchsorted(kept, grid), 1, kept.size - 1)
-    covered &= kept[after] - kept[after - 1] <= _GAP_STEPS * float(np.median(np.diff(kept)))
+    if kept.size >= 3:
+        after = np.clip(np.searchsorted(kept, grid), 1, kept.size - 1)
+        covered &= kept[after] - kept[after - 1] <= _GAP_STEPS * float(np.median(np.diff(kept)))
     values = np.stack([np.interp(grid, mono[keep], x[keep, d]) for d in range(2)], axis=-1)
     counts = covered.sum(axis=0)
     sums = np.einsum("cb,cbd->bd", covered.astype(np.float64), values)
