@@ -293,7 +293,12 @@ and on a busy machine the sessions' control loops must get the CPU first."""
 
 
 def lower_priority(increment: int = CLEAN_NICE) -> None:
-    """Lower this process's CPU priority by `increment` (``os.nice``; nothing where absent)."""
+    """Lower the CPU priority by `increment` (``os.nice``; nothing where absent).
+
+    On Linux ``os.nice`` changes the calling thread's nice value only, and threads started
+    afterwards inherit it: call it first in a child process (a clean job, the reader), before
+    any thread starts, and the whole process runs lower.
+    """
     if hasattr(os, "nice"):
         try:
             os.nice(increment)
