@@ -227,10 +227,11 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     phases and the cycles are averaged, so every cycle counts. Samples more than
     max(8 mm, 6 % of its size) off the guide (an excursion) are left out, and so are the
     N-sample path's bridges across gaps in the raw samples (:func:`_sampled`); a cycle does not
-    cover the phases between kept samples more than 4 median steps apart, where it would only
-    add a chord (a wobbly figure-eight's 0.2-0.5 s gaps bent its canonical loop's lobe in by
-    2-3 cm: docs/quality.md). Phases no cycle covers (an incomplete loop) take the fitted guide's
-    point at that phase. The loop starts at the demo's first phase and is closed (N samples).
+    cover the phases across such a gap (kept samples more than 4 median steps apart with a
+    bridge between them), where it would only add a chord (a steady figure-eight's 0.1-0.5 s
+    gaps bent its canonical loop's lobe in by 2-3 cm: docs/quality.md). Phases no cycle covers
+    (an incomplete loop) take the fitted guide's point at that phase. The loop starts at the
+    demo's first phase and is closed (N samples).
 
     Returns:
         The loop as a demo of N samples, and whether any bin was filled from the guide.
@@ -246,21 +247,28 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     off = np.linalg.norm(x - guide[np.round(phase).astype(int) % guide.shape[0]], axis=1)
     tolerance = max(0.008, 0.06 * segment.guide.size_m)
     mono = np.maximum.accumulate(loops)
-    keep = (off <= tolerance) & np.concatenate([[True], np.diff(mono) > 1e-9])
-    keep &= _sampled(demo)[0]  # Not the resampling's bridge across a gap in the raw samples.
+    # Left out: samples off the guide, the resampling's bridges across gaps in the raw samples,
+    # and the hand at rest.
+    seen = _sampled(demo)[0]
+    keep = (off <= tolerance) & seen & np.concatenate([[True], np.diff(mono) > 1e-9])
     if keep.sum() < 2:
         keep[:] = np.concatenate([[True], np.diff(mono) > 1e-9])
     # Each cycle read at the same N − 1 phases (interpolated along the demo), then averaged.
     cycle = np.arange(math.floor(mono[0]), math.ceil(mono[-1]))[:, None]
     grid = cycle + (np.arange(bins) + 0.5) / bins  # (cycles, bins), in loops
     covered = (grid >= mono[keep][0]) & (grid <= mono[keep][-1])
-    # A cycle covers a phase only where kept samples lie close on both sides: across a gap (in
-    # the raw samples, or an excursion left out) the interpolation would draw a chord, and the
-    # other cycles (or the guide) fill that phase instead.
-    kept = mono[keep]
-    if kept.size >= 3:
-        after = np.clip(np.searchsorted(kept, grid), 1, kept.size - 1)
-        covered &= kept[after] - kept[after - 1] <= _GAP_STEPS * float(np.median(np.diff(kept)))
+    # A cycle does not cover the phases across a gap in the raw samples: kept samples with a
+    # bridge between them, more than 4 median steps apart (the interpolation would draw the
+    # chord). The other cycles, or the guide, fill them. A hand that only moves fast, or one
+    # sample off the guide, keeps its phases.
+    index = np.flatnonzero(keep)
+    if index.size >= 3:
+        kept = mono[index]
+        bridged = np.cumsum(~seen)
+        gap = (bridged[index[1:]] > bridged[index[:-1]]) & (
+            np.diff(kept) > _GAP_STEPS * float(np.median(np.diff(kept)))
+        )
+        covered &= ~gap[np.clip(np.searchsorted(kept, grid), 1, kept.size - 1) - 1]
     values = np.stack([np.interp(grid, mono[keep], x[keep, d]) for d in range(2)], axis=-1)
     counts = covered.sum(axis=0)
     sums = np.einsum("cb,cbd->bd", covered.astype(np.float64), values)
