@@ -249,8 +249,7 @@ def _consensus(
     base = _trimmed_cost(points, tree, fit, keep)
     local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
     halves = [points[side * local[:, axis] > 0.0] for axis in range(2) for side in (-1.0, 1.0)]
-    found: list[tuple[float, GuideFit]] = []
-    kinds: list[bool] = []  # Whether each fit in `found` is centred on the origin.
+    found: list[tuple[float, GuideFit, bool]] = []  # (trimmed cost, fit, centred on the origin)
     for centred in (False, True):
         starts = [(fit.theta_deg, fit.rho, np.zeros(2))] if centred else []
         for half in halves:
@@ -291,25 +290,23 @@ def _consensus(
             )
             if math.isfinite(residual):
                 candidate = GuideFit(th, r, t, residual, r * size)
-                found.append((_trimmed_cost(points, tree, candidate, keep), candidate))
-                kinds.append(centred)
-    found.append((base, fit))
-    kinds.append(False)
-    centred_costs = [c for (c, _), k in zip(found, kinds, strict=True) if k]
-    free_low = min(c for (c, _), k in zip(found, kinds, strict=True) if not k)
+                found.append((_trimmed_cost(points, tree, candidate, keep), candidate, centred))
+    found.append((base, fit, False))
+    centred_costs = [c for c, _, centred in found if centred]
+    free_low = min(c for c, _, centred in found if not centred)
     if (
         float(np.linalg.norm(fit.translation)) <= _CENTRED_REACH * fit.size_m
         and centred_costs
         and min(centred_costs) <= _CENTRED_SLACK * free_low
     ):
         # The loop is centred where the app draws the guide: only centred fits count.
-        found = [f for f, k in zip(found, kinds, strict=True) if k]
+        found = [f for f in found if f[2]]
         bulge = _CENTRED_BULGE
     else:
         bulge = _BULGE
-    low = min(c for c, _ in found)
+    low = min(c for c, _, _ in found)
     tie = max(_CONSENSUS_TIE * low, low + _CONSENSUS_FLOOR_M)
-    modes = sorted((f for c, f in found if c <= tie), key=lambda f: f.rho)
+    modes = sorted((f for c, f, _ in found if c <= tie), key=lambda f: f.rho)
     middle = modes[(len(modes) - 1) // 2]
     return modes[0] if modes[0].rho < (1.0 - bulge) * middle.rho else middle
 
