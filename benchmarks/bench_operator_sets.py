@@ -10,14 +10,24 @@ over ``--seeds`` sets of 5 demos, it reports:
 - the steady demo's worst shape and timing ratios (after/before, ``synth_truth.ratios_against``
   against the operator's intended path: a wrong best shows as a ratio far above 1);
 - the wobbly demos' mean shape and timing ratios;
-- with θ/ρ hidden, the share of estimates within 5° and 0.05.
+- with θ/ρ hidden, the share of estimates within 5° and 0.05, and the median error of the
+  estimates (|Δθ|, |Δρ|).
+
+``--oracle`` adds a third row per task, a reference for the hidden row: each demo's θ/ρ given as
+the **oracle similarity**, the least-squares fit of the operator's intended loop onto the drawn
+samples with the true sample-to-phase correspondence (which no estimator has), so the part of
+the wobble that looks like a rotation or a scale of the loop is in it. No estimate from the
+samples alone can be expected to do better than this row by much; the gap between it and the
+hidden row is what a better estimator could still gain.
 
     python benchmarks/bench_operator_sets.py --seeds 12
+    python benchmarks/bench_operator_sets.py --seeds 6 --oracle
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from collections import defaultdict
 
 import numpy as np
@@ -25,13 +35,31 @@ import numpy as np
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.synth_truth import ratios_against
 from bt_pipeline.data.tasks import TASKS
-from bt_pipeline.testing.operator_sets import operator_set
+from bt_pipeline.testing.operator_sets import OperatorDemo, operator_set
 
 
-def measure(task: str, seed: int, hidden: bool) -> dict[str, list[float]]:
-    """The ratios and rates of one cleaned set."""
+def oracle_similarity(op: OperatorDemo) -> tuple[float, float]:
+    """θ [deg] and ρ of the least-squares similarity (free translation) that maps the intended
+    loop onto the drawn samples, sample for sample (the true correspondence)."""
+    positions, _ = op.demo.raw_samples()
+    drawn = positions[op.on_loop, 0] + 1j * positions[op.on_loop, 1]
+    meant = op.intended[op.on_loop, 0] + 1j * op.intended[op.on_loop, 1]
+    drawn, meant = drawn - drawn.mean(), meant - meant.mean()
+    s = np.vdot(meant, drawn) / np.vdot(meant, meant)  # ρ' e^{iθ'} relative to the truth
+    return op.theta_deg + float(np.degrees(np.angle(s))), op.rho * float(abs(s))
+
+
+def measure(task: str, seed: int, mode: str) -> dict[str, list[float]]:
+    """The ratios and rates of one cleaned set; `mode` is given, hidden or oracle."""
+    hidden = mode == "hidden"
     ops = operator_set(task, seed, hidden=hidden)  # type: ignore[arg-type]
     demos = [o.demo for o in ops.demos]
+    if mode == "oracle":
+        demos = [
+            dataclasses.replace(o.demo, theta_deg=th, rho=r)
+            for o in ops.demos
+            for th, r in [oracle_similarity(o)]
+        ]
     result = clean_demos(demos, CleanOptions(seed=seed, progress=False))
     utility = np.array([s.utility for s in result.scores.scores])
     out: dict[str, list[float]] = defaultdict(list)
@@ -48,6 +76,10 @@ def measure(task: str, seed: int, hidden: bool) -> dict[str, list[float]]:
             p = result.preferences[i]
             ok = abs(p.theta_deg - op.theta_deg) < 5.0 and abs(p.rho - op.rho) < 0.05
             out["hidden_ok"].append(float(ok))
+        if mode != "given" and kind == "wobbly":  # The θ/ρ the cleaner used: estimated or oracle.
+            p = result.preferences[i]
+            out["theta_err"].append(abs(p.theta_deg - op.theta_deg))
+            out["rho_err"].append(abs(p.rho - op.rho))
     return out
 
 
@@ -55,26 +87,34 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seeds", type=int, default=12)
     parser.add_argument("--tasks", default=",".join(TASKS))
+    parser.add_argument("--oracle", action="store_true", help="add the oracle-similarity row")
     args = parser.parse_args()
     print(
         "| task | θ/ρ | sets | best = steady | Ũ alone | steady shape / timing (worst) | "
-        "wobbly shape / timing (mean) | hidden θ within 5° and ρ within 0.05 |"
+        "wobbly shape / timing (mean) | hidden θ within 5° and ρ within 0.05 | "
+        "median \\|Δθ\\| / \\|Δρ\\| (wobbly) |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
+    modes = ("given", "hidden", "oracle") if args.oracle else ("given", "hidden")
     for task in args.tasks.split(","):
-        for hidden in (False, True):
+        for mode in modes:
             runs: dict[str, list[float]] = defaultdict(list)
             for seed in range(args.seeds):
-                for key, values in measure(task, seed, hidden).items():
+                for key, values in measure(task, seed, mode).items():
                     runs[key].extend(values)
-            hidden_ok = f"{100 * np.mean(runs['hidden_ok']):.0f}%" if hidden else "—"
+            hidden_ok = f"{100 * np.mean(runs['hidden_ok']):.0f}%" if mode == "hidden" else "—"
+            errors = (
+                f"{np.median(runs['theta_err']):.2f}° / {np.median(runs['rho_err']):.4f}"
+                if runs["rho_err"]
+                else "—"
+            )
             print(
-                f"| {task} | {'hidden' if hidden else 'given'} | {args.seeds} | "
+                f"| {task} | {mode} | {args.seeds} | "
                 f"{100 * np.mean(runs['selected']):.0f}% | "
                 f"{100 * np.mean(runs['by_utility']):.0f}% | "
                 f"{np.max(runs['steady_shape']):.2f} / {np.max(runs['steady_timing']):.2f} | "
                 f"{np.mean(runs['wobbly_shape']):.2f} / {np.mean(runs['wobbly_timing']):.2f} | "
-                f"{hidden_ok} |",
+                f"{hidden_ok} | {errors} |",
                 flush=True,
             )
 
