@@ -450,7 +450,9 @@ def test_a_retreat_running_on_along_the_loop_is_trimmed_on_a_dense_guide() -> No
     4 loops with a retreat that runs on along the loop 2-4 mm off for 0.7 s. Measured to the
     vertices of a 512-point guide its samples read a median 0.8 mm off, the end trim's
     threshold was 3.2 mm and the retreat stayed in the span (4.05 loops, shape ratio 1.18);
-    measured to a dense guide the end is cut within 0.4 s of the true one."""
+    measured to a dense guide the end is cut within 0.4 s of the true one (0.32 s after it
+    with the trimmed fit's ρ, 0.3 % small; 0.06 s before it, 3.96 loops, since the refined
+    fit reads ρ within 0.1 %: a kept retreat would count more than 4.02)."""
     synth = make_human_set("weaving", 8, 1)
     demo = demos_from_recording(synth.recording)[synth.expert_index]
     record = list(synth.recording.demos.values())[synth.expert_index]
@@ -459,8 +461,8 @@ def test_a_retreat_running_on_along_the_loop_is_trimmed_on_a_dense_guide() -> No
     _, on_loop = stored
     uv, t = demo.raw_samples()
     segment = segment_demo(uv, t, demo.task, theta_deg=demo.theta_deg, rho=demo.rho)
-    assert segment.end_s - t[on_loop][-1] < 0.4, (segment.end_s, t[on_loop][-1])
-    assert abs(segment.cycles - 4.0) <= 0.02
+    assert abs(segment.end_s - t[on_loop][-1]) < 0.4, (segment.end_s, t[on_loop][-1])
+    assert -0.05 <= segment.cycles - 4.0 <= 0.02
 
 
 def test_the_end_trim_reads_the_drift_against_the_final_fit() -> None:

@@ -39,7 +39,9 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
 6. **Preference.** The guide is fitted again to the kept span alone, from every start (on the
    path smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops), the drift
    is estimated again over the span against that fit, and the guide fitted once more to the
-   span with that drift removed; that fit's θ/ρ are the demo's estimate. (Before 2026-12-02 the
+   span with that drift removed, and refined over every sample of the span with robust weights
+   (:func:`refine_fit`: the trimmed fit's kept 60 % are a biased share of a wobbly loop); that
+   fit's θ/ρ are the demo's estimate. (Before 2026-12-02 the
    span was fitted from the first fit of the whole moving part, with its drift: on a steady,
    fast figure-eight that first fit read ρ 6-9 % low, the drift polynomial took up the
    difference, 8-19 mm on a hand that did not drift, and the refit stayed there.) A lopsided
@@ -64,6 +66,7 @@ from numpy.typing import ArrayLike
 from scipy.ndimage import gaussian_filter1d
 
 from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, fit_guide
+from bt_pipeline.clean.guide_refine import refine_fit
 from bt_pipeline.clean.guide_track import (
     along_guide,
     drift_along,
@@ -226,12 +229,17 @@ def segment_demo(
     fit = fit_guide(
         lspan - span_drift, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
     )
+    # Refined over the raw samples in the span (not the clock's, which bridge gaps in the
+    # samples with chords that cut inside the loop), their drift read off the span's.
+    span_clock = clock[first + fa : first + fb + 1]
+    inside = (t >= span_clock[0]) & (t <= span_clock[-1])
+    raw_drift = np.stack([np.interp(t[inside], span_clock, span_drift[:, d]) for d in range(2)], 1)
+    fit = refine_fit(x[inside] - raw_drift, fit, task, allowed, theta_deg, rho)
     # Snap the span to raw sample times: the first and last raw sample inside it.
     i0 = min(int(np.searchsorted(t, clock[first + a] - 1e-9)), t.size - 2)
     i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
     if first + b == clock.size - 1:
         i1 = t.size - 1  # The span runs to the recording's end (the clock stops short of it).
-    span_clock = clock[first + fa : first + fb + 1]
     guide = fit.guide(task, _TRACK_POINTS)
     j0, j1 = i0, i1
     if cycles >= _EDGE_MIN_CYCLES:
