@@ -121,9 +121,9 @@ class Segment:
     """How far the hand's offset from the guide wandered over the span (range of the drift
     estimate) [m]: small for a demo drawn steadily off-centre, large for a drifting one."""
     misfit_m: float = 0.0
-    """90th percentile of the distances of the span's samples (drift removed) to the fitted
-    guide, every sample counted (the fit itself trims) [m]: small when the whole loop has the
-    guide's shape."""
+    """90th percentile of the distances of the span's samples (on the path θ/ρ are fitted to,
+    σ = 0.03 s, drift removed) to the fitted guide, every sample counted (the fit itself trims)
+    [m]: small when the whole loop has the guide's shape."""
 
     @property
     def duration_s(self) -> float:
@@ -235,6 +235,8 @@ def segment_demo(
     inside = (t >= span_clock[0]) & (t <= span_clock[-1])
     raw_drift = np.stack([np.interp(t[inside], span_clock, span_drift[:, d]) for d in range(2)], 1)
     fit = refine_fit(x[inside] - raw_drift, fit, task, allowed, theta_deg, rho)
+    fitted = lspan - span_drift  # The misfit is read on this path, not the analysis path (its
+    # smoothing, σ = 0.08 s, shrinks a fast loop, so a right ρ read as a misfit of several mm).
     # Snap the span to raw sample times: the first and last raw sample inside it.
     i0 = min(int(np.searchsorted(t, clock[first + a] - 1e-9)), t.size - 2)
     i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
@@ -261,7 +263,9 @@ def segment_demo(
         guide=fit,
         drift_m=float(np.max(np.ptp(drift[a : b + 1], axis=0))),
         misfit_m=float(
-            np.percentile(nearest_distance(fit.guide(task, _TRACK_POINTS), clear[a : b + 1]), 90)
+            np.percentile(
+                nearest_distance(fit.guide(task, _TRACK_POINTS), fitted[a - fa : b - fa + 1]), 90
+            )
         ),
     )
 
