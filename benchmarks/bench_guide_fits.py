@@ -20,6 +20,12 @@ moves the seed range (the refinement's constants were chosen on seeds 0-7, so 8 
 held apart):
 
     python benchmarks/bench_guide_fits.py --first-seed 8 --seeds 16 --refine-both
+
+``--oracle`` adds a row per task for the **oracle similarity**: the least-squares similarity
+(free translation) that maps each demo's intended path onto its drawn samples over the true
+loop part, with the true sample-to-phase correspondence, which no estimator has. On a lopsided
+loop it shows whether the truth (the generator's θ/ρ before one side was bulged) is the
+similarity that best explains what was drawn.
 """
 
 from __future__ import annotations
@@ -48,12 +54,31 @@ def _error(
     return abs(fit.theta_deg - theta), abs(fit.rho - rho)
 
 
+def _oracle(
+    demo_samples: tuple[np.ndarray, np.ndarray],
+    intended: np.ndarray,
+    on_loop: np.ndarray,
+    theta: float,
+    rho: float,
+) -> tuple[float, float]:
+    """|Δθ| [deg] and |Δρ| of the oracle similarity (module doc)."""
+    positions, _ = demo_samples
+    drawn = positions[on_loop, 0] + 1j * positions[on_loop, 1]
+    meant = intended[on_loop, 0] + 1j * intended[on_loop, 1]
+    drawn, meant = drawn - drawn.mean(), meant - meant.mean()
+    s = np.vdot(meant, drawn) / np.vdot(meant, meant)  # ρ' e^{iθ'} relative to the truth
+    return abs(float(np.degrees(np.angle(s)))), abs(rho * (float(abs(s)) - 1.0))
+
+
 def _unrefined(positions: np.ndarray, fit: GuideFit, *args: object, **kwargs: object) -> GuideFit:
     return fit
 
 
-def measure(task: Task, seeds: int, first: int = 0) -> dict[str, list[tuple[float, float]]]:
-    """Estimate errors per kind of demo over `seeds` sets of each generator from seed `first`."""
+def measure(
+    task: Task, seeds: int, first: int = 0, oracle: bool = False
+) -> dict[str, list[tuple[float, float]]]:
+    """Estimate errors per kind of demo over `seeds` sets of each generator from seed `first`
+    (with `oracle`, the oracle similarity's errors instead)."""
     kinds: dict[str, list[tuple[float, float]]] = {
         "lopsided": [],
         "other": [],
@@ -66,11 +91,22 @@ def measure(task: Task, seeds: int, first: int = 0) -> dict[str, list[tuple[floa
         for i, record in enumerate(synth.recording.demos.values()):
             theta, rho = record.attrs["truth_theta_deg"], record.attrs["truth_rho"]
             kind = "lopsided" if "lopsided" in synth.demos[i].defects else "other"
-            kinds[kind].append(_error(demos[i].raw_samples(), task, theta, rho))
+            samples = demos[i].raw_samples()
+            human = synth.demos[i]
+            kinds[kind].append(
+                _oracle(samples, human.truth_uv, human.on_loop, theta, rho)
+                if oracle
+                else _error(samples, task, theta, rho)
+            )
         ops = operator_set(task, seed, hidden=True)
         for i, op in enumerate(ops.demos):
             kind = "steady" if i == ops.steady_index else "wobbly"
-            kinds[kind].append(_error(op.demo.raw_samples(), task, op.theta_deg, op.rho))
+            samples = op.demo.raw_samples()
+            kinds[kind].append(
+                _oracle(samples, op.intended, op.on_loop, op.theta_deg, op.rho)
+                if oracle
+                else _error(samples, task, op.theta_deg, op.rho)
+            )
     return kinds
 
 
@@ -79,6 +115,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=12)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--refine-both", action="store_true", help="rows without and with it")
+    parser.add_argument("--oracle", action="store_true", help="add the oracle similarity's row")
     parser.add_argument("--tasks", default=",".join(TASKS))
     parser.add_argument("--centred-reach", type=float, default=guide_fit._CENTRED_REACH)
     parser.add_argument("--centred-slack", type=float, default=guide_fit._CENTRED_SLACK)
@@ -107,6 +144,10 @@ def main() -> None:
             print(
                 f"| {task} | {'yes' if refine else 'no'} | {cells} | {seconds:.0f} s |", flush=True
             )
+        if args.oracle:
+            kinds = measure(cast(Task, task), args.seeds, args.first_seed, oracle=True)
+            cells = " | ".join(_cell(np.array(v), True) for v in kinds.values())
+            print(f"| {task} | oracle similarity | {cells} | — |", flush=True)
     segment.refine_fit = refined
 
 
