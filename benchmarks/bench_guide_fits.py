@@ -41,6 +41,7 @@ from bt_pipeline.clean.guide_fit import GuideFit
 from bt_pipeline.clean.segment import segment_demo
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth_human import make_human_set
+from bt_pipeline.data.synth_truth import oracle_similarity
 from bt_pipeline.data.tasks import TASKS, Task
 from bt_pipeline.testing.operator_sets import operator_set
 
@@ -58,16 +59,11 @@ def _oracle(
     demo_samples: tuple[np.ndarray, np.ndarray],
     intended: np.ndarray,
     on_loop: np.ndarray,
-    theta: float,
     rho: float,
 ) -> tuple[float, float]:
     """|Δθ| [deg] and |Δρ| of the oracle similarity (module doc)."""
-    positions, _ = demo_samples
-    drawn = positions[on_loop, 0] + 1j * positions[on_loop, 1]
-    meant = intended[on_loop, 0] + 1j * intended[on_loop, 1]
-    drawn, meant = drawn - drawn.mean(), meant - meant.mean()
-    s = np.vdot(meant, drawn) / np.vdot(meant, meant)  # ρ' e^{iθ'} relative to the truth
-    return abs(float(np.degrees(np.angle(s)))), abs(rho * (float(abs(s)) - 1.0))
+    turn, scale = oracle_similarity(demo_samples[0], intended, on_loop)
+    return abs(turn), abs(rho * (scale - 1.0))
 
 
 def _unrefined(positions: np.ndarray, fit: GuideFit, *args: object, **kwargs: object) -> GuideFit:
@@ -94,7 +90,7 @@ def measure(
             samples = demos[i].raw_samples()
             human = synth.demos[i]
             kinds[kind].append(
-                _oracle(samples, human.truth_uv, human.on_loop, theta, rho)
+                _oracle(samples, human.truth_uv, human.on_loop, rho)
                 if oracle
                 else _error(samples, task, theta, rho)
             )
@@ -103,7 +99,7 @@ def measure(
             kind = "steady" if i == ops.steady_index else "wobbly"
             samples = op.demo.raw_samples()
             kinds[kind].append(
-                _oracle(samples, op.intended, op.on_loop, op.theta_deg, op.rho)
+                _oracle(samples, op.intended, op.on_loop, op.rho)
                 if oracle
                 else _error(samples, task, op.theta_deg, op.rho)
             )

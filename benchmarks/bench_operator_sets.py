@@ -33,20 +33,15 @@ from collections import defaultdict
 import numpy as np
 
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
-from bt_pipeline.data.synth_truth import ratios_against
+from bt_pipeline.data.synth_truth import oracle_similarity, ratios_against
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.testing.operator_sets import OperatorDemo, operator_set
 
 
-def oracle_similarity(op: OperatorDemo) -> tuple[float, float]:
-    """θ [deg] and ρ of the least-squares similarity (free translation) that maps the intended
-    loop onto the drawn samples, sample for sample (the true correspondence)."""
-    positions, _ = op.demo.raw_samples()
-    drawn = positions[op.on_loop, 0] + 1j * positions[op.on_loop, 1]
-    meant = op.intended[op.on_loop, 0] + 1j * op.intended[op.on_loop, 1]
-    drawn, meant = drawn - drawn.mean(), meant - meant.mean()
-    s = np.vdot(meant, drawn) / np.vdot(meant, meant)  # ρ' e^{iθ'} relative to the truth
-    return op.theta_deg + float(np.degrees(np.angle(s))), op.rho * float(abs(s))
+def _oracle(op: OperatorDemo) -> tuple[float, float]:
+    """θ [deg] and ρ of the oracle similarity (:func:`synth_truth.oracle_similarity`)."""
+    turn, scale = oracle_similarity(op.demo.raw_samples()[0], op.intended, op.on_loop)
+    return op.theta_deg + turn, op.rho * scale
 
 
 def measure(task: str, seed: int, mode: str) -> dict[str, list[float]]:
@@ -58,7 +53,7 @@ def measure(task: str, seed: int, mode: str) -> dict[str, list[float]]:
         demos = [
             dataclasses.replace(o.demo, theta_deg=th, rho=r)
             for o in ops.demos
-            for th, r in [oracle_similarity(o)]
+            for th, r in [_oracle(o)]
         ]
     result = clean_demos(demos, CleanOptions(seed=seed, progress=False))
     utility = np.array([s.utility for s in result.scores.scores])

@@ -16,6 +16,7 @@ from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.shapes import canonical_shape, similarity_transform
 from bt_pipeline.data.synth import lopsided
 from bt_pipeline.data.synth_human import make_human_set
+from bt_pipeline.data.synth_truth import oracle_similarity
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.testing.operator_sets import operator_set
 
@@ -142,3 +143,16 @@ def test_a_fast_incomplete_arch_keeps_its_right_estimate_in_the_pooling() -> Non
     pooled = pool_preferences(demos, segments)
     assert abs(pooled[0].rho - truth) < 0.02
     assert abs(pooled[1].rho - truth) < 0.02
+
+
+def test_the_oracle_similarity_reads_a_known_rotation_and_scale() -> None:
+    """The benchmarks' reference: a drawn loop that is the intended one turned by 2°, scaled by
+    1.03 and moved reads (2°, 1.03); samples off the loop part do not count."""
+    intended, _ = _wobbly_loop("wiping", 0.0, 1.0, seed=0, loops=1.0)
+    drawn = similarity_transform(intended, 2.0, 1.03) + np.array([0.01, -0.02])
+    on_loop = np.ones(len(drawn), dtype=bool)
+    on_loop[:20] = False
+    drawn[:20] = 5.0  # An approach far away, off the loop part.
+    turn, scale = oracle_similarity(drawn, intended, on_loop)
+    assert turn == pytest.approx(2.0, abs=1e-9)
+    assert scale == pytest.approx(1.03, abs=1e-12)

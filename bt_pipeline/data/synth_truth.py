@@ -86,3 +86,18 @@ def ratios_against(
     shape = shape_distance(out, truth[on_loop]) / shape_distance(raw_uv[on_loop], truth[on_loop])
     timing = timing_distance(out, truth[idx]) / timing_distance(raw_uv[idx], truth[idx])
     return shape, timing
+
+
+def oracle_similarity(
+    positions: ArrayLike, intended: ArrayLike, on_loop: np.ndarray
+) -> tuple[float, float]:
+    """Rotation [deg] and scale, relative to the truth, of the least-squares similarity (free
+    translation) that maps the intended path onto the drawn samples over the true loop part,
+    sample for sample: the true correspondence, which no estimator has. A reference for θ/ρ
+    estimates (``bench_guide_fits.py --oracle``, ``bench_operator_sets.py --oracle``); (0, 1)
+    when the drawn loop is the intended one up to a translation."""
+    x, want = np.asarray(positions, float)[on_loop], np.asarray(intended, float)[on_loop]
+    drawn, meant = x[:, 0] + 1j * x[:, 1], want[:, 0] + 1j * want[:, 1]
+    drawn, meant = drawn - drawn.mean(), meant - meant.mean()
+    s = np.vdot(meant, drawn) / np.vdot(meant, meant)  # ρ'/ρ e^{i(θ'-θ)}
+    return float(np.degrees(np.angle(s))), float(abs(s))
