@@ -33,11 +33,13 @@ class SessionConfig:
     thread's nice value by this much (0..20): the CPU serves them before the app's web server
     and library loads. Needs CAP_SYS_NICE or a ``ulimit -e`` that allows it (Linux); without,
     the loop keeps its priority (logged)."""
-    realtime_priority: int = 0
+    realtime_priority: int = 10
     """When > 0 (1..99), the control loop and its process's command thread run under the
     real-time policy ``SCHED_RR`` at this priority (:func:`bt_teleop.tick_stats.use_realtime`):
-    the machine's other work then cannot keep them waiting for a CPU. Off by default: it needs
-    root, CAP_SYS_NICE or ``ulimit -r``, and a real-time thread that spins would hold a core."""
+    the machine's other work then cannot keep them waiting for a CPU. Tried by default, as
+    ros2_control's controller manager does: it needs root, CAP_SYS_NICE or ``ulimit -r``, and
+    where not permitted the loop keeps the normal policy (logged). 0: never (docs/security.md,
+    "Real-time by default")."""
     late_tick_s: float = 0.05
     """A control tick later than this beyond the period [s] is attributed (what the loop's
     thread and process did meanwhile: :mod:`bt_teleop.late_ticks`); ``inf``: never (the probe

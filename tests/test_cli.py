@@ -217,6 +217,8 @@ def test_teleop_realtime_priority_reaches_every_session(capsys, monkeypatch) -> 
     monkeypatch.setattr(bt_teleop.app, "serve", seen.append)
     assert run(capsys, "teleop", "--realtime-priority", "12")[0] == 0
     assert run(capsys, "teleop")[0] == 0
-    assert [options.session.realtime_priority for options in seen] == [12, 0]
+    assert run(capsys, "teleop", "--realtime-priority", "0")[0] == 0
+    # tried by default (left off, logged, where not permitted); 0 turns it off
+    assert [options.session.realtime_priority for options in seen] == [12, 10, 0]
     code, _, err = run(capsys, "teleop", "--realtime-priority", "100")
     assert code == 2 and "realtime_priority" in err and "Traceback" not in err

@@ -19,7 +19,7 @@ def teleop(
     script: Path | None = None,
     session_processes: bool = True,
     listed_demos: int = 50,
-    realtime_priority: int = 0,
+    realtime_priority: int = 10,
 ) -> None:
     """Open the teleoperation web app: drag a target, a simulated FR3 follows; record demos.
 
@@ -47,8 +47,8 @@ def teleop(
             besides the table's best demos (the table's counts cover every take).
         realtime_priority: When 1..99, each tab's control loop (and the thread serving it)
             runs under the real-time scheduling policy SCHED_RR at this priority, so the
-            machine's other work cannot delay its ticks; needs root, CAP_SYS_NICE or ulimit -r
-            (else it is logged and left off). 0: off.
+            machine's other work cannot delay its ticks. Tried by default; needs root,
+            CAP_SYS_NICE or ulimit -r (else it is logged and left off). 0: off.
     """
     if script is not None:
         from bt_teleop.script import run_script
