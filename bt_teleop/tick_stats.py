@@ -150,7 +150,13 @@ def use_realtime(priority: int) -> bool:
         try:  # pid 0: this thread (Linux)
             os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
         except OSError as exc:
-            LOGGER.info("control loop not made real-time (SCHED_RR %d): %s", priority, exc)
+            LOGGER.info(
+                "control loop not made real-time (SCHED_RR %d): %s; allow it with an rtprio "
+                "limit (ulimit -r, /etc/security/limits.conf) or CAP_SYS_NICE, or pass "
+                "--realtime-priority 0",
+                priority,
+                exc,
+            )
     return os.sched_getscheduler(0) in (os.SCHED_RR, os.SCHED_FIFO)
 
 
