@@ -43,7 +43,7 @@ from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.native_memory import hdf5_free_lists, heap_info, release_free_memory
 from bt_teleop.rerun_proxy import libc
 from bt_teleop.session_config import SessionConfig
-from bt_teleop.tick_stats import TimedSession, raise_priority, use_realtime
+from bt_teleop.tick_stats import TimedSession, command_priority, raise_priority, use_realtime
 
 __all__ = [
     "CALLS",
@@ -100,13 +100,16 @@ def serve_session(
     # loop's raised priority too (the loop's thread, started from it, inherits it). At a lower
     # one, preempted while holding the GIL, it stalled the loop (a priority inversion).
     raise_priority(config.priority_boost)
-    use_realtime(config.realtime_priority)  # the same for SCHED_RR: the GIL is shared
+    # The same for SCHED_RR (the GIL is shared), one step below the loop: a take's save here
+    # (~0.1 s on a CPU) must not queue other sessions' loops behind it for SCHED_RR's 0.1 s
+    # quantum, as it did at one priority for all (docs/security.md, "Real-time by default").
+    use_realtime(command_priority(config.realtime_priority))
     try:
         session = TimedSession(
             task,
             recordings_dir,
             robot=robot,
-            config=dataclasses.replace(config, priority_boost=0, realtime_priority=0),
+            config=dataclasses.replace(config, priority_boost=0),
             session_id=session_id,
         )
     except BaseException as exc:

@@ -160,6 +160,16 @@ def use_realtime(priority: int) -> bool:
     return os.sched_getscheduler(0) in (os.SCHED_RR, os.SCHED_FIFO)
 
 
+def command_priority(loop_priority: int) -> int:
+    """The ``SCHED_RR`` priority of the thread serving a session's requests (0: normal policy).
+
+    One step below its control loop's (at least 1): real-time, so no normal thread holds the
+    GIL the loop needs, and below every session's loop, so the work it does (a take's save)
+    never makes another session's loop wait behind it for ``SCHED_RR``'s 0.1 s quantum.
+    """
+    return max(1, loop_priority - 1) if loop_priority > 0 else 0
+
+
 def _percentile(counts: NDArray[np.int64], max_s: float, q: float) -> float:
     cumulative = np.cumsum(counts)
     if cumulative[-1] == 0:

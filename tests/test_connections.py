@@ -41,7 +41,8 @@ def test_a_silent_tab_is_told_then_closed_and_its_socket_released(make_app, tabs
     assert app.connections.open_connections() == 0
     assert app.connections.closed_idle == 1
     tab.close()
-    wait_until(lambda: psutil.Process().num_fds() <= fds_before, 10.0, "fds back to baseline")
+    # generous: a loaded machine (the suite beside a soak) took over 10 s once
+    wait_until(lambda: psutil.Process().num_fds() <= fds_before, 30.0, "fds back to baseline")
 
 
 def test_a_tab_that_talks_stays_while_a_silent_one_is_closed(make_app, tabs) -> None:

@@ -25,7 +25,7 @@ from bt_teleop.session_child import portable_error
 from bt_teleop.session_config import SessionConfig
 from bt_teleop.session_process import SessionProcess, open_session
 from bt_teleop.testing import circle_uv, wait_until
-from bt_teleop.tick_stats import BIN_S, Histogram, TickReport, TimedSession
+from bt_teleop.tick_stats import BIN_S, Histogram, TickReport, TimedSession, command_priority
 
 
 @pytest.fixture(scope="module")
@@ -309,10 +309,15 @@ def test_the_child_s_threads_run_real_time_when_asked_and_permitted(
             assert proxy.pid is not None
             tids = [t.id for t in psutil.Process(proxy.pid).threads()]
             policies = {os.sched_getscheduler(tid) for tid in tids}
+            levels = sorted(os.sched_getparam(tid).sched_priority for tid in tids)
         expected = priority > 0 and _may_use_realtime()
         assert realtime is expected
         # the loop and the command thread that shares its GIL: both, or neither
         assert policies == ({os.SCHED_RR} if expected else {os.SCHED_OTHER})
+        # the loop alone at the priority asked; the thread serving it one step below, so a
+        # take's save never queues another session's loop (tick_stats.command_priority)
+        n = len(tids)
+        assert levels == ([priority - 1] * (n - 1) + [priority] if expected else [0] * n)
     assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the app's own threads are untouched
 
 
@@ -320,3 +325,7 @@ def test_the_child_s_threads_run_real_time_when_asked_and_permitted(
 def test_a_realtime_priority_out_of_range_is_refused(priority) -> None:
     with pytest.raises(ConfigError, match="realtime_priority"):
         SessionConfig(realtime_priority=priority)
+
+
+def test_the_thread_serving_a_loop_runs_one_real_time_step_below_it() -> None:
+    assert [command_priority(p) for p in (0, 1, 2, 10, 99)] == [0, 1, 1, 9, 98]
