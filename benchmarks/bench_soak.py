@@ -386,6 +386,21 @@ def main() -> None:
     }[args.library_loads]
     bt_teleop.library_loader.load_library = loads.wrap(events.wrap("library load", load))
     tmp = tempfile.mkdtemp(prefix="bt-soak-")
+    session_config = SessionConfig(
+        priority_boost=args.priority_boost,
+        late_tick_s=args.late_ms / 1e3,
+        realtime_priority=args.realtime_priority,
+    )
+    # The machine's yardsticks start before the first session: a late tick while the tabs
+    # connect is then attributed too (before 2026-12-04 it counted as bt's own).
+    steal = StealSampler()
+    control = ControlLoops(
+        args.control_loops,
+        1.0 / session_config.control_hz,
+        args.late_ms / 1e3,
+        args.priority_boost,
+        args.realtime_priority,
+    )
     with app_factory(Path(tmp) / "rec") as make, tab_factory() as open_tab:
         # The drivers act through the app's handles, not the websocket, so every tab looks
         # silent: idle closing (tests/test_connections.py) would end them at the 10-min mark.
@@ -395,11 +410,7 @@ def main() -> None:
             idle_timeout_s=float("inf"),
             session_processes=not args.in_process,
             trim_heap_every_s=args.trim_heap_every_s,
-            session=SessionConfig(
-                priority_boost=args.priority_boost,
-                late_tick_s=args.late_ms / 1e3,
-                realtime_priority=args.realtime_priority,
-            ),
+            session=session_config,
         )
         app.heap_trimmer._trim = events.wrap("heap trim", app.heap_trimmer._trim)
         app.cleaner.start = events.wrap("clean job start", app.cleaner.start)  # spawns it
@@ -419,14 +430,6 @@ def main() -> None:
             reader_pid=lambda: app.reader.pid if app.reader is not None else None,
         )
         pauses = GcLog(maxlen=None)
-        steal = StealSampler()
-        control = ControlLoops(
-            args.control_loops,
-            uis[0].session.dt_s,
-            args.late_ms / 1e3,
-            args.priority_boost,
-            args.realtime_priority,
-        )
         cpu_start, app_cpu_start = tree_cpu_s(uis), process.cpu_times()
         wall_start = time.monotonic()
         stop = threading.Event()
