@@ -34,8 +34,9 @@ class SessionConfig:
     and library loads. Needs CAP_SYS_NICE or a ``ulimit -e`` that allows it (Linux); without,
     the loop keeps its priority (logged)."""
     realtime_priority: int = 10
-    """When > 0 (1..99), the control loop and its process's command thread run under the
-    real-time policy ``SCHED_RR`` at this priority (:func:`bt_teleop.tick_stats.use_realtime`):
+    """When > 0 (1..99), the control loop runs under the real-time policy ``SCHED_RR`` at this
+    priority, its process's command thread one step below
+    (:func:`bt_teleop.tick_stats.use_realtime`, :func:`bt_teleop.tick_stats.command_priority`):
     the machine's other work then cannot keep them waiting for a CPU. Tried by default, as
     ros2_control's controller manager does: it needs root, CAP_SYS_NICE or ``ulimit -r``, and
     where not permitted the loop keeps the normal policy (logged). 0: never (docs/security.md,

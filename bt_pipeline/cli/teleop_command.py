@@ -45,9 +45,9 @@ def teleop(
             --no-session-processes runs them in the app's process (one interpreter).
         listed_demos: The newest takes of a task each tab's Demo and Replay pickers offer,
             besides the table's best demos (the table's counts cover every take).
-        realtime_priority: When 1..99, each tab's control loop (and the thread serving it)
-            runs under the real-time scheduling policy SCHED_RR at this priority, so the
-            machine's other work cannot delay its ticks. Tried by default; needs root,
+        realtime_priority: When 1..99, each tab's control loop (the thread serving it one
+            step below) runs under the real-time scheduling policy SCHED_RR at this priority,
+            so the machine's other work cannot delay its ticks. Tried by default; needs root,
             CAP_SYS_NICE or ulimit -r (else it is logged and left off). 0: off.
     """
     if script is not None:
