@@ -5,6 +5,7 @@ the tick timing every session keeps (bt_teleop/tick_stats.py)."""
 
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 import signal
@@ -329,3 +330,21 @@ def test_a_realtime_priority_out_of_range_is_refused(priority) -> None:
 
 def test_the_thread_serving_a_loop_runs_one_real_time_step_below_it() -> None:
     assert [command_priority(p) for p in (0, 1, 2, 10, 99)] == [0, 1, 1, 9, 98]
+
+
+def test_a_loop_not_permitted_real_time_keeps_the_normal_policy_and_says_how(
+    monkeypatch, caplog
+) -> None:
+    import bt_teleop.tick_stats as tick_stats
+
+    def refuse(*args: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    result: list[bool] = []
+    monkeypatch.setattr(tick_stats.os, "sched_setscheduler", refuse)
+    with caplog.at_level(logging.INFO, logger=tick_stats.LOGGER.name):
+        thread = threading.Thread(target=lambda: result.append(tick_stats.use_realtime(10)))
+        thread.start()
+        thread.join()
+    assert result == [False]  # the default priority, refused: the loop runs on, not real-time
+    assert "ulimit -r" in caplog.text and "--realtime-priority 0" in caplog.text
