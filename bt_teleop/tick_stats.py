@@ -134,9 +134,10 @@ def raise_priority(boost: int) -> int | None:
     return os.getpriority(os.PRIO_PROCESS, tid)
 
 
-def use_realtime(priority: int) -> bool:
+def use_realtime(priority: int, *, quiet: bool = False) -> bool:
     """Run this thread under ``SCHED_RR`` at `priority` (1..99; 0: keep its policy) if
-    permitted; whether it now runs under a real-time policy (Linux).
+    permitted; whether it now runs under a real-time policy (Linux). `quiet`: a refusal is
+    not logged (a session child's command thread: its loop, asking next, says it once).
 
     A real-time thread runs before every normal one whenever it is runnable, so the machine's
     other work cannot keep it waiting for a CPU (what nice values only make less likely). The
@@ -150,13 +151,14 @@ def use_realtime(priority: int) -> bool:
         try:  # pid 0: this thread (Linux)
             os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
         except OSError as exc:
-            LOGGER.info(
-                "control loop not made real-time (SCHED_RR %d): %s; allow it with an rtprio "
-                "limit (ulimit -r, /etc/security/limits.conf) or CAP_SYS_NICE, or pass "
-                "--realtime-priority 0",
-                priority,
-                exc,
-            )
+            if not quiet:
+                LOGGER.info(
+                    "control loop not made real-time (SCHED_RR %d): %s; allow it with an "
+                    "rtprio limit (ulimit -r, /etc/security/limits.conf) or CAP_SYS_NICE, or "
+                    "pass --realtime-priority 0",
+                    priority,
+                    exc,
+                )
     return os.sched_getscheduler(0) in (os.SCHED_RR, os.SCHED_FIFO)
 
 

@@ -348,3 +348,7 @@ def test_a_loop_not_permitted_real_time_keeps_the_normal_policy_and_says_how(
         thread.join()
     assert result == [False]  # the default priority, refused: the loop runs on, not real-time
     assert "ulimit -r" in caplog.text and "--realtime-priority 0" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger=tick_stats.LOGGER.name):
+        assert tick_stats.use_realtime(9, quiet=True) is False  # the command thread's call
+    assert caplog.text == ""  # one line per child: its loop's
