@@ -236,8 +236,20 @@ class ChildPipe:
         try:
             self.conn.send(message)
         except (OSError, ValueError) as exc:
-            raise ChildGone(f"its pipe broke ({exc})") from None
+            # Most often the child ended (killed): say so, with its exit code, as a read does.
+            if self._exit_code() is None:
+                raise ChildGone(f"its pipe broke ({exc})") from None
+            raise ChildGone(self._ended()) from None
+
+    def _exit_code(self) -> int | None:
+        """The child's exit code, waiting up to 1 s for it to end; None: still running, or its
+        process object already closed."""
+        try:
+            self.process.join(1.0)
+            return self.process.exitcode
+        except ValueError:  # closed by the owner (SessionProcess._end_process)
+            return None
 
     def _ended(self) -> str:
-        self.process.join(1.0)
-        return f"its process ended (exit code {self.process.exitcode})"
+        code = self._exit_code()
+        return "its process ended" + (f" (exit code {code})" if code is not None else "")
