@@ -101,7 +101,7 @@ def serve_session(
     # one, preempted while holding the GIL, it stalled the loop (a priority inversion).
     raise_priority(config.priority_boost)
     # The same for SCHED_RR (the GIL is shared), one step below the loop: a take's save here
-    # (~0.1 s on a CPU) must not queue other sessions' loops behind it for SCHED_RR's 0.1 s
+    # (up to ~0.1 s on a CPU) must not queue other sessions' loops behind it for SCHED_RR's 0.1 s
     # quantum, as it did at one priority for all (docs/security.md, "Real-time by default").
     use_realtime(command_priority(config.realtime_priority), quiet=True)
     try:
