@@ -36,16 +36,16 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    part before (after) the span is kept when it travels on around the loop (80 % of it along
    the guide, in the span's direction, at ≥ 30 % of its phase rate): a bulged side or a drifted
    end of a loop drawn from the first sample to the last.
-6. **Preference.** The guide is fitted again to the kept span alone, from every start (on the
-   path smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops), the drift
-   is estimated again over the span against that fit, and the guide fitted once more to the
-   span with that drift removed, and refined over every sample of the span with robust weights
-   (:func:`refine_fit`: the trimmed fit's kept 60 % are a biased share of a wobbly loop); that
-   fit's θ/ρ are the demo's estimate. (Before 2026-12-02 the
-   span was fitted from the first fit of the whole moving part, with its drift: on a steady,
-   fast figure-eight that first fit read ρ 6-9 % low, the drift polynomial took up the
-   difference, 8-19 mm on a hand that did not drift, and the refit stayed there.) A lopsided
-   loop is fitted by consensus (:func:`fit_guide`).
+6. **Preference.** The span's drift is read first, as what does not repeat from loop to loop
+   (:func:`periodic_drift`: a Fourier loop in the phase plus a slow polynomial, degree one per
+   loop beyond the first, at most 2, none under 1.5 loops; zero at the span's start when it
+   keeps its direction, zero on average when it turns back). The guide is then fitted to the
+   span with that drift removed, from every start, and once more from that fit (on the path
+   smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops), and refined over
+   every raw sample of the span with robust weights (:func:`refine_fit`); that fit's θ/ρ are
+   the demo's estimate. A lopsided loop is fitted by consensus (:func:`fit_guide`). Until
+   2026-12-04 the span was fitted as it drifted and the drift read against that fit: a drifting
+   loop's centred fit turned θ by 5-9° and the drift stayed in its basin (docs/quality.md).
 7. **Cycles.** The phase along the guide is tracked sample by sample
    (:func:`track_phase`), and cycles = |phase travelled| / one loop.
 8. **Raw ends.** In a span of 1.5 loops or more, each raw end is cut where the samples cut lie
@@ -215,21 +215,14 @@ def segment_demo(
         fa, fb = _kept_span(clear, distance, along, wide, guide, at_start, at_end)
     phase = track_phase(clear[a : b + 1], guide)
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
-    # θ/ρ from the kept span alone (step 6): approach, retreat and drift no longer bias them.
-    # Fitted on a lightly smoothed path (σ = 0.03 s): the analysis path's smoothing shrinks
-    # a loop (by ~1 % at a 3 s period, 5-9 % on fast figure-eights), which would bias ρ low.
-    # The span is fitted from every start (the first fit also saw approach and retreat, and a
-    # fit started from it stayed in its basin), the drift estimated again over the span against
-    # that fit (the moving part's polynomial bends to approach and retreat at its ends), and
-    # θ/ρ fitted once more to the span with that drift removed.
+    # θ/ρ from the kept span alone (step 6), on a lightly smoothed path (σ = 0.03 s): the
+    # analysis path's smoothing shrinks a loop (1 % at a 3 s period, 5-9 % on fast eights).
     fa, fb = min(a, fa), max(b, fb)
     light = gaussian_filter1d(path, _FIT_SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
     lspan = light[first + fa : first + fb + 1]
     followed = (distance[fa : fb + 1] <= 2.0 * tight) & along[fa : fb + 1]
     degree = min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1)
-    # The span's drift: what does not repeat from loop to loop, whatever the loop's shape
-    # (periodic_drift), so a bulged side is not taken for drift nor a drift for a turn; fitted
-    # from every start, then once more from that fit (its consensus settles again).
+    # Drift first (what does not repeat loop to loop), then fits from every start and from that.
     span_phase = track_phase(lspan - drift[fa : fb + 1], guide) / guide.shape[0]
     span_drift = periodic_drift(lspan, span_phase, _span_degree(cycles))
     fit = fit_guide(lspan - span_drift, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
@@ -278,10 +271,9 @@ def segment_demo(
 
 
 def _span_degree(cycles: float) -> int:
-    """Degree of the span's drift polynomial: none under 1.5 loops (one loop cannot tell a
-    drift from a shape error: on the second generator's single loops the periodic model read
-    20-50 mm of drift that was not there), else one per loop beyond the first, at most 2 (a
-    drift that bends; a higher degree let a span's ragged first half-loop pose as drift)."""
+    """The span's drift degree: none under 1.5 loops (on the second generator's single loops
+    the periodic model read 20-50 mm of drift that was not there), else one per loop beyond the
+    first, at most 2 (a higher degree let a span's ragged first half-loop pose as drift)."""
     if cycles < _PERIODIC_MIN_CYCLES:
         return 0
     return min(_PERIODIC_MAX_DEGREE, int(cycles + 0.5) - 1)
