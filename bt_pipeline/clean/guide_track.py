@@ -6,7 +6,8 @@ closed guide loop sampled once round (P points, endpoint excluded) in task coord
 * :func:`track_phase`: the continuous phase of each sample along the loop;
 * :func:`nearest_index` / :func:`nearest_distance`: each sample's nearest guide point;
 * :func:`drift_along`: a slow translation of the guide over time that fits the samples;
-* :func:`periodic_drift`: a slow translation over time that is not periodic in the phase,
+* :func:`periodic_drift` (degree from :func:`periodic_degree`): a slow translation over time
+  that is not periodic in the phase,
   whatever the loop's shape;
 * :func:`along_guide` / :func:`tangential`: whether each sample moves along the guide;
 * :func:`runs_of`: runs of flagged samples;
@@ -27,6 +28,8 @@ _HARMONICS = 6  # Fourier harmonics of the loop in the periodic model of the dri
 _PERIODIC_REWEIGHTS = 4  # Cauchy reweightings of the periodic model,
 _PERIODIC_CAUCHY = 2.5  # at this many robust spreads of its residuals.
 _LOOP_POINTS = 512  # Points of the periodic model's loop that the phase is read again against.
+_PERIODIC_MAX_DEGREE = 2  # Highest degree of the span's drift (periodic_drift),
+_PERIODIC_MIN_CYCLES = 1.5  # estimated in spans of at least this many loops.
 _KEEPS_GOING = 0.9  # A drift whose end is this share of its farthest reach keeps its direction.
 _MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
 _EDGE_MEDIANS = 4.0  # A raw end sample farther off the guide than this many medians of the
@@ -118,6 +121,15 @@ def drift_along(path: FloatArray, guide: FloatArray, on: np.ndarray, degree: int
         coef = np.linalg.solve(gram, rows.T @ (w * target))
         drift = basis @ coef.reshape(-1, 2)
     return drift
+
+
+def periodic_degree(cycles: float) -> int:
+    """The span's drift degree: none under 1.5 loops (on the second generator's single loops
+    the periodic model read 20-50 mm of drift that was not there), else one per loop beyond the
+    first, at most 2 (a higher degree let a span's ragged first half-loop pose as drift)."""
+    if cycles < _PERIODIC_MIN_CYCLES:
+        return 0
+    return min(_PERIODIC_MAX_DEGREE, int(cycles + 0.5) - 1)
 
 
 def periodic_drift(path: FloatArray, phase: FloatArray, degree: int) -> FloatArray:
@@ -242,6 +254,7 @@ __all__ = [
     "drift_along",
     "nearest_distance",
     "nearest_index",
+    "periodic_degree",
     "periodic_drift",
     "runs_of",
     "tangential",

@@ -72,6 +72,7 @@ from bt_pipeline.clean.guide_track import (
     drift_along,
     nearest_distance,
     nearest_index,
+    periodic_degree,
     periodic_drift,
     runs_of,
     tangential,
@@ -95,8 +96,6 @@ _CONTINUE_RATE = 0.3  # this much, at this share of the span's phase rate, is lo
 _MIN_RUN_S = 0.4  # Shortest run of on-loop samples that starts or ends the span [s].
 _EDGE_MIN_CYCLES = 1.5  # Raw ends are trimmed (step 8) in spans of at least this many loops.
 _DRIFT_MAX_DEGREE = 4  # Highest degree of the drift polynomial (one per loop beyond the first).
-_PERIODIC_MAX_DEGREE = 2  # Highest degree of the span's drift (periodic_drift),
-_PERIODIC_MIN_CYCLES = 1.5  # estimated in spans of at least this many loops.
 _TRACK_POINTS = 512  # Guide points for the distance and the phase track.
 _DENSE_POINTS = 8192  # Guide points for the end trim's distances (about 0.15 mm apart).
 _TIGHT = 3.0  # On-loop tolerance: this many times the 90th percentile of the on-loop distances,
@@ -224,7 +223,7 @@ def segment_demo(
     degree = min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1)
     # Drift first (what does not repeat loop to loop), then fits from every start and from that.
     span_phase = track_phase(lspan - drift[fa : fb + 1], guide) / guide.shape[0]
-    span_drift = periodic_drift(lspan, span_phase, _span_degree(cycles))
+    span_drift = periodic_drift(lspan, span_phase, periodic_degree(cycles))
     fit = fit_guide(lspan - span_drift, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
     fit = fit_guide(
         lspan - span_drift, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
@@ -268,15 +267,6 @@ def segment_demo(
             )
         ),
     )
-
-
-def _span_degree(cycles: float) -> int:
-    """The span's drift degree: none under 1.5 loops (on the second generator's single loops
-    the periodic model read 20-50 mm of drift that was not there), else one per loop beyond the
-    first, at most 2 (a higher degree let a span's ragged first half-loop pose as drift)."""
-    if cycles < _PERIODIC_MIN_CYCLES:
-        return 0
-    return min(_PERIODIC_MAX_DEGREE, int(cycles + 0.5) - 1)
 
 
 def _kept_span(
