@@ -7,8 +7,7 @@ closed guide loop sampled once round (P points, endpoint excluded) in task coord
 * :func:`nearest_index` / :func:`nearest_distance`: each sample's nearest guide point;
 * :func:`drift_along`: a slow translation of the guide over time that fits the samples;
 * :func:`periodic_drift` (degree from :func:`periodic_degree`): a slow translation over time
-  that is not periodic in the phase,
-  whatever the loop's shape;
+  that is not periodic in the phase, whatever the loop's shape;
 * :func:`along_guide` / :func:`tangential`: whether each sample moves along the guide;
 * :func:`runs_of`: runs of flagged samples;
 * :func:`trim_raw_ends`: a span's raw ends moved in past samples off the guide.
