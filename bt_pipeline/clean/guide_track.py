@@ -195,8 +195,10 @@ def _loop_and_drift(
     weight = np.ones(path.shape[0])
     coef = np.zeros((design.shape[1], 2))
     for _ in range(_PERIODIC_REWEIGHTS):
-        root = np.sqrt(weight)[:, None]
-        coef = np.linalg.lstsq(design * root, path * root, rcond=None)[0]
+        # Normal equations (17-19 unknowns; lstsq's SVD cost 6 ms a solve, this 0.1 ms).
+        weighted = design * weight[:, None]
+        gram = design.T @ weighted + 1e-9 * np.eye(design.shape[1])
+        coef = np.linalg.solve(gram, weighted.T @ path)
         residual = np.linalg.norm(path - design @ coef, axis=1)
         scale = _PERIODIC_CAUCHY * 1.4826 * float(np.median(residual)) + 1e-12
         weight = 1.0 / (1.0 + (residual / scale) ** 2)
