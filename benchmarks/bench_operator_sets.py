@@ -81,6 +81,7 @@ def measure(task: str, seed: int, mode: str) -> dict[str, list[float]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seeds", type=int, default=12)
+    parser.add_argument("--first-seed", type=int, default=0, help="seeds run from this one")
     parser.add_argument("--tasks", default=",".join(TASKS))
     parser.add_argument("--oracle", action="store_true", help="add the oracle-similarity row")
     args = parser.parse_args()
@@ -94,7 +95,7 @@ def main() -> None:
     for task in args.tasks.split(","):
         for mode in modes:
             runs: dict[str, list[float]] = defaultdict(list)
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 for key, values in measure(task, seed, mode).items():
                     runs[key].extend(values)
             hidden_ok = f"{100 * np.mean(runs['hidden_ok']):.0f}%" if mode == "hidden" else "—"

@@ -12,6 +12,7 @@ attrs, never from the fit. More seeds than bench_clean_human's two: the share
 is a count over few demos per set.
 
     python benchmarks/bench_preferences.py --seeds 16 --sizes 4,20
+    python benchmarks/bench_preferences.py --first-seed 64 --seeds 96 --sizes 4
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from bt_pipeline.data.tasks import TASKS
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seeds", type=int, default=16)
+    parser.add_argument("--first-seed", type=int, default=0, help="seeds run from this one")
     parser.add_argument("--sizes", default="4,20", help="demos per set, comma-separated")
     args = parser.parse_args()
     print(
@@ -41,7 +43,7 @@ def main() -> None:
         for task in TASKS:
             start = time.perf_counter()
             ok, lopsided, doubt = [], [], []
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 synth = make_human_set(task, n, seed, hidden=True)
                 demos = demos_from_recording(synth.recording)
                 estimates = pool_preferences(demos, segment_all(demos))
