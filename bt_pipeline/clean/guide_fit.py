@@ -52,9 +52,7 @@ _FIT_POINTS = 240  # Arc-length resampled demo points used by the fit.
 _COARSE_ITERATIONS = 4  # ICP steps from every start before the best are kept.
 _SURVIVORS = 1  # Starts carried on to convergence.
 _POINT_WEIGHT = 0.05  # Weight of the point-to-point term beside the point-to-tangent one.
-_LOPSIDED = (
-    0.005  # Consensus only when 90 % of the points lie this share of the size off on average.
-)
+_LOPSIDED = 0.005  # Consensus only when 90 % of the points lie this share of the size off.
 _CONSENSUS_KEEP = 0.4  # Fits are compared by the mean of their 40 % smallest distances.
 _HALF_TRIM = 0.9  # Share of a half's points kept by its refit.
 _CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (see _BULGE),
@@ -63,6 +61,7 @@ _BULGE = 0.06  # The smallest mode wins when its ρ is this share below the medi
 _CENTRED_REACH = 0.15  # Centred fits alone count when the fit's centre is this share of the
 _CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this factor as well;
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
+_CENTRED_OFF = 0.05  # A close fit this share of its size off the origin is checked (see reach).
 
 
 @dataclass(frozen=True)
@@ -240,12 +239,18 @@ def _consensus(
     sides' fits any more, so a smaller gap tells a bulge from a wobble's scatter); a loop far
     from the origin (an imported file's origin is the mean of its samples) or one that fits it
     far worse (a drifting single loop, a hand drawn off-centre) keeps every fit. On a loop
-    without such a defect every fit lands on the same mode and nothing changes.
+    without such a defect every fit lands on the same mode and nothing changes. A fit that 90 %
+    of the loop follows closely skips all this unless it lies 5-15 % of its size off the origin
+    (an arch's bulged side alone is followed that closely by a fit shifted that much).
     """
     size = float(np.max(np.ptp(guide, axis=0)))
     keep = max(3, int(_CONSENSUS_KEEP * points.shape[0]))
-    if _trimmed_cost(points, tree, fit, int(0.9 * points.shape[0])) < _LOPSIDED * fit.size_m:
-        return fit  # 90 % of the loop lies close to the fit: no side is misshapen.
+    off = float(np.linalg.norm(fit.translation))
+    if (
+        _trimmed_cost(points, tree, fit, int(0.9 * points.shape[0])) < _LOPSIDED * fit.size_m
+        and not _CENTRED_OFF * fit.size_m < off <= _CENTRED_REACH * fit.size_m
+    ):
+        return fit  # 90 % of the loop lies close to a fit where it is drawn: nothing misshapen.
     base = _trimmed_cost(points, tree, fit, keep)
     local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
     halves = [points[side * local[:, axis] > 0.0] for axis in range(2) for side in (-1.0, 1.0)]
