@@ -11,8 +11,13 @@ note ``bt clean`` prints and the ``preference_confidence`` attr). Truth comes fr
 attrs, never from the fit. More seeds than bench_clean_human's two: the share
 is a count over few demos per set.
 
+``--generator operators`` counts the same on the second, independent generator's sets
+(:func:`bt_pipeline.testing.operator_sets.operator_set`: one steady and n − 1 wobbly operators,
+θ/ρ hidden, none lopsided), against each operator's drawn θ/ρ.
+
     python benchmarks/bench_preferences.py --seeds 16 --sizes 4,20
     python benchmarks/bench_preferences.py --first-seed 64 --seeds 96 --sizes 4
+    python benchmarks/bench_preferences.py --generator operators --seeds 24 --sizes 5
 """
 
 from __future__ import annotations
@@ -23,9 +28,10 @@ import time
 import numpy as np
 
 from bt_pipeline.clean.periodic import UNCERTAIN, pool_preferences, segment_all
-from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.demo import Demo, demos_from_recording
 from bt_pipeline.data.synth_human import make_human_set
-from bt_pipeline.data.tasks import TASKS
+from bt_pipeline.data.tasks import TASKS, Task
+from bt_pipeline.testing.operator_sets import operator_set
 
 
 def main() -> None:
@@ -33,6 +39,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=16)
     parser.add_argument("--first-seed", type=int, default=0, help="seeds run from this one")
     parser.add_argument("--sizes", default="4,20", help="demos per set, comma-separated")
+    parser.add_argument("--generator", choices=("human", "operators"), default="human")
     args = parser.parse_args()
     print(
         "| task | demos per set | sets | demos | within 5° and 0.05 | lopsided | others | "
@@ -44,16 +51,13 @@ def main() -> None:
             start = time.perf_counter()
             ok, lopsided, doubt = [], [], []
             for seed in range(args.first_seed, args.first_seed + args.seeds):
-                synth = make_human_set(task, n, seed, hidden=True)
-                demos = demos_from_recording(synth.recording)
+                demos, truths = _hidden_set(args.generator, task, n, seed)
                 estimates = pool_preferences(demos, segment_all(demos))
-                for estimate, human in zip(estimates, synth.demos, strict=True):
-                    attrs = human.record.attrs
+                for estimate, (theta, rho, bulged) in zip(estimates, truths, strict=True):
                     ok.append(
-                        abs(estimate.theta_deg - attrs["truth_theta_deg"]) < 5.0
-                        and abs(estimate.rho - attrs["truth_rho"]) < 0.05
+                        abs(estimate.theta_deg - theta) < 5.0 and abs(estimate.rho - rho) < 0.05
                     )
-                    lopsided.append("lopsided" in human.defects)
+                    lopsided.append(bulged)
                     doubt.append(estimate.confidence < UNCERTAIN)
             hit, lop, unsure = np.array(ok), np.array(lopsided), np.array(doubt)
             print(
@@ -63,6 +67,25 @@ def main() -> None:
                 f"{time.perf_counter() - start:.0f} s |",
                 flush=True,
             )
+
+
+def _hidden_set(
+    generator: str, task: Task, n: int, seed: int
+) -> tuple[list[Demo], list[tuple[float, float, bool]]]:
+    """A set with θ/ρ hidden, and per demo its true θ [deg], ρ and whether it is lopsided."""
+    if generator == "operators":
+        ops = operator_set(task, seed, n_demos=n, hidden=True).demos
+        return [o.demo for o in ops], [(o.theta_deg, o.rho, False) for o in ops]
+    synth = make_human_set(task, n, seed, hidden=True)
+    truths = [
+        (
+            float(h.record.attrs["truth_theta_deg"]),
+            float(h.record.attrs["truth_rho"]),
+            "lopsided" in h.defects,
+        )
+        for h in synth.demos
+    ]
+    return demos_from_recording(synth.recording), truths
 
 
 def _share(hits: np.ndarray) -> str:
