@@ -124,6 +124,25 @@ def test_closely_drawn_lopsided_arches_are_not_read_as_a_shifted_fit() -> None:
     assert not misses
 
 
+@pytest.mark.parametrize(
+    ("task", "seed", "k"), [("pick_and_place", 52, 0), ("pick_and_place", 57, 2), ("wiping", 69, 0)]
+)
+def test_a_lopsided_loop_s_bulged_side_does_not_win_by_its_sample_count(
+    task: Task, seed: int, k: int
+) -> None:
+    """Human-style lopsided demos, θ/ρ hidden (one loop with jitter; three with tremor and
+    pauses; two with tremor). The bulged side is longer, so it holds more of the arc-length
+    samples, and its fit won when fits were judged over 40 % of the points (ρ 10-32 % high).
+    Judged over about the same share of each fit's own guide, the true side's fit wins."""
+    synth = make_human_set(task, 4, seed, hidden=True)
+    assert "lopsided" in synth.demos[k].defects
+    attrs = synth.demos[k].record.attrs
+    uv, t = demos_from_recording(synth.recording)[k].raw_samples()
+    guide = segment_demo(uv, t, task).guide
+    assert abs(guide.theta_deg - attrs["truth_theta_deg"]) < 5.0, guide
+    assert abs(guide.rho - attrs["truth_rho"]) < 0.05, guide
+
+
 @pytest.mark.parametrize("offset_m", [0.03, 0.09])
 def test_a_wobbly_loop_off_the_origin_is_not_pulled_to_it(offset_m: float) -> None:
     """A wobbly arch drawn 3 or 9 cm off the plane's origin (an imported file's origin is the

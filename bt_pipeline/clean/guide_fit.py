@@ -15,20 +15,16 @@ The fit is a trimmed iterative-closest-point similarity fit:
 3. The start with the smallest trimmed residual wins. Within the range the near-symmetric
    shapes' twins (wiping and weaving look the same turned by 180°) are outside the range, so
    the smallest rotation is the one kept.
-4. A lopsided loop (one side drawn bigger; 90 % of the points lie on average more than 0.5 % of the
-   size off the fit) is fitted by consensus over half-loop refits, also with the guide
+4. A lopsided loop (one side drawn bigger; 90 % of the points lie on average more than 0.5 % of
+   the size off the fit) is fitted by consensus over half-loop refits, also with the guide
    centred on the task plane's origin (where the app draws it): of the about equally good
    modes, the smallest ρ when it is more than 6 % below the median mode's (a bulge), else the
-   median mode (:func:`_consensus`). Always taking the smallest (before 2026-12-02 evening)
-   suited the human-style generator's lopsided loops but read wobbly hands' ρ too small on
-   data made two other ways; hidden θ within 5° and ρ within 0.05, human-style / app takes /
-   operator sets (wiping, weaving, pick-and-place): 83, 100, 69 / 67, 100, 67 / 77, 92, 82 % with
-   the smallest always; 77, 100, 62 / 83, 100, 83 / 97, 98, 93 % with the median rule.
+   median mode (:func:`_consensus`; always the smallest read wobbly hands' ρ too small).
 5. When that loop's fit lies near the plane's origin (within 15 % of its size) and the best
    centred fit costs at most 3 x the best free one, only the centred fits are modes: a lopsided
-   arch's shifted compromise no longer outweighs them (2026-12-03 evening; the same three:
-   89, 97, 89 / 100, 100, 92 / 97, 100, 97 %; README). Among the centred modes the smallest wins
-   from 3 % below the median mode (they hold no shifted compromise between the two sides).
+   arch's shifted compromise no longer outweighs them. Among the centred modes the smallest
+   wins from 3 % below the median mode (they hold no shifted compromise between the two
+   sides). What each rule gained and cost on three kinds of data: docs/quality.md.
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
 """
@@ -222,39 +218,38 @@ def _consensus(
     to a compromise that fits neither side. The guide is fitted again to each half of the
     points (left, right, upper, lower in the compromise's frame, 90 % trim), and from each
     half's fit a least-trimmed fit to all points (the 40 % that fit best) follows whichever
-    part of the loop matches the guide. Every fit, the compromise included, is judged by the
-    mean of its 40 % smallest distances. The fits within max(2 x, + 0.5 mm) of the lowest
-    cost are the loop's modes. When the smallest ρ among them lies more than 6 % below the
-    median mode's, it wins: a misshapen side is taken to bulge out, not to be pinched in (both
-    are exact similarities of half the guide, so one demo alone cannot tell them apart; pooling
-    a demonstrator's demos helps). Otherwise the median mode wins: a wobbly hand, or a robot
-    that cuts corners, scatters the modes by a few % around the loop it meant, and always taking
-    the smallest read ρ too small (module doc). On an arch a bulged
-    side is nearly a similarity of the whole guide, shifted, so every fit with a free
-    translation settles on that compromise; the same fits with the guide centred on the plane's
-    origin (t = 0, where the app draws the guide) are candidates too. When the loop's fit lies
-    within 15 % of its size of the origin and the best centred fit costs at most 3 x the best
-    free one, the centred fits alone are modes (the compromise had outweighed them), and the
-    smallest of them wins from 3 % below the median (no compromise sits between the two
-    sides' fits any more, so a smaller gap tells a bulge from a wobble's scatter); a loop far
-    from the origin (an imported file's origin is the mean of its samples) or one that fits it
-    far worse (a drifting single loop, a hand drawn off-centre) keeps every fit. On a loop
-    without such a defect every fit lands on the same mode and nothing changes. A fit that 90 %
-    of the loop follows closely skips all this unless it lies 5-15 % of its size off the origin
-    (an arch's bulged side alone is followed that closely by a fit shifted that much).
+    part of the loop matches the guide; the same fits are also run with the guide centred on
+    the plane's origin (t = 0, where the app draws it: on an arch a bulged side is nearly a
+    shifted similarity of the whole guide, so free fits settle on the compromise). Each fit is
+    judged by the mean of its smallest distances over 40 % of the points times √(ρ / the fits'
+    median ρ) (a bigger fit is followed by more arc-length samples, which had favoured a bulged
+    side's fit). The fits within max(2 x, + 0.5 mm) of the lowest cost are the modes. When the
+    smallest ρ among them lies more than 6 % below the median mode's, it wins: a misshapen side
+    is taken to bulge out, not to be pinched in (both are exact similarities of half the guide,
+    so one demo alone cannot tell them apart; pooling a demonstrator's demos helps). Otherwise
+    the median mode wins: a wobbly hand, or a robot that cuts corners, scatters the modes by a
+    few % around the loop it meant. When the loop's fit lies within 15 % of its size of the
+    origin and the best centred fit costs at most 3 x the best free one, the centred fits alone
+    are modes, and the smallest wins from 3 % below the median (no compromise sits between the
+    sides' fits any more); a loop far from the origin (an imported file's origin is the mean of
+    its samples) or one that fits it far worse (a drifting single loop, a hand drawn
+    off-centre) keeps every fit. A fit that 90 % of the loop follows closely skips all this
+    unless it lies 5-15 % of its size off the origin (an arch's bulged side alone is followed
+    that closely by a fit shifted that much). On a loop without a defect every fit lands on the
+    same mode and nothing changes.
     """
     size = float(np.max(np.ptp(guide, axis=0)))
-    keep = max(3, int(_CONSENSUS_KEEP * points.shape[0]))
+    n = points.shape[0]
+    keep = max(3, int(_CONSENSUS_KEEP * n))
     off = float(np.linalg.norm(fit.translation))
     if (
-        _trimmed_cost(points, tree, fit, int(0.9 * points.shape[0])) < _LOPSIDED * fit.size_m
+        _trimmed_cost(points, tree, fit, int(0.9 * n)) < _LOPSIDED * fit.size_m
         and not _CENTRED_OFF * fit.size_m < off <= _CENTRED_REACH * fit.size_m
     ):
         return fit  # 90 % of the loop lies close to a fit where it is drawn: nothing misshapen.
-    base = _trimmed_cost(points, tree, fit, keep)
     local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
     halves = [points[side * local[:, axis] > 0.0] for axis in range(2) for side in (-1.0, 1.0)]
-    found: list[tuple[float, GuideFit, bool]] = []  # (trimmed cost, fit, centred on the origin)
+    fits: list[tuple[GuideFit, bool]] = []  # (fit, centred on the origin)
     for centred in (False, True):
         starts = [(fit.theta_deg, fit.rho, np.zeros(2))] if centred else []
         for half in halves:
@@ -294,9 +289,14 @@ def _consensus(
                 centred,
             )
             if math.isfinite(residual):
-                candidate = GuideFit(th, r, t, residual, r * size)
-                found.append((_trimmed_cost(points, tree, candidate, keep), candidate, centred))
-    found.append((base, fit, False))
+                fits.append((GuideFit(th, r, t, residual, r * size), centred))
+    fits.append((fit, False))
+    # About the same share of each fit's own guide (√ ρ: the full ratio read wobbly loops small).
+    ref = float(np.median([f.rho for f, _ in fits]))
+    found = [
+        (_trimmed_cost(points, tree, f, int(min(keep * math.sqrt(f.rho / ref), 0.8 * n))), f, c)
+        for f, c in fits
+    ]
     centred_costs = [c for c, _, centred in found if centred]
     free_low = min(c for c, _, centred in found if not centred)
     if (
