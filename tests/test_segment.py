@@ -516,3 +516,21 @@ def test_the_end_trim_reads_the_drift_against_the_final_fit() -> None:
     segment = segment_demo(uv, t, steady.demo.task)
     assert abs(segment.end_s - float(t[steady.on_loop][-1])) < 0.1
     assert abs(segment.cycles - 2.0) <= 0.05
+
+
+def test_a_steady_single_loop_s_span_stops_where_the_retreat_leaves_the_loop() -> None:
+    """Human-style pick-and-place seed 11's expert-like demo: one loop at 0.3 mm of noise, whose
+    retreat sets off along the loop and leaves it slowly. The raw-end trim ran only on spans of
+    1.5 loops or more, so its span kept the retreat to 4.6 mm off the loop (shape ratio 1.17);
+    a single loop whose middle follows its guide within 1 mm is trimmed too, to under 1.5 mm."""
+    from scipy.spatial import KDTree
+
+    synth = make_human_set("pick_and_place", 4, 11)
+    k = synth.expert_index
+    human = synth.demos[k]
+    uv, t = demos_from_recording(synth.recording)[k].raw_samples()
+    seg = segment_demo(uv, t, "pick_and_place", theta_deg=human.theta_deg, rho=human.rho)
+    assert seg.cycles < 1.5
+    kept = uv[(t >= seg.start_s) & (t <= seg.end_s)]
+    loop = similarity_transform(canonical_loop("pick_and_place", 4000), human.theta_deg, human.rho)
+    assert float(np.max(KDTree(loop).query(kept)[0])) < 0.0015

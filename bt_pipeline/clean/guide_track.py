@@ -35,6 +35,7 @@ _EDGE_MEDIANS = 4.0  # A raw end sample farther off the guide than this many med
 _EDGE_P95S = 1.5  # span's middle distances, this many 95th percentiles
 _EDGE_MIN_M = 0.0005  # and this [m] is off (trim_raw_ends),
 _EDGE_MAX_SHARE = 0.25  # at most this share of the span at each end,
+_EDGE_CLOSE_M = 0.001  # and in a single loop only if its middle's 95th percentile is this [m].
 
 
 def track_phase(
@@ -272,6 +273,7 @@ def trim_raw_ends(
     guide: FloatArray,
     i0: int,
     i1: int,
+    single: bool = False,
 ) -> tuple[int, int]:
     """The raw span [i0, i1] with each end moved in past raw samples off the fitted guide.
 
@@ -281,9 +283,10 @@ def trim_raw_ends(
     closely the middle 60 % of the span follows it: end samples farther than
     max(4 x the median, 1.5 x the 95th percentile, 0.5 mm) are off. Each end is cut where the
     samples cut hold the most more off than close (none if no cut does), at most a quarter of
-    the span at each end. Only spans of 1.5 loops or more: a
-    single loop whose bulged side lies at its ends would lose that side (at 6-12 Hz a lopsided
-    pick-and-place loop lost 30 % and scored the set's best closure).
+    the span at each end. A `single` loop (under 1.5 loops) only when its middle follows the
+    guide within 1 mm (95th percentile; a steady hand): a single loop whose bulged side lies at
+    its ends would lose that side (at 6-12 Hz a lopsided pick-and-place loop lost 30 % and
+    scored the set's best closure).
     """
     n = i1 - i0 + 1
     if n < 20:
@@ -293,6 +296,8 @@ def trim_raw_ends(
     )
     dist = nearest_distance(guide, x[i0 : i1 + 1] - shift)
     inner = dist[int(0.2 * n) : int(0.8 * n)]
+    if single and float(np.percentile(inner, 95)) > _EDGE_CLOSE_M:
+        return i0, i1
     threshold = max(
         _EDGE_MEDIANS * float(np.median(inner)),
         _EDGE_P95S * float(np.percentile(inner, 95)),

@@ -243,12 +243,13 @@ def segment_demo(
         i1 = t.size - 1  # The span runs to the recording's end (the clock stops short of it).
     guide = fit.guide(task, _TRACK_POINTS)
     j0, j1 = i0, i1
-    if cycles >= _EDGE_MIN_CYCLES:
-        # The end trim reads distances of a millimetre or less: to a dense guide (512 vertices
-        # are 2-3 mm apart), with the drift against the final fit (docs/refinement.md, step 8).
-        end_drift = drift_along(lspan, guide, followed, degree)
-        dense = fit.guide(task, _DENSE_POINTS)
-        j0, j1 = trim_raw_ends(x, t, span_clock, end_drift, dense, i0, i1)
+    # The end trim reads distances of a millimetre or less: to a dense guide (512 vertices are
+    # 2-3 mm apart), with the drift against the final fit (docs/refinement.md, step 8).
+    end_drift = drift_along(lspan, guide, followed, degree)
+    dense = fit.guide(task, _DENSE_POINTS)
+    j0, j1 = trim_raw_ends(
+        x, t, span_clock, end_drift, dense, i0, i1, single=cycles < _EDGE_MIN_CYCLES
+    )
     if (j0, j1) != (i0, i1):
         i0, i1 = j0, j1
         a = max(a, int(np.searchsorted(clock, t[i0])) - first)
