@@ -48,9 +48,10 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    loop's centred fit turned θ by 5-9° and the drift stayed in its basin (docs/quality.md).
 7. **Cycles.** The phase along the guide is tracked sample by sample
    (:func:`track_phase`), and cycles = |phase travelled| / one loop.
-8. **Raw ends.** In a span of 1.5 loops or more, each raw end is cut where the samples cut lie
-   mostly off the final fit (:func:`trim_raw_ends`, distances to the guide at 8,192 points),
-   and the cycles are counted again.
+8. **Raw ends.** In a span of 1.5 loops or more, or a single loop whose middle follows the
+   guide within 1 mm (a steady hand), each raw end is cut where the samples cut lie mostly off
+   the final fit (:func:`trim_raw_ends`, distances to the guide at 8,192 points), and the
+   cycles are counted again.
 
 Incomplete single loops are handled (cycles < 1); a demo with no on-loop run keeps its moving
 part and is reported with cycles from the same phase track.
