@@ -550,3 +550,17 @@ def test_a_steady_single_loop_s_span_stops_where_the_retreat_leaves_the_loop() -
     kept = uv[(t >= seg.start_s) & (t <= seg.end_s)]
     loop = similarity_transform(canonical_loop("pick_and_place", 4000), human.theta_deg, human.rho)
     assert float(np.max(KDTree(loop).query(kept)[0])) < 0.0015
+
+
+def test_a_loop_ending_with_the_recording_keeps_its_last_samples() -> None:
+    """Single-loop weaving seed 33's expert-like demo: the recording ends with the hand still on
+    the loop, and the on-loop run stopped one sample short (the analysis path's smoothing at the
+    edge). One sample left after the span was too short to test as loop, so the span's end then
+    moved in by the edge trim: 4 samples (0.08 s) of the loop lost, shape ratio 1.16."""
+    from bt_pipeline.data.synth import make_demo_set
+
+    single = make_demo_set("weaving", 4, 33)
+    record = list(single.recording.demos.values())[single.expert_index]
+    uv, t = demos_from_recording(single.recording)[single.expert_index].raw_samples()
+    seg = segment_demo(uv, t, "weaving", theta_deg=record.theta_deg, rho=record.rho)
+    assert seg.end_s == t[-1] and seg.start_s == t[0], (seg.start_s, seg.end_s, t[0], t[-1])

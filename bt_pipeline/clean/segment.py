@@ -339,8 +339,10 @@ def _continues(piece: FloatArray, along: np.ndarray, guide: FloatArray, rate: fl
     """Whether `piece` (samples before or after the span, in time order) travels on around the
     loop: it moves along the guide (80 % of its samples) in the span's direction, at least 30 %
     as fast in phase as the span does on average (`rate`: the span's loops per sample, signed by
-    its direction)."""
-    if piece.shape[0] < 3 or along.size == 0 or float(np.mean(along)) < _CONTINUE_ALONG:
+    its direction). A piece within the edge trim (0.04 s) is too short to test, and is kept."""
+    if piece.shape[0] <= round(_EDGE_TRIM_S * _CLOCK_HZ) + 1:
+        return True
+    if along.size == 0 or float(np.mean(along)) < _CONTINUE_ALONG:
         return False
     phase = track_phase(piece, guide)
     piece_rate = float(phase[-1] - phase[0]) / (guide.shape[0] * piece.shape[0])
