@@ -300,7 +300,7 @@ def _consensus(
     centred_costs = [c for c, _, centred in found if centred]
     free_low = min(c for c, _, centred in found if not centred)
     if (
-        float(np.linalg.norm(fit.translation)) <= _CENTRED_REACH * fit.size_m
+        off <= _CENTRED_REACH * fit.size_m
         and centred_costs
         and min(centred_costs) <= _CENTRED_SLACK * free_low
     ):
