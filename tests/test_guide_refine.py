@@ -13,6 +13,7 @@ from bt_pipeline.clean.guide_refine import refine_fit
 from bt_pipeline.clean.periodic import pool_preferences
 from bt_pipeline.clean.segment import segment_demo
 from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.shapes import canonical_shape, similarity_transform
 from bt_pipeline.data.synth import lopsided
 from bt_pipeline.data.synth_human import make_human_set
@@ -72,7 +73,7 @@ def test_refinement_reads_wobbly_loops_closer_than_the_trimmed_fit(task: Task) -
         positions, _ = _wobbly_loop(task, 12.0, 1.15, seed)
         fit = fit_guide(positions, task)
         trimmed.append((abs(fit.theta_deg - 12.0), abs(fit.rho - 1.15)))
-        fit = refine_fit(positions, fit, task)
+        fit = refine_fit(positions, fit)
         refined.append((abs(fit.theta_deg - 12.0), abs(fit.rho - 1.15)))
     before, after = np.median(trimmed, axis=0), np.median(refined, axis=0)
     assert after[1] < 0.8 * before[1]
@@ -85,7 +86,9 @@ def test_spikes_do_not_pull_the_refinement() -> None:
     rng = np.random.default_rng(0)
     for k in rng.choice(positions.shape[0], 5, replace=False):
         positions[k] += 0.03
-    fit = refine_fit(positions, GuideFit(-20.5, 0.91, np.zeros(2), 0.002, 0.2), "wiping")
+    fit = refine_fit(
+        positions, GuideFit(-20.5, 0.91, np.zeros(2), 0.002, 0.2, LoopShape.guide("wiping"))
+    )
     assert abs(fit.rho - 0.9) < 0.01
     assert abs(fit.theta_deg + 20.0) < 1.0
 
@@ -98,7 +101,7 @@ def test_a_lopsided_loop_keeps_its_true_side_fit() -> None:
     positions = similarity_transform(drawn, 10.0, 1.1)
     fit = fit_guide(positions, "wiping")
     assert abs(fit.rho - 1.1) < 0.05  # The consensus finds the true side.
-    refined = refine_fit(positions, fit, "wiping")
+    refined = refine_fit(positions, fit)
     assert abs(refined.rho - 1.1) < 0.05
     assert abs(refined.theta_deg - 10.0) < 5.0
 
@@ -106,14 +109,14 @@ def test_a_lopsided_loop_keeps_its_true_side_fit() -> None:
 def test_known_values_stay_fixed_and_bad_input_keeps_the_fit() -> None:
     """A known θ (ρ) is held; both known, too few samples or NaN return the fit unchanged."""
     positions, _ = _wobbly_loop("weaving", 5.0, 1.2, seed=2)
-    start = GuideFit(6.0, 1.22, np.zeros(2), 0.002, 0.36)
-    assert refine_fit(positions, start, "weaving", theta_deg=6.0).theta_deg == 6.0
-    assert refine_fit(positions, start, "weaving", rho=1.22).rho == 1.22
-    assert refine_fit(positions, start, "weaving", theta_deg=6.0, rho=1.22) is start
-    assert refine_fit(positions[:5], start, "weaving") is start
+    start = GuideFit(6.0, 1.22, np.zeros(2), 0.002, 0.36, LoopShape.guide("weaving"))
+    assert refine_fit(positions, start, theta_deg=6.0).theta_deg == 6.0
+    assert refine_fit(positions, start, rho=1.22).rho == 1.22
+    assert refine_fit(positions, start, theta_deg=6.0, rho=1.22) is start
+    assert refine_fit(positions[:5], start) is start
     broken = positions.copy()
     broken[10] = np.nan
-    assert refine_fit(broken, start, "weaving") is start
+    assert refine_fit(broken, start) is start
 
 
 def test_a_fast_incomplete_arch_keeps_its_right_estimate_in_the_pooling() -> None:

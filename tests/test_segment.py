@@ -9,6 +9,7 @@ from bt_pipeline.clean.guide_fit import PreferenceRange, fit_guide
 from bt_pipeline.clean.periodic import pool_preferences, segment_all
 from bt_pipeline.clean.segment import segment_demo, track_phase
 from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.shapes import canonical_loop, similarity_transform
 from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.data.synth_human import make_human_set
@@ -219,7 +220,7 @@ def test_pooling_follows_the_estimates_that_agree() -> None:
         return Demo(positions, "wiping", "", name, who, None, None, default_plane("wiping"))
 
     def segment(theta: float, rho: float) -> Segment:
-        fit = GuideFit(theta, rho, np.zeros(2), 0.001, 0.24 * rho)
+        fit = GuideFit(theta, rho, np.zeros(2), 0.001, 0.24 * rho, LoopShape.guide("wiping"))
         return Segment(0.0, 1.0, 1.0, fit)
 
     fits = [(10.0, 1.00), (10.5, 1.01), (12.0, 1.09), (8.0, 1.16), (14.0, 1.23), (-5.0, 0.8)]
@@ -256,7 +257,9 @@ def test_pooling_weighs_each_fit_by_how_well_the_whole_loop_follows_it() -> None
         )
 
     def segment(theta: float, rho: float, residual: float, misfit: float) -> Segment:
-        fit = GuideFit(theta, rho, np.zeros(2), residual, 0.30 * rho)
+        fit = GuideFit(
+            theta, rho, np.zeros(2), residual, 0.30 * rho, LoopShape.guide("pick_and_place")
+        )
         return Segment(0.0, 1.0, 1.0, fit, misfit_m=misfit)
 
     fits = [segment(0.0, 1.0, 0.0008, 0.002), segment(5.0, 1.1, 0.0005, 0.004)]
@@ -388,7 +391,14 @@ def test_confidence_is_how_much_agreeing_evidence_backs_the_estimate() -> None:
         return Demo(positions, "wiping", "", f"d{k}", who, None, None, default_plane("wiping"))
 
     def segment(theta: float, rho: float, misfit: float) -> Segment:
-        return Segment(0.0, 1.0, 1.0, GuideFit(theta, rho, np.zeros(2), 1e-3, 0.24), 0.0, misfit)
+        return Segment(
+            0.0,
+            1.0,
+            1.0,
+            GuideFit(theta, rho, np.zeros(2), 1e-3, 0.24, LoopShape.guide("wiping")),
+            0.0,
+            misfit,
+        )
 
     fits = [(0.0, 1.0, 0.001), (0.5, 1.01, 0.001), (-0.5, 0.99, 0.001)]
     fits += [(9.0, 1.2, 0.03), (-12.0, 0.8, 0.03), (20.0, 1.5, 0.03)]  # Misfit 6 x 2 % of size.

@@ -27,6 +27,7 @@ from bt_pipeline.clean.periodic import PreferenceEstimate, retime_reference, seg
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.stage2.chunked import chunk_sizes
 from bt_pipeline.data.demo import Demo
+from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.execute import ExecutorConfig, run_jobs
 from bt_pipeline.score.losses import closure_loss, smoothness_loss, symmetry_loss
@@ -100,9 +101,13 @@ def demo_metrics(
     )
 
 
-def segment_step(demos: Sequence[Demo], allowed: PreferenceRange | None) -> list[Segment]:
-    """The periodic span of each demo (:func:`~bt_pipeline.clean.periodic.segment_all`)."""
-    return list(segment_all(demos, allowed))
+def segment_step(
+    demos: Sequence[Demo], shared: tuple[PreferenceRange | None, LoopShape | None]
+) -> list[Segment]:
+    """The periodic span of each demo (:func:`~bt_pipeline.clean.periodic.segment_all`), from
+    (the allowed θ/ρ, the task's loop: None for its guide)."""
+    allowed, loop = shared
+    return list(segment_all(demos, allowed, loop))
 
 
 def retime_step(

@@ -38,9 +38,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import KDTree
 
+from bt_pipeline.data.loop_shape import LoopShape, as_loop
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.shapes import canonical_loop
-from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
 
 _GUIDE_POINTS = 1024  # Dense guide for nearest-point pairing (< 0.4 mm spacing).
@@ -94,10 +93,12 @@ class GuideFit:
     """Mean distance of the kept (trimmed) points to the fitted guide [m]."""
     size_m: float
     """The fitted guide's size, the larger side of its bounding box [m]."""
+    loop: LoopShape
+    """The loop fitted: the task's guide or the loop learned from the task's demos."""
 
-    def guide(self, task: Task, n: int = _GUIDE_POINTS) -> FloatArray:
-        """The fitted guide, `n` points of one loop, shape (n, 2), in [m]."""
-        return transform(canonical_loop(task, n), self.theta_deg, self.rho, self.translation)
+    def guide(self, n: int = _GUIDE_POINTS) -> FloatArray:
+        """The fitted loop, `n` points of one loop, shape (n, 2), in [m]."""
+        return transform(self.loop.points(n), self.theta_deg, self.rho, self.translation)
 
 
 def transform(points: FloatArray, theta_deg: float, rho: float, t: FloatArray) -> FloatArray:
@@ -118,7 +119,7 @@ def arc_length_resample(points: FloatArray, n: int) -> FloatArray:
 
 def fit_guide(
     positions: ArrayLike,
-    task: Task,
+    loop: LoopShape | str,
     name: str = "demo",
     *,
     allowed: PreferenceRange | None = None,
@@ -133,7 +134,7 @@ def fit_guide(
 
     Args:
         positions: The demo (or its loop part), shape (T, 2), in task coordinates [m].
-        task: The task whose guide is fitted.
+        loop: The loop fitted (a task name: its guide).
         name: The demo's label for error messages.
         allowed: Allowed θ/ρ; defaults to PreferenceRange().
         theta_deg: Known θ [deg]: held fixed.
@@ -155,7 +156,8 @@ def fit_guide(
     points = arc_length_resample(x, _FIT_POINTS)
     if float(np.max(np.ptp(points, axis=0))) < 1e-3:
         raise DemoError(f"{name} does not move (extent under 1 mm); nothing to fit")
-    guide = canonical_loop(task, _GUIDE_POINTS)
+    loop = as_loop(loop)
+    guide = loop.points(_GUIDE_POINTS)
     tree = KDTree(guide)
     guide_rms = float(np.sqrt(np.mean(np.sum(guide**2, axis=1))))
     centre0 = np.median(points, axis=0)
@@ -188,7 +190,7 @@ def fit_guide(
         fits.sort(key=lambda f: f[0])
         candidates = [(th, r, t) for _, th, r, t, _ in fits[:survivors]]
         _, th, r, t, residual = fits[0]
-        best = GuideFit(th, r, t, residual, r * float(np.max(np.ptp(guide, axis=0))))
+        best = GuideFit(th, r, t, residual, r * float(np.max(np.ptp(guide, axis=0))), loop)
     assert best is not None  # starts is never empty
     if consensus and (rho is None or theta_deg is None):
         best = _consensus(points, guide, tree, best, theta_deg, rho, allowed, max_iterations)
@@ -242,15 +244,16 @@ def _consensus(
     n = points.shape[0]
     keep = max(3, int(_CONSENSUS_KEEP * n))
     off = float(np.linalg.norm(fit.translation))
-    if (
-        _trimmed_cost(points, tree, fit, int(0.9 * n)) < _LOPSIDED * fit.size_m
-        and not _CENTRED_OFF * fit.size_m < off <= _CENTRED_REACH * fit.size_m
+    # Centred fits only for a guide: it is drawn on the plane's origin; a learned loop is not.
+    anchored = fit.loop.is_guide
+    if _trimmed_cost(points, tree, fit, int(0.9 * n)) < _LOPSIDED * fit.size_m and not (
+        anchored and _CENTRED_OFF * fit.size_m < off <= _CENTRED_REACH * fit.size_m
     ):
         return fit  # 90 % of the loop lies close to a fit where it is drawn: nothing misshapen.
     local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
     halves = [points[side * local[:, axis] > 0.0] for axis in range(2) for side in (-1.0, 1.0)]
     fits: list[tuple[GuideFit, bool]] = []  # (fit, centred on the origin)
-    for centred in (False, True):
+    for centred in (False, True) if anchored else (False,):
         starts = [(fit.theta_deg, fit.rho, np.zeros(2))] if centred else []
         for half in halves:
             if half.shape[0] < 12:
@@ -289,7 +292,7 @@ def _consensus(
                 centred,
             )
             if math.isfinite(residual):
-                fits.append((GuideFit(th, r, t, residual, r * size), centred))
+                fits.append((GuideFit(th, r, t, residual, r * size, fit.loop), centred))
     fits.append((fit, False))
     # About the same share of each fit's own guide (√ ρ: the full ratio read wobbly loops small).
     ref = float(np.median([f.rho for f, _ in fits]))

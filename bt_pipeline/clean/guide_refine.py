@@ -39,8 +39,6 @@ from scipy.spatial import KDTree
 
 from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.shapes import canonical_loop
-from bt_pipeline.data.tasks import Task
 
 _POINTS = 1024  # Guide points for the pairing (< 0.4 mm apart at ρ = 1).
 _PAIRINGS = 3  # Nearest-point pairings, each followed by a weighted solve.
@@ -54,7 +52,6 @@ _KEEP = 0.6  # The refined fit's residual: mean of this share of smallest distan
 def refine_fit(
     positions: FloatArray,
     fit: GuideFit,
-    task: Task,
     allowed: PreferenceRange | None = None,
     theta_deg: float | None = None,
     rho: float | None = None,
@@ -64,7 +61,6 @@ def refine_fit(
     Args:
         positions: The span's raw samples, drift removed, shape (T, 2), task coordinates [m].
         fit: The guide fit to start from (the trimmed ICP's).
-        task: The task whose guide is fitted.
         allowed: Allowed θ/ρ; defaults to PreferenceRange().
         theta_deg: Known θ [deg]: held fixed.
         rho: Known ρ: held fixed.
@@ -79,11 +75,11 @@ def refine_fit(
         return fit
     if not np.all(np.isfinite(y)):
         return fit
-    canonical = canonical_loop(task, _POINTS)
+    canonical = fit.loop.points(_POINTS)
     zy = y[:, 0] + 1j * y[:, 1]
     th, r, t = fit.theta_deg, fit.rho, np.asarray(fit.translation, dtype=np.float64)
     for _ in range(_PAIRINGS):
-        guide = GuideFit(th, r, t, fit.residual_m, fit.size_m).guide(task, _POINTS)
+        guide = GuideFit(th, r, t, fit.residual_m, fit.size_m, fit.loop).guide(_POINTS)
         nearest = np.asarray(KDTree(guide).query(y)[1], dtype=np.intp)
         zq = canonical[nearest, 0] + 1j * canonical[nearest, 1]
         step = _weighted_similarity(zq, zy, allowed, theta_deg, rho)
@@ -92,11 +88,11 @@ def refine_fit(
         th, r, t = step
     if abs(th - fit.theta_deg) > _MAX_TURN_DEG or abs(r / fit.rho - 1.0) > _MAX_SCALE:
         return fit
-    refined = GuideFit(th, r, t, 0.0, fit.size_m * r / fit.rho)
-    distance = np.asarray(KDTree(refined.guide(task, _POINTS)).query(y)[0])
+    refined = GuideFit(th, r, t, 0.0, fit.size_m * r / fit.rho, fit.loop)
+    distance = np.asarray(KDTree(refined.guide(_POINTS)).query(y)[0])
     keep = max(1, int(_KEEP * distance.size))
     residual = float(np.mean(np.partition(distance, keep - 1)[:keep]))
-    return GuideFit(th, r, t, residual, refined.size_m)
+    return GuideFit(th, r, t, residual, refined.size_m, fit.loop)
 
 
 def _weighted_similarity(

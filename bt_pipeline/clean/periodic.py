@@ -38,6 +38,7 @@ from bt_pipeline.clean.guide_fit import PreferenceRange, arc_length_resample
 from bt_pipeline.clean.segment import Segment, segment_demo, span_times, track_phase
 from bt_pipeline.clean.stage1.alignment import apply_preference
 from bt_pipeline.data.demo import Demo, resample_uniform
+from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.score.losses import DEFAULT_ALPHAS, smoothness_loss, symmetry_loss
 from bt_pipeline.score.utility import RawMetrics
@@ -68,9 +69,10 @@ class PreferenceEstimate:
 
 
 def segment_all(
-    demos: Sequence[Demo], allowed: PreferenceRange | None = None
+    demos: Sequence[Demo], allowed: PreferenceRange | None = None, loop: LoopShape | None = None
 ) -> tuple[Segment, ...]:
-    """The periodic part of every demo (θ/ρ fixed where the demo states them)."""
+    """The periodic part of every demo (θ/ρ fixed where the demo states them), measured against
+    `loop` (None: each demo's task guide)."""
     segments = []
     for demo in demos:
         positions, times = demo.raw_samples()
@@ -78,7 +80,7 @@ def segment_all(
             segment_demo(
                 positions,
                 times,
-                demo.task,
+                loop if loop is not None else demo.task,
                 demo.label,
                 theta_deg=demo.theta_deg if demo.rho is not None else None,
                 rho=demo.rho if demo.theta_deg is not None else None,
@@ -236,7 +238,7 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     Returns:
         The loop as a demo of N samples, and whether any bin was filled from the guide.
     """
-    guide = segment.guide.guide(demo.task, 4 * demo.n_samples)
+    guide = segment.guide.guide(4 * demo.n_samples)
     x = demo.positions
     n = x.shape[0]
     phase = track_phase(gaussian_filter1d(x, 1.0, axis=0, mode="nearest"), guide)

@@ -80,8 +80,8 @@ from bt_pipeline.clean.guide_track import (
     track_phase,
     trim_raw_ends,
 )
+from bt_pipeline.data.loop_shape import LoopShape, as_loop
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import DemoError
 
 _CLOCK_HZ = 50.0  # Analysis clock [Hz].
@@ -137,7 +137,7 @@ class Segment:
 def segment_demo(
     positions: ArrayLike,
     times_s: ArrayLike,
-    task: Task,
+    loop: LoopShape | str,
     name: str = "demo",
     *,
     theta_deg: float | None = None,
@@ -149,7 +149,7 @@ def segment_demo(
     Args:
         positions: Raw task-plane positions, shape (T, 2), in [m].
         times_s: Their strictly increasing times, shape (T,), in [s] (any origin).
-        task: The task (its guide shape is the template).
+        loop: The task's loop, the template (a task name: its guide).
         name: Label for messages.
         theta_deg: Known θ [deg] of the demo, or None.
         rho: Known ρ, or None.
@@ -158,6 +158,7 @@ def segment_demo(
     Raises:
         DemoError: Mismatched or non-finite input, times not increasing, or no motion.
     """
+    loop = as_loop(loop)
     x = np.asarray(positions, dtype=np.float64)
     t = np.asarray(times_s, dtype=np.float64)
     if x.ndim != 2 or x.shape[1] != 2 or t.shape != (x.shape[0],) or x.shape[0] < 4:
@@ -174,12 +175,12 @@ def segment_demo(
     path = np.stack([np.interp(clock, t, x[:, d]) for d in range(2)], axis=1)
     smooth = gaussian_filter1d(path, _SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
 
-    first, last = _moving_part(smooth, path)
+    first, last = moving_part(smooth, path)
     if last - first < 8:
         raise DemoError(f"{name} does not move more than {1e3 * _REST_M:.0f} mm from its rest pose")
     moving = smooth[first : last + 1]
-    fit = fit_guide(moving, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
-    guide = fit.guide(task, _TRACK_POINTS)
+    fit = fit_guide(moving, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
+    guide = fit.guide(_TRACK_POINTS)
 
     # Distance to the guide with a slow drift removed (a running median of the offsets).
     nearest = nearest_index(guide, moving)
@@ -225,16 +226,16 @@ def segment_demo(
     # Drift first (what does not repeat loop to loop), then fits from every start and from that.
     span_phase = track_phase(lspan - drift[fa : fb + 1], guide) / guide.shape[0]
     span_drift = periodic_drift(lspan, span_phase, periodic_degree(cycles))
-    fit = fit_guide(lspan - span_drift, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
+    fit = fit_guide(lspan - span_drift, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
     fit = fit_guide(
-        lspan - span_drift, task, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
+        lspan - span_drift, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
     )
     # Refined over the raw samples in the span (not the clock's, which bridge gaps in the
     # samples with chords that cut inside the loop), their drift read off the span's.
     span_clock = clock[first + fa : first + fb + 1]
     inside = (t >= span_clock[0]) & (t <= span_clock[-1])
     raw_drift = np.stack([np.interp(t[inside], span_clock, span_drift[:, d]) for d in range(2)], 1)
-    fit = refine_fit(x[inside] - raw_drift, fit, task, allowed, theta_deg, rho)
+    fit = refine_fit(x[inside] - raw_drift, fit, allowed, theta_deg, rho)
     fitted = lspan - span_drift  # The misfit is read on this path, not the analysis path (its
     # smoothing, σ = 0.08 s, shrinks a fast loop, so a right ρ read as a misfit of several mm).
     # Snap the span to raw sample times: the first and last raw sample inside it.
@@ -242,12 +243,12 @@ def segment_demo(
     i1 = max(int(np.searchsorted(t, clock[first + b] + 1e-9)) - 1, i0 + 1)
     if first + b == clock.size - 1:
         i1 = t.size - 1  # The span runs to the recording's end (the clock stops short of it).
-    guide = fit.guide(task, _TRACK_POINTS)
+    guide = fit.guide(_TRACK_POINTS)
     j0, j1 = i0, i1
     # The end trim reads distances of a millimetre or less: to a dense guide (512 vertices are
     # 2-3 mm apart), with the drift against the final fit (docs/refinement.md, step 8).
     end_drift = drift_along(lspan, guide, followed, degree)
-    dense = fit.guide(task, _DENSE_POINTS)
+    dense = fit.guide(_DENSE_POINTS)
     j0, j1 = trim_raw_ends(
         x, t, span_clock, end_drift, dense, i0, i1, single=cycles < _EDGE_MIN_CYCLES
     )
@@ -265,7 +266,7 @@ def segment_demo(
         drift_m=float(np.max(np.ptp(drift[a : b + 1], axis=0))),
         misfit_m=float(
             np.percentile(
-                nearest_distance(fit.guide(task, _TRACK_POINTS), fitted[a - fa : b - fa + 1]), 90
+                nearest_distance(fit.guide(_TRACK_POINTS), fitted[a - fa : b - fa + 1]), 90
             )
         ),
     )
@@ -378,7 +379,7 @@ def _travel(phase: FloatArray, p: int) -> tuple[int, int]:
     return head, tail
 
 
-def _moving_part(smooth: FloatArray, path: FloatArray) -> tuple[int, int]:
+def moving_part(smooth: FloatArray, path: FloatArray) -> tuple[int, int]:
     """First and last index of the motion between the rests (step 1 of the module doc)."""
     # Where it rests: the median of its first (last) 0.2 s; how far counts as away from it:
     # 10 mm, or 4 x the path's sample noise (a jittery hand's rest wanders further).
@@ -416,4 +417,4 @@ def span_times(times_s: ArrayLike, segment: Segment) -> np.ndarray:
     return (t >= segment.start_s - 1e-9) & (t <= segment.end_s + 1e-9)
 
 
-__all__ = ["Segment", "segment_demo", "span_times", "track_phase"]
+__all__ = ["Segment", "moving_part", "segment_demo", "span_times", "track_phase"]

@@ -100,7 +100,7 @@ def select_demos(
         per_demo(
             segment_step,
             list(demos),
-            allowed or PreferenceRange(),
+            (allowed or PreferenceRange(), None),
             executor=executor,
             chunk_size=chunk_size,
             label=f"segment {demos[0].task}",
@@ -166,7 +166,7 @@ def take_score(
         DemoError: The demo does not move or has no loop.
     """
     config = config or ScoreConfig()
-    (segment,) = segment_step([demo], allowed or PreferenceRange())
+    (segment,) = segment_step([demo], (allowed or PreferenceRange(), None))
     (preference,) = pool_preferences([demo], [segment])
     span = span_demo(demo, segment, demo.n_samples, preference)
     return _ranking_inputs(span, segment, preference, config)[1]

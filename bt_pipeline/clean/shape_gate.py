@@ -52,14 +52,14 @@ def guide_misfit(demo: Demo, segment: Segment, preference: PreferenceEstimate) -
     positions, _ = demo.raw_samples()
     fit = fit_guide(
         positions,
-        demo.task,
+        segment.guide.loop,
         demo.label,
         theta_deg=preference.theta_deg,
         rho=preference.rho,
         initial=segment.guide,
         consensus=False,
     )
-    distances = nearest_distance(fit.guide(demo.task, _GUIDE_POINTS), positions)
+    distances = nearest_distance(fit.guide(_GUIDE_POINTS), positions)
     return float(np.median(distances)) / fit.size_m
 
 

@@ -60,12 +60,12 @@ class LoopShape:
         """Positions at the given phases [rad] (any shape): that shape plus a last axis of 2 [m]."""
         phi = np.asarray(phase, dtype=np.float64)
         if self.guide_task is not None:
-            from bt_pipeline.data.shapes import canonical_shape  # noqa: PLC0415 (import cycle)
+            from bt_pipeline.data.shapes import canonical_shape
 
             return canonical_shape(self.guide_task, phi)
         k = np.arange(-self.harmonics, self.harmonics + 1)
         z = np.exp(1j * phi[..., None] * k) @ self.coefficients
-        return np.stack([z.real, z.imag], axis=-1)
+        return np.stack([np.real(z), np.imag(z)], axis=-1)
 
     def points(self, n: int) -> FloatArray:
         """`n` points at uniform phase 2πj/n, j = 0..n−1 (endpoint excluded), shape (n, 2) [m]."""
@@ -121,7 +121,7 @@ class LoopShape:
     @classmethod
     def guide(cls, task: str) -> LoopShape:
         """The task's guide as the app draws it (raises UnknownTaskError for a task without one)."""
-        from bt_pipeline.data.shapes import canonical_loop  # noqa: PLC0415 (import cycle)
+        from bt_pipeline.data.shapes import canonical_loop
 
         n = 4 * _GUIDE_HARMONICS
         drawn = canonical_loop(task, n)
@@ -129,4 +129,9 @@ class LoopShape:
         return cls(exact.coefficients, f"{task} guide", guide_task=task)
 
 
-__all__ = ["LoopShape"]
+def as_loop(loop: LoopShape | str) -> LoopShape:
+    """`loop` itself, or the guide of the task it names."""
+    return loop if isinstance(loop, LoopShape) else LoopShape.guide(loop)
+
+
+__all__ = ["LoopShape", "as_loop"]

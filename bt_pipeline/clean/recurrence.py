@@ -1,0 +1,171 @@
+"""A demo's own loop: where its path returns to itself, with no template.
+
+The task's loop is learned from the demos (:mod:`bt_pipeline.clean.loop_learn`), and the take
+checks ask whether a take closes a loop at all, so one demo's loop must be found without any
+drawing of it. For one demo's raw samples:
+
+1. **Path.** Read on a 50 Hz clock, smoothed (σ = 0.08 s), the rests before and after trimmed
+   (:func:`~bt_pipeline.clean.segment.moving_part`), then resampled by **arc length**: pauses
+   and speed changes vanish, so a loop is the same length of path each time round.
+2. **Size.** E, the larger side of the bounding box of the middle 80 % of the path's length (an
+   approach from far off does not inflate it).
+3. **Returns.** From each point y_k the path must first get ``3 x tol`` away, with
+   tol = 8 % of E; its return is the nearest point of the first stretch that comes back within
+   tol. A return counts when the path there runs the same way (|cos| of the tangents ≥ 0.7 and
+   the same sign): an approach and a retreat along one line run opposite ways, and a
+   figure-eight's crossing runs across.
+4. **Perimeter.** L, the median path length from a point to its return (over the points that
+   return). One loop is the stretch from the point whose loop length is nearest L, among those
+   nearest the middle of the path's returns, to its return; resampled to 256 points by arc
+   length, closed.
+
+A demo whose path never returns (a part of a loop, a stroke that stops, a take with no loop)
+``closes`` no loop. Times are only used to trim the rests.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.ndimage import gaussian_filter1d
+
+from bt_pipeline.clean.guide_fit import arc_length_resample
+from bt_pipeline.data.records import FloatArray
+from bt_pipeline.exceptions import DemoError
+
+_CLOCK_HZ = 50.0  # Analysis clock [Hz] (as segment.py).
+_SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
+_MAX_POINTS = 1200  # Arc-length points of the path (at most).
+_MIN_SPACING_M = 0.001  # and at least this far apart [m].
+_TOLERANCE = 0.08  # A return comes back within this share of the loop's size,
+_LEAVE = 3.0  # after getting this many tolerances away.
+_PARALLEL = 0.7  # Tangents at a point and its return run the same way (cos ≥ this).
+_MIDDLE = 0.1  # E is read between these shares of the path's length from each end.
+LOOP_POINTS = 256
+"""Points of the loop a demo gives (uniform in arc length, endpoint excluded)."""
+
+
+@dataclass(frozen=True)
+class OwnLoop:
+    """What one demo's path says of its own loop."""
+
+    closes: bool
+    """Whether the path returns to itself after travelling round a loop."""
+    size_m: float
+    """E, the larger side of the bounding box of the middle of the path [m]."""
+    perimeter_m: float
+    """L, the path length of one loop [m] (NaN when it does not close)."""
+    loops: float
+    """The moving path's length over L (0 when it does not close): about the loops drawn."""
+    loop: FloatArray | None
+    """One loop, shape (256, 2), uniform in arc length, endpoint excluded [m]; None if open."""
+    closure_m: float
+    """The gap between that loop's ends [m] (NaN when it does not close)."""
+
+
+def moving_path(positions: ArrayLike, times_s: ArrayLike, name: str = "demo") -> FloatArray:
+    """The moving part of a demo on the analysis clock, smoothed, shape (T', 2) [m].
+
+    Raises:
+        DemoError: Mismatched, non-finite or non-increasing input.
+    """
+    from bt_pipeline.clean.segment import moving_part  # noqa: PLC0415 (segment imports this)
+
+    x = np.asarray(positions, dtype=np.float64)
+    t = np.asarray(times_s, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 2 or t.shape != (x.shape[0],) or x.shape[0] < 4:
+        raise DemoError(f"{name}: need positions (T >= 4, 2) and times (T,); got {x.shape}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(t))):
+        raise DemoError(f"{name} has NaN or infinite positions or times")
+    if np.any(np.diff(t) <= 0):
+        raise DemoError(f"{name}: timestamps must increase strictly")
+    clock = np.arange(t[0], t[-1], 1.0 / _CLOCK_HZ)
+    if clock.size < 8:
+        return x
+    path = np.stack([np.interp(clock, t, x[:, d]) for d in range(2)], axis=1)
+    smooth = gaussian_filter1d(path, _SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
+    first, last = moving_part(smooth, path)
+    if last - first < 8:
+        return smooth
+    return smooth[first : last + 1]
+
+
+def own_loop(positions: ArrayLike, times_s: ArrayLike, name: str = "demo") -> OwnLoop:
+    """One demo's own loop, from where its path returns to itself (module doc).
+
+    Args:
+        positions: Raw task-plane positions, shape (T, 2) [m].
+        times_s: Their strictly increasing times, shape (T,) [s].
+        name: Label for messages.
+
+    Raises:
+        DemoError: Mismatched, non-finite or non-increasing input.
+    """
+    return loop_of_path(moving_path(positions, times_s, name))
+
+
+def loop_of_path(path: FloatArray) -> OwnLoop:
+    """:func:`own_loop` on a path already smoothed and trimmed to its motion, shape (T, 2) [m]."""
+    steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    length = float(np.sum(steps))
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    open_loop = OwnLoop(False, 0.0, math.nan, 0.0, None, math.nan)
+    if length <= 10 * _MIN_SPACING_M:
+        return open_loop
+    n = int(min(_MAX_POINTS, max(16, length / _MIN_SPACING_M)))
+    y = arc_length_resample(path, n)
+    h = length / (n - 1)
+    middle = y[int(_MIDDLE * n) : max(int((1.0 - _MIDDLE) * n), int(_MIDDLE * n) + 2)]
+    size = float(np.max(np.ptp(middle, axis=0)))
+    if size <= 10 * _MIN_SPACING_M:
+        return OwnLoop(False, size, math.nan, 0.0, None, math.nan)
+    tol = _TOLERANCE * size
+    tangent = np.gradient(y, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-15
+    distance = np.sqrt(np.sum((y[:, None, :] - y[None, :, :]) ** 2, axis=2))
+    returns = np.full(n, -1, dtype=np.intp)
+    for k in range(n - 2):
+        row = distance[k, k + 1 :]
+        away = np.flatnonzero(row > _LEAVE * tol)
+        if away.size == 0:
+            break  # Nor will any later point get away and back (the path ends).
+        after = row[away[0] :]
+        back = np.flatnonzero(after < tol)
+        if back.size == 0:
+            continue
+        rest = after[back[0] :]
+        leaves = rest >= tol
+        stop = int(np.argmax(leaves)) if leaves.any() else rest.size
+        j = k + 1 + int(away[0]) + int(back[0]) + int(np.argmin(rest[:stop]))
+        if float(tangent[k] @ tangent[j]) >= _PARALLEL:
+            returns[k] = j
+    found = np.flatnonzero(returns >= 0)
+    if found.size == 0:
+        return OwnLoop(False, size, math.nan, 0.0, None, math.nan)
+    lags = (returns[found] - found) * h
+    perimeter = float(np.median(lags))
+    typical = found[np.abs(lags - perimeter) <= 0.1 * perimeter]
+    if typical.size == 0:
+        typical = found
+    # The loop nearest the middle of the returns (a loop well inside the demo), then the one
+    # whose length is nearest L among its neighbours.
+    centre = float(np.median(typical + 0.5 * (returns[typical] - typical)))
+    mid = typical + 0.5 * (returns[typical] - typical)
+    near = typical[np.argsort(np.abs(mid - centre))[: max(3, typical.size // 10)]]
+    k = int(near[np.argmin(np.abs((returns[near] - near) * h - perimeter))])
+    j = int(returns[k])
+    loop = arc_length_resample(np.concatenate([y[k:j], y[k : k + 1]]), LOOP_POINTS + 1)[:-1]
+    return OwnLoop(
+        closes=True,
+        size_m=size,
+        perimeter_m=perimeter,
+        loops=length / perimeter,
+        loop=loop,
+        closure_m=float(distance[k, j]),
+    )
+
+
+__all__ = ["LOOP_POINTS", "OwnLoop", "loop_of_path", "moving_path", "own_loop"]
