@@ -26,6 +26,7 @@ import numpy as np
 
 from bt_pipeline.clean.fan_out import metrics_step, per_demo, retime_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
+from bt_pipeline.clean.loop_learn import TaskLoop
 from bt_pipeline.clean.periodic import (
     PreferenceEstimate,
     output_on_raw_times,
@@ -152,6 +153,8 @@ class TaskCleanResult:
     """The kept periodic span of each raw demo (``demos`` hold these spans)."""
     preferences: tuple[PreferenceEstimate, ...] = ()
     """θ/ρ used for each demo, with whether they were estimated and how confidently."""
+    loop: TaskLoop | None = None
+    """The loop the demos were measured against (the task's guide or learned from them)."""
 
     @property
     def positions(self) -> FloatArray:
@@ -256,7 +259,7 @@ def clean_demos(
     if guide_filled:
         notes.append(
             f"{demos[best].label} (the best demo) does not cover a whole loop: the missing "
-            "phases of the canonical motion come from the task's guide"
+            f"phases of the canonical motion come from the task's {selection.loop.source} loop"
         )
     stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=1.0)
     # Every reference sits at the best demo's centre c, as in the paper (Sec. III-B): a demo's
@@ -330,4 +333,5 @@ def clean_demos(
         notes=tuple(notes),
         segments=segments,
         preferences=preferences,
+        loop=selection.loop,
     )

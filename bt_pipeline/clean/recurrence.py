@@ -4,15 +4,18 @@ The task's loop is learned from the demos (:mod:`bt_pipeline.clean.loop_learn`),
 checks ask whether a take closes a loop at all, so one demo's loop must be found without any
 drawing of it. For one demo's raw samples:
 
-1. **Path.** Read on a 50 Hz clock, smoothed (σ = 0.08 s), the rests before and after trimmed
-   (:func:`~bt_pipeline.clean.segment.moving_part`), then resampled by **arc length**: pauses
+1. **Path.** Read on a 50 Hz clock, the rests before and after trimmed
+   (:func:`~bt_pipeline.clean.segment.moving_part`), smoothed lightly (σ = 0.03 s: the
+   segmentation's σ = 0.08 s pulls a single loop's ends 5 % of its size apart), then
+   resampled by **arc length**: pauses
    and speed changes vanish, so a loop is the same length of path each time round.
 2. **Size.** E, the larger side of the bounding box of the middle 80 % of the path's length (an
    approach from far off does not inflate it).
-3. **Returns.** From each point y_k the path must first get ``3 x tol`` away, with
-   tol = 8 % of E; its return is the nearest point of the first stretch that comes back within
-   tol. A return counts when the path there runs the same way (|cos| of the tangents ≥ 0.7 and
-   the same sign): an approach and a retreat along one line run opposite ways, and a
+3. **Returns.** From each point y_k the path must first get ``2.5 x tol`` away, with
+   tol = 15 % of E (a single loop that drifts 3 cm still closes; one that stops at 90 % is 30 %
+   of its size short); its return is the nearest point of the first stretch that comes back within
+   tol. A return counts when the path there runs the same way (cos of the tangents, each over ±1 % of
+   the path, ≥ 0.8): an approach and a retreat along one line run opposite ways, and a
    figure-eight's crossing runs across.
 4. **Perimeter.** L, the median path length from a point to its return (over the points that
    return). One loop is the stretch from the point whose loop length is nearest L, among those
@@ -37,12 +40,14 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import DemoError
 
 _CLOCK_HZ = 50.0  # Analysis clock [Hz] (as segment.py).
-_SMOOTH_S = 0.08  # Gaussian σ of the analysis path [s].
+_SMOOTH_S = 0.08  # Gaussian σ of the path the rests are found on [s] (as segment.py),
+_LIGHT_S = 0.03  # and of the path the loop is read on: the heavier one pulls in a loop's ends.
 _MAX_POINTS = 1200  # Arc-length points of the path (at most).
 _MIN_SPACING_M = 0.001  # and at least this far apart [m].
-_TOLERANCE = 0.08  # A return comes back within this share of the loop's size,
-_LEAVE = 3.0  # after getting this many tolerances away.
-_PARALLEL = 0.7  # Tangents at a point and its return run the same way (cos ≥ this).
+_TOLERANCE = 0.15  # A return comes back within this share of the loop's size (a loop that
+# drifts 3 cm closes; one that stops at 90 % is 0.3 of its size short),
+_LEAVE = 2.5  # after getting this many tolerances away.
+_PARALLEL = 0.8  # Tangents at a point and its return run the same way (cos ≥ this).
 _MIDDLE = 0.1  # E is read between these shares of the path's length from each end.
 LOOP_POINTS = 256
 """Points of the loop a demo gives (uniform in arc length, endpoint excluded)."""
@@ -72,7 +77,7 @@ def moving_path(positions: ArrayLike, times_s: ArrayLike, name: str = "demo") ->
     Raises:
         DemoError: Mismatched, non-finite or non-increasing input.
     """
-    from bt_pipeline.clean.segment import moving_part  # noqa: PLC0415 (segment imports this)
+    from bt_pipeline.clean.segment import moving_part
 
     x = np.asarray(positions, dtype=np.float64)
     t = np.asarray(times_s, dtype=np.float64)
@@ -88,9 +93,10 @@ def moving_path(positions: ArrayLike, times_s: ArrayLike, name: str = "demo") ->
     path = np.stack([np.interp(clock, t, x[:, d]) for d in range(2)], axis=1)
     smooth = gaussian_filter1d(path, _SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
     first, last = moving_part(smooth, path)
+    light = gaussian_filter1d(path, _LIGHT_S * _CLOCK_HZ, axis=0, mode="nearest")
     if last - first < 8:
-        return smooth
-    return smooth[first : last + 1]
+        return light
+    return light[first : last + 1]
 
 
 def own_loop(positions: ArrayLike, times_s: ArrayLike, name: str = "demo") -> OwnLoop:
@@ -123,7 +129,8 @@ def loop_of_path(path: FloatArray) -> OwnLoop:
     if size <= 10 * _MIN_SPACING_M:
         return OwnLoop(False, size, math.nan, 0.0, None, math.nan)
     tol = _TOLERANCE * size
-    tangent = np.gradient(y, axis=0)
+    w = max(2, n // 100)  # Tangents over ±1 % of the path: jitter and spikes do not turn them.
+    tangent = y[np.minimum(np.arange(n) + w, n - 1)] - y[np.maximum(np.arange(n) - w, 0)]
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-15
     distance = np.sqrt(np.sum((y[:, None, :] - y[None, :, :]) ** 2, axis=2))
     returns = np.full(n, -1, dtype=np.intp)

@@ -2,7 +2,8 @@
 
 Data flow for one task::
 
-    raw demos ──segment──> kept spans, cycles, guide fits ──pool──> θ/ρ per demo (given or
+    raw demos ──learn the task's loop (guide or learned, loop_learn)──segment──> kept spans,
+    cycles, loop fits ──pool──> θ/ρ per demo (given or
     estimated) ──> span demos (N samples each) ──score (Eqs. 3-8, L1-L3 per loop, along the
     path, at ρ = 1)──> Ũ ──shape gate──> ranks and the best demo
 
@@ -24,6 +25,7 @@ import numpy as np
 
 from bt_pipeline.clean.fan_out import per_demo, segment_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
+from bt_pipeline.clean.loop_learn import TaskLoop, learn_task_loop
 from bt_pipeline.clean.periodic import (
     UNCERTAIN,
     PreferenceEstimate,
@@ -63,7 +65,9 @@ class Selection:
     notes: tuple[str, ...]
     """Estimated θ/ρ, a partial loop, the gate overriding Ũ."""
     seconds: dict[str, float]
-    """Wall time of ``segment`` and ``score`` [s]."""
+    """Wall time of ``loop``, ``segment`` and ``score`` [s]."""
+    loop: TaskLoop
+    """The loop the demos were measured against: the task's guide or learned from them."""
 
     def span_json(self, i: int) -> dict[str, Any]:
         """Demo i's :func:`span_attrs` and whether its θ/ρ were estimated."""
@@ -96,11 +100,14 @@ def select_demos(
     config = config or ScoreConfig()
     seconds: dict[str, float] = {}
     start = time.perf_counter()
+    task_loop = learn_task_loop(demos)
+    seconds["loop"] = time.perf_counter() - start
+    start = time.perf_counter()
     segments = tuple(
         per_demo(
             segment_step,
             list(demos),
-            (allowed or PreferenceRange(), None),
+            (allowed or PreferenceRange(), task_loop.loop),
             executor=executor,
             chunk_size=chunk_size,
             label=f"segment {demos[0].task}",
@@ -112,12 +119,13 @@ def select_demos(
         for demo, segment, preference in zip(demos, segments, preferences, strict=True)
     )
     seconds["segment"] = time.perf_counter() - start
-    notes: list[str] = []
+    notes: list[str] = list(task_loop.notes)
     for demo, segment, preference in zip(spans, segments, preferences, strict=True):
         if preference.estimated:
             doubt = " (uncertain)" if preference.confidence < UNCERTAIN else ""
             notes.append(
-                f"{demo.label}: θ/ρ missing, estimated{doubt} from the task's guide and pooled "
+                f"{demo.label}: θ/ρ missing, estimated{doubt} from the task's {task_loop.source} "
+                f"loop (frame: {task_loop.frame}) and pooled "
                 f"over {demo.demonstrator}'s demos as θ = {preference.theta_deg:.1f}°, "
                 f"ρ = {preference.rho:.3f} (confidence {preference.confidence:.2f})"
             )
@@ -138,12 +146,13 @@ def select_demos(
     if scores.best_index != by_utility.best_index:
         first, best = by_utility.best_index, scores.best_index
         notes.append(
-            f"{spans[first].label} has the highest Ũ but follows the task's guide less closely "
+            f"{spans[first].label} has the highest Ũ but follows the task's {task_loop.source} "
+            "loop less closely "
             f"(median {100 * misfits[first]:.2f} % of its size off, against "
             f"{100 * misfits[best]:.2f} %): {spans[best].label} is the best demo"
         )
     seconds["score"] = time.perf_counter() - start
-    return Selection(spans, segments, preferences, plain, scores, tuple(notes), seconds)
+    return Selection(spans, segments, preferences, plain, scores, tuple(notes), seconds, task_loop)
 
 
 @dataclass(frozen=True, slots=True)  # one per take in the app's library: no __dict__

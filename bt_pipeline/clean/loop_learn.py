@@ -1,0 +1,277 @@
+"""The task's loop, learned from its demos; the task's guide used only where the demos follow it.
+
+The paper takes the canonical shape from the best demo and never assumes one (Sec. III-B). bt's
+segmentation, θ/ρ estimate, shape gate and take checks need a loop to measure each demo
+against before the best demo is known, so the loop is learned from every demo first:
+
+1. **Each demo's own loop** (:func:`~bt_pipeline.clean.recurrence.own_loop`): one loop where
+   its path returns to itself, 256 points uniform in arc length. Demos that close no loop (a
+   part of a loop) do not take part.
+2. **Alignment** in closed form (elliptic Fourier descriptors, complex form): two loops z, w
+   are compared over every start shift s and both directions; for each the best similarity
+   a = ⟨z, w_s⟩ / ⟨w_s, w_s⟩ (rotation and scale at once) leaves a residual
+   |z|² − |⟨z, w_s⟩|² / |w_s|², computed for all shifts at once by FFT. The distance is the
+   root of the smallest residual over |z|²: a share of the loop's size.
+3. **Consensus.** The medoid (the loop with the smallest median distance to the others; at
+   most 40 demos are compared pairwise) is the first reference; every loop within 3 x the
+   median distance of it (other tasks' loops, a lobe of an eight, fall out) is aligned to it
+   and the point-wise median is taken; then once more against that median. The consensus is
+   low-passed to 12 harmonics and centred on its bounding box.
+4. **Guide or learned.** A task with a built-in guide keeps its guide when some demo's own
+   loop lies within 4 % (RMS, of its RMS radius) of a similarity of the guide and the
+   consensus within 12 %: the demos follow it (an expert-like demo of a guide set is 0.3-1 %
+   off; a consensus of 3-4 noisy demos 1-10 %; a wiping oval 12 %), and today's guide-based
+   results stay as they were. Otherwise the learned loop is used.
+5. **Frame.** A learned loop's θ = 0, ρ = 1 is the set's: each demo's similarity to the
+   consensus is read off its alignment, and the loop is turned and scaled so that these have
+   circular-mean θ 0 and geometric-mean ρ 1; when demos state θ/ρ, so that theirs match the
+   stated ones on average instead (θ/ρ written in a file are used as given, relative to the
+   learned loop: the paper's x_i^aligned needs only θ_i − θ_best and ρ_i / ρ_best).
+   θ of a loop with an n-fold symmetry is averaged modulo 360°/n, and a demo aligned about as
+   well (within 3 %) at several turns takes the smallest (an oval is its own twin at 180°).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from bt_pipeline.clean.guide_fit import arc_length_resample
+from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
+from bt_pipeline.data.demo import Demo
+from bt_pipeline.data.loop_shape import LoopShape
+from bt_pipeline.data.tasks import has_guide
+from bt_pipeline.exceptions import DemoError
+
+GUIDE_FOLLOWED = 0.04
+"""The guide is used when some demo's own loop lies within this share of its RMS radius of a
+similarity of the guide (an expert-like demo of a guide set: 0.3-1 %; a wiping oval: 12 %)"""
+GUIDE_MISFIT = 0.12
+"""and the learned consensus within this share (3-4 noisy demos: 1-10 % on guide sets)."""
+_HARMONICS = 12  # Harmonics of a learned loop.
+_MAX_PAIRWISE = 40  # Loops compared pairwise for the medoid.
+_OUTLIER = 3.0  # Loops farther than this many median distances from the medoid are left out,
+_OUTLIER_FLOOR = 0.05  # and never those within this share of the size.
+_TIE = 0.03  # Alignments this close to the best are ties: the one that turns least wins.
+_SYMMETRY = 0.03  # A loop with an n-fold symmetry matches itself turned by 360°/n this well.
+
+LoopSource = Literal["guide", "learned"]
+
+
+@dataclass(frozen=True)
+class TaskLoop:
+    """The loop a task's demos are measured against, and where it came from."""
+
+    loop: LoopShape
+    """The template (the guide, or the learned loop in the frame of :attr:`frame`)."""
+    source: LoopSource
+    """``"guide"``: the task's built-in guide; ``"learned"``: learned from the demos."""
+    guide_misfit: float
+    """RMS distance of the learned consensus from the nearest similarity of the guide, as a
+    share of its RMS radius (NaN for a task without a guide or when nothing was learned)."""
+    used: tuple[str, ...]
+    """Labels of the demos whose own loops built the consensus."""
+    frame: str
+    """What θ = 0, ρ = 1 mean for this loop."""
+    notes: tuple[str, ...] = ()
+    """Things a user should know (demos that close no loop, a guide that does not fit)."""
+
+
+def align(
+    reference: np.ndarray, other: np.ndarray, tie: float = 0.0
+) -> tuple[complex, int, bool, float]:
+    """Best similarity of `other` onto `reference`, over start shifts and directions (step 2).
+
+    Args:
+        reference: z, one loop as complex points, shape (P,), centred.
+        other: w, another loop as complex points, shape (P,), centred.
+        tie: Alignments within this distance of the best are ties, and the one that turns
+            least wins: a nearly symmetric loop (an oval matches itself turned by 180°) keeps
+            the turn its neighbours have.
+
+    Returns:
+        (a, shift, reversed, distance): ``a * roll(w', shift) ≈ z`` with w' = w or w reversed,
+        and the RMS residual over the RMS of z.
+    """
+    zz = float(np.vdot(reference, reference).real)
+    fz = np.fft.fft(reference)
+    found = []
+    for flipped in (False, True):
+        w = other[::-1] if flipped else other
+        ww = float(np.vdot(w, w).real)
+        if ww <= 0.0 or zz <= 0.0:
+            continue
+        # corr[s] = Σ_j z_{j+s} conj(w_j) for every shift s: z ≈ a roll(w, s).
+        corr = np.fft.ifft(fz * np.conj(np.fft.fft(w)))
+        distance = np.sqrt(np.maximum(zz - np.abs(corr) ** 2 / ww, 0.0) / zz)
+        found.append((corr / ww, distance, flipped))
+    if not found:
+        return 1.0 + 0j, 0, False, math.inf
+    low = min(float(d.min()) for _, d, _ in found)
+    best = (1.0 + 0j, 0, False, math.inf, math.inf)
+    for a, distance, flipped in found:
+        for s in np.flatnonzero(distance <= low + tie):
+            turn = abs(float(np.angle(a[s])))
+            key = turn if tie > 0.0 else float(distance[s])
+            if key < best[4]:
+                best = (complex(a[s]), int(s), flipped, float(distance[s]), key)
+    return best[:4]
+
+
+def _apply(other: np.ndarray, a: complex, shift: int, flipped: bool) -> np.ndarray:
+    w = other[::-1] if flipped else other
+    return a * np.roll(w, shift)
+
+
+def _complex(points: np.ndarray) -> np.ndarray:
+    z = points[:, 0] + 1j * points[:, 1]
+    return z - z.mean()
+
+
+def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
+    """The loop one task's demos are measured against (module doc).
+
+    Args:
+        demos: The task's demos (their raw samples are read).
+
+    Raises:
+        DemoError: A task without a guide none of whose demos closes a loop.
+    """
+    task = demos[0].task
+    guided = has_guide(task)
+    loops: list[np.ndarray] = []
+    used: list[int] = []
+    for i, demo in enumerate(demos):
+        positions, times = demo.raw_samples()
+        found = own_loop(positions, times, demo.label)
+        if found.closes and found.loop is not None:
+            loops.append(_complex(found.loop))
+            used.append(i)
+    notes: list[str] = []
+    if not loops:
+        names = ", ".join(d.label for d in demos)
+        if guided:
+            return TaskLoop(
+                LoopShape.guide(task),
+                "guide",
+                math.nan,
+                (),
+                f"the {task} guide's frame",
+                (f"no demo of {task} closes a loop of its own ({names}): its guide is used",),
+            )
+        raise DemoError(
+            f"no demo of task {task!r} closes a loop of its own, so its loop cannot be learned "
+            f"({names})"
+        )
+    consensus, members = _consensus(loops)
+    kept = [used[m] for m in members]
+    left_out = [demos[i].label for i in used if i not in kept]
+    if left_out:
+        notes.append(
+            f"{', '.join(left_out)}: their loops differ from the other {task} demos' and were "
+            "left out of the task's learned loop"
+        )
+    points = np.stack([consensus.real, consensus.imag], axis=1)
+    learned = LoopShape.from_points(points, _HARMONICS, f"{task} loop learned from {len(kept)}")
+    learned = learned.transformed(translation=-learned.centre)
+    misfit = math.nan
+    if guided:
+        guide = LoopShape.guide(task)
+        drawn = _complex(arc_length_resample(_closed(guide.points(1024)), LOOP_POINTS + 1)[:-1])
+        misfit = align(_complex(learned.points(LOOP_POINTS)), drawn)[3]
+        closest = min(align(loop, drawn)[3] for loop in loops)
+        if closest <= GUIDE_FOLLOWED and misfit <= GUIDE_MISFIT:
+            return TaskLoop(
+                guide, "guide", misfit, _labels(demos, kept), f"the {task} guide's frame"
+            )
+        notes.append(
+            f"the {task} demos do not follow the task's guide (the closest is "
+            f"{100 * closest:.1f} % of its size off, the consensus {100 * misfit:.1f} %): their "
+            "own loop, learned from "
+            f"{len(kept)} demos, is used"
+        )
+    framed, frame = _frame(learned, [demos[i] for i in kept], [loops[used.index(i)] for i in kept])
+    return TaskLoop(framed, "learned", misfit, _labels(demos, kept), frame, tuple(notes))
+
+
+def _labels(demos: Sequence[Demo], kept: Sequence[int]) -> tuple[str, ...]:
+    return tuple(demos[i].label for i in kept)
+
+
+def _closed(points: np.ndarray) -> np.ndarray:
+    return np.concatenate([points, points[:1]])
+
+
+def _consensus(loops: list[np.ndarray]) -> tuple[np.ndarray, list[int]]:
+    """The point-wise median of the loops aligned to their medoid, and the loops kept."""
+    m = len(loops)
+    if m == 1:
+        return loops[0], [0]
+    pool = list(range(m)) if m <= _MAX_PAIRWISE else list(np.linspace(0, m - 1, _MAX_PAIRWISE))
+    pool = [int(i) for i in pool]
+    distance = np.zeros((len(pool), len(pool)))
+    for a, i in enumerate(pool):
+        for b, j in enumerate(pool):
+            if b > a:
+                d = 0.5 * (align(loops[i], loops[j])[3] + align(loops[j], loops[i])[3])
+                distance[a, b] = distance[b, a] = d
+    spread = np.nanmedian(np.where(np.eye(len(pool), dtype=bool), np.nan, distance), axis=1)
+    reference = loops[pool[int(np.argmin(spread))]]
+    members: list[int] = []
+    for _ in range(2):
+        fits = [align(reference, z, _TIE) for z in loops]
+        d = np.array([f[3] for f in fits])
+        cut = max(_OUTLIER * float(np.median(d)), _OUTLIER_FLOOR)
+        members = [k for k in range(m) if d[k] <= cut] or [int(np.argmin(d))]
+        stack = np.stack([_apply(loops[k], *fits[k][:3]) for k in members])
+        reference = np.median(stack.real, axis=0) + 1j * np.median(stack.imag, axis=0)
+        reference = reference - reference.mean()
+    return reference, members
+
+
+def _frame(
+    learned: LoopShape, demos: Sequence[Demo], loops: Sequence[np.ndarray]
+) -> tuple[LoopShape, str]:
+    """The learned loop turned and scaled into the set's frame (step 5)."""
+    z = _complex(learned.points(LOOP_POINTS))
+    thetas, log_rhos, given = [], [], []
+    for demo, loop in zip(demos, loops, strict=True):
+        a = align(z, loop, _TIE)[0]  # a * demo ≈ learned: the demo is learned / a.
+        pref = 1.0 / a
+        thetas.append(math.degrees(math.atan2(pref.imag, pref.real)))
+        log_rhos.append(math.log(abs(pref)))
+        given.append(demo.theta_deg is not None and demo.rho is not None)
+    thetas_a, log_a, given_a = np.array(thetas), np.array(log_rhos), np.array(given)
+    if given_a.any():
+        stated = [d for d, g in zip(demos, given, strict=True) if g]
+        theta_off = thetas_a[given_a] - np.array([d.theta_deg for d in stated], dtype=float)
+        rho_off = log_a[given_a] - np.log(np.array([d.rho for d in stated], dtype=float))
+        frame = "the θ/ρ the demos state"
+    else:
+        theta_off, rho_off = thetas_a, log_a
+        frame = "the set's: circular-mean θ = 0 and geometric-mean ρ = 1 over its demos"
+    order = _symmetry_order(z)
+    angle = np.radians(theta_off) * order
+    mean_theta = math.degrees(math.atan2(np.mean(np.sin(angle)), np.mean(np.cos(angle)))) / order
+    scale = math.exp(float(np.median(rho_off)))
+    return learned.transformed(mean_theta, scale), frame
+
+
+def _symmetry_order(z: np.ndarray) -> int:
+    """The largest n ≤ 6 such that the loop matches itself turned by 360°/n (1: none)."""
+    zz = float(np.vdot(z, z).real)
+    fz = np.fft.fft(z)
+    corr = np.fft.ifft(fz * np.conj(fz))  # corr[s] = Σ_j z_j conj(z_{j+s})
+    for n in (6, 5, 4, 3, 2):
+        turn = np.exp(2j * math.pi / n)
+        residual = 2.0 * zz - 2.0 * np.real(np.conj(turn) * corr)
+        if math.sqrt(max(float(residual.min()), 0.0) / max(zz, 1e-30)) <= _SYMMETRY:
+            return n
+    return 1
+
+
+__all__ = ["GUIDE_MISFIT", "LoopSource", "TaskLoop", "align", "learn_task_loop"]
