@@ -131,7 +131,7 @@ def test_the_best_demo_follows_the_guide_when_a_wobbly_one_scores_higher(task, s
         result.on_raw_times(ops.steady_index),
     )
     assert timing < 1.1, timing
-    assert any("follows the task's guide less closely" in note for note in result.notes)
+    assert any("follows the task's guide loop less closely" in note for note in result.notes)
 
 
 def test_eligibility_is_relative_to_the_closest_follower() -> None:

@@ -175,7 +175,7 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
             f"{', '.join(left_out)}: their loops differ from the other {task} demos' and were "
             "left out of the task's learned loop"
         )
-    points = np.stack([consensus.real, consensus.imag], axis=1)
+    points = np.stack([np.real(consensus), np.imag(consensus)], axis=1)
     learned = LoopShape.from_points(points, _HARMONICS, f"{task} loop learned from {len(kept)}")
     learned = learned.transformed(translation=-learned.centre)
     misfit = math.nan
@@ -228,7 +228,7 @@ def _consensus(loops: list[np.ndarray]) -> tuple[np.ndarray, list[int]]:
         cut = max(_OUTLIER * float(np.median(d)), _OUTLIER_FLOOR)
         members = [k for k in range(m) if d[k] <= cut] or [int(np.argmin(d))]
         stack = np.stack([_apply(loops[k], *fits[k][:3]) for k in members])
-        reference = np.median(stack.real, axis=0) + 1j * np.median(stack.imag, axis=0)
+        reference = np.median(np.real(stack), axis=0) + 1j * np.median(np.imag(stack), axis=0)
         reference = reference - reference.mean()
     return reference, members
 

@@ -13,9 +13,9 @@ drawing of it. For one demo's raw samples:
    approach from far off does not inflate it).
 3. **Returns.** From each point y_k the path must first get ``2.5 x tol`` away, with
    tol = 15 % of E (a single loop that drifts 3 cm still closes; one that stops at 90 % is 30 %
-   of its size short); its return is the nearest point of the first stretch that comes back within
-   tol. A return counts when the path there runs the same way (cos of the tangents, each over ±1 % of
-   the path, ≥ 0.8): an approach and a retreat along one line run opposite ways, and a
+   of its size short); its return is the nearest point of the first stretch that comes back
+   within tol. A return counts when the path there runs the same way (cos of the tangents, each
+   over ±1 % of the path, ≥ 0.8): an approach and a retreat along one line run opposite ways, and a
    figure-eight's crossing runs across.
 4. **Perimeter.** L, the median path length from a point to its return (over the points that
    return). One loop is the stretch from the point whose loop length is nearest L, among those
@@ -117,7 +117,6 @@ def loop_of_path(path: FloatArray) -> OwnLoop:
     """:func:`own_loop` on a path already smoothed and trimmed to its motion, shape (T, 2) [m]."""
     steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
     length = float(np.sum(steps))
-    s = np.concatenate([[0.0], np.cumsum(steps)])
     open_loop = OwnLoop(False, 0.0, math.nan, 0.0, None, math.nan)
     if length <= 10 * _MIN_SPACING_M:
         return open_loop
