@@ -53,6 +53,7 @@ __all__ = [
 ]
 
 LOGGER = logging.getLogger("bt.teleop")
+_WARNING_TEXT = {"off_guide": "off the guide: kept and cleaned"}  # a take-check remark
 
 
 @dataclass(frozen=True)
@@ -245,7 +246,9 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
 
     Rows: usable demos by Ũ (best first), then flagged ones, then excluded ones. Marks: ★ the
     best demo, ⚠ a flagged demo or one with warnings (both on the best demo when it has a
-    warning), ⊘ excluded. Every name is escaped (:func:`bt_teleop.escape.markdown_text`).
+    warning), ⊘ excluded. A take whose only flag is the remark ``off_guide`` is usable, its note
+    "off the guide: kept and cleaned". Every name and note is escaped
+    (:func:`bt_teleop.escape.markdown_text`).
     """
     if not library.raw:
         return f"No {library.task} recordings yet: press **Record**."
@@ -262,14 +265,12 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12) -> str:
         note = ", ".join(
             (["excluded"] if track.excluded else [])
             + list(track.flags)
-            + list(track.warnings)
+            + [_WARNING_TEXT.get(w, w) for w in track.warnings]
             + unscored
         )
         who = markdown_text(track.demonstrator, 24)
-        rows.append(
-            f"| {mark} | {who} | {pref} | {track.duration_s:.1f} | {score} | "
-            f"{note.replace('_', ' ')} |"
-        )
+        note = markdown_text(note.replace("_", " "), 160)  # flags are a file's text, as names
+        rows.append(f"| {mark} | {who} | {pref} | {track.duration_s:.1f} | {score} | {note} |")
     n_usable = sum(t.usable for t in library.raw)
     head = f"{plural(len(library.raw), 'demo')} of {library.task}, {n_usable} usable"
     lines = [f"{head} (★ best, ⚠ flagged or worth a look, ⊘ excluded)", "", *rows]

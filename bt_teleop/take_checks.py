@@ -5,33 +5,50 @@ and takes cut short (a closed tab, three drags and a save). They are kept as fil
 but marked with the demo attr ``flags`` (docs/recording-format.md), so they are never the best
 demo and scoring and cleaning skip them. The checks, in task-plane coordinates::
 
-    too_short   duration < min_duration_s
-    no_motion   largest distance of any sample from the first < min_motion_m
-    incomplete  share of the guide's angular sectors the take reaches < min_loop_share
+    too_short        duration < min_duration_s
+    no_motion        largest distance of any sample from the first < min_motion_m
+    incomplete       the take does not close one loop of its own
+    closed_mid_take  the tab closed while recording
 
-Loop share, measured against the guide (the task's canonical loop under the take's θ and ρ,
-centred on the plane origin, at uniform phase): the share of the guide's points that have a
-sample of the take within ``tolerance_share`` of the guide's RMS radius, in task-plane
-coordinates. It ignores where the take starts, its speed, pauses, an approach and a retreat
-(they cover little of the loop), and a loop drawn up to about 15 % larger or smaller than the
-guide; a straight drag across the plane covers only the points near where it crosses the loop.
+and one remark, written to ``flags`` too but informational: the take is kept, scored and
+cleaned (:data:`bt_pipeline.data.records.INFO_FLAGS`)::
+
+    off_guide        the take's own loop is more than max_guide_misfit off the guide's shape
+
+**Own loop** (:func:`bt_pipeline.clean.recurrence.own_loop`): where the take's path returns to
+itself, running the same way, with no template; one loop of it, 256 points uniform in arc
+length. An approach, a retreat, pauses, uneven sample times and the loop's size, turn and shape
+do not matter; a part of a loop, a stroke that stops and a straight drag (back and forth runs
+the opposite way) close none. Labs draw loops of other shapes than bt's guide, which is only a
+hint: a closed loop of any shape is a demonstration.
+
+**Off the guide**: the take's own loop against the guide (the task's drawn loop,
+:meth:`~bt_pipeline.data.loop_shape.LoopShape.guide`, resampled by arc length to the same 256
+points) by the closed-form similarity alignment :func:`bt_pipeline.clean.loop_learn.align`,
+over start point and direction: the RMS residual as a share of the loop's RMS radius. So θ, ρ
+and where on the plane the loop is drawn do not count, only its shape. The threshold is
+:data:`~bt_pipeline.clean.loop_learn.GUIDE_MISFIT` (12 %), the misfit up to which the cleaner
+takes a set's loop for the guide.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import KDTree
 
+from bt_pipeline.clean.guide_fit import arc_length_resample
+from bt_pipeline.clean.loop_learn import GUIDE_MISFIT, align
+from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
+from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.plane import TaskPlane
-from bt_pipeline.data.records import FloatArray, TakeFlag
-from bt_pipeline.data.shapes import canonical_loop, similarity_transform
-from bt_pipeline.data.tasks import Task
-from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.data.records import INFO_FLAGS, FloatArray, TakeFlag
+from bt_pipeline.data.tasks import TASKS, Task
+from bt_pipeline.exceptions import ConfigError, DemoError
 
-__all__ = ["TakeCheck", "TakeCheckConfig", "check_take", "loop_share"]
+__all__ = ["TakeCheck", "TakeCheckConfig", "check_take", "guide_misfit"]
 
 
 @dataclass(frozen=True)
@@ -42,20 +59,18 @@ class TakeCheckConfig:
     """Shortest take [s] that is not ``too_short``."""
     min_motion_m: float = 0.02
     """A take whose samples all stay within this distance [m] of its first is ``no_motion``."""
-    min_loop_share: float = 0.6
-    """Least share (0..1) of the guide's sectors a take must reach not to be ``incomplete``."""
-    tolerance_share: float = 0.15
-    """A guide point is reached when a sample is within this share of the guide's RMS radius."""
+    max_guide_misfit: float = GUIDE_MISFIT
+    """A take whose own loop lies farther than this share (0..1) of its RMS radius from every
+    similarity of the guide is ``off_guide`` (12 %: careful browser loops along the guide are
+    3-10 % off, an ellipse of aspect 1.5 is 12 %, a circle inside the wiping guide 27 %)."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.min_duration_s) and self.min_duration_s >= 0.0):
             raise ConfigError(f"min_duration_s must be ≥ 0 [s]; got {self.min_duration_s}")
         if not (math.isfinite(self.min_motion_m) and self.min_motion_m >= 0.0):
             raise ConfigError(f"min_motion_m must be ≥ 0 [m]; got {self.min_motion_m}")
-        if not 0.0 <= self.min_loop_share <= 1.0:
-            raise ConfigError(f"min_loop_share must be in [0, 1]; got {self.min_loop_share}")
-        if not (math.isfinite(self.tolerance_share) and 0.0 < self.tolerance_share <= 1.0):
-            raise ConfigError(f"tolerance_share must be in (0, 1]; got {self.tolerance_share}")
+        if not (math.isfinite(self.max_guide_misfit) and self.max_guide_misfit > 0.0):
+            raise ConfigError(f"max_guide_misfit must be > 0; got {self.max_guide_misfit}")
 
 
 @dataclass(frozen=True)
@@ -63,28 +78,32 @@ class TakeCheck:
     """What the checks found in one take."""
 
     flags: tuple[TakeFlag, ...]
-    """Failed checks, in the order too_short, no_motion, incomplete, closed_mid_take."""
+    """Failed checks, in the order too_short, no_motion, incomplete, closed_mid_take, then the
+    remark off_guide (the demo attr ``flags``)."""
     duration_s: float
     """Length of the take [s]."""
     motion_m: float
     """Largest distance of a sample from the first [m]."""
-    loop_share: float
-    """Share (0..1) of the guide's points reached."""
+    loops: float
+    """About how many of its own loops the take draws (0: it closes none)."""
+    guide_misfit: float
+    """Its own loop's distance from the guide's shape, a share of the loop's RMS radius (NaN
+    when it closes no loop or the task has no guide)."""
     config: TakeCheckConfig
     """The thresholds used."""
 
     @property
     def ok(self) -> bool:
-        """Whether the take passed every check."""
-        return not self.flags
+        """Whether the take passed every check (a remark such as ``off_guide`` is no failure)."""
+        return all(flag in INFO_FLAGS for flag in self.flags)
 
     @property
     def attr(self) -> str:
-        """The demo attr ``flags``: comma-separated, empty when the take passed."""
+        """The demo attr ``flags``: comma-separated, empty when the take passed with no remark."""
         return ",".join(self.flags)
 
     def reasons(self) -> list[str]:
-        """One sentence per flag, for the person who recorded the take."""
+        """One sentence per failed check, for the person who recorded the take."""
         c = self.config
         text: dict[TakeFlag, str] = {
             "too_short": f"too short: {self.duration_s:.1f} s (at least {c.min_duration_s:g} s)",
@@ -93,30 +112,53 @@ class TakeCheck:
                 f"(at least {1e3 * c.min_motion_m:.0f} mm)"
             ),
             "incomplete": (
-                f"incomplete: it follows {100 * self.loop_share:.0f} % of the blue loop "
-                f"(at least {100 * c.min_loop_share:.0f} %)"
+                "incomplete: it never comes back round to where it was (draw a whole loop)"
             ),
             "closed_mid_take": "the tab closed during the take",
         }
-        return [text[flag] for flag in self.flags]
+        return [text[flag] for flag in self.flags if flag not in INFO_FLAGS]
+
+    def remarks(self) -> list[str]:
+        """One sentence per remark (``off_guide``): worth knowing, but the take is used."""
+        return [
+            f"off the guide: its loop's shape is {100 * self.guide_misfit:.0f} % of its size "
+            f"from the blue loop's ({100 * self.config.max_guide_misfit:.0f} % at most counts "
+            "as along it); kept and cleaned"
+            for flag in self.flags
+            if flag == "off_guide"
+        ]
 
 
-def loop_share(uv: FloatArray, guide_uv: FloatArray, tolerance_share: float = 0.15) -> float:
-    """Share (0..1) of the guide's points that the take `uv` comes close to.
+def guide_misfit(loop_uv: FloatArray, task: str) -> float:
+    """Distance of a closed loop from the nearest similarity of `task`'s guide (module doc).
 
     Args:
-        uv: The take in task coordinates, shape (T, 2) [m].
-        guide_uv: The guide loop at uniform phase, centred on the origin, shape (N, 2) [m].
-        tolerance_share: A guide point is reached when a sample is within this share of the
-            guide's RMS radius.
+        loop_uv: One closed loop, endpoint excluded, shape (P, 2) [m] (e.g. an
+            :class:`~bt_pipeline.clean.recurrence.OwnLoop`'s ``loop``); resampled to 256 points
+            uniform in arc length, as the guide is, so that points correspond.
+        task: A task with a guide (one of ``TASKS``).
+
+    Returns:
+        The RMS residual as a share (0..1) of the loop's RMS radius (inf for a degenerate loop).
     """
-    guide = np.asarray(guide_uv, dtype=np.float64).reshape(-1, 2)
-    take = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    if len(guide) == 0 or len(take) == 0:
-        return 0.0
-    tolerance = tolerance_share * float(np.sqrt(np.mean(np.sum(guide**2, axis=1))))
-    distance, _ = KDTree(take).query(guide, k=1, distance_upper_bound=tolerance)
-    return float(np.mean(np.isfinite(distance)))
+    return align(_uniform(np.asarray(loop_uv, dtype=np.float64)), _guide_points(task))[3]
+
+
+@functools.cache
+def _guide_points(task: str) -> np.ndarray:
+    """`task`'s guide as 256 centred complex points uniform in arc length (read-only)."""
+    z = _uniform(LoopShape.guide(task).points(1024))
+    z.setflags(write=False)
+    return z
+
+
+def _uniform(points: np.ndarray) -> np.ndarray:
+    """A closed loop (P, 2), endpoint excluded, as 256 complex points uniform in arc length,
+    centred on their mean."""
+    closed = np.concatenate([points.reshape(-1, 2), points.reshape(-1, 2)[:1]])
+    resampled = arc_length_resample(closed, LOOP_POINTS + 1)[:-1]
+    z = resampled[:, 0] + 1j * resampled[:, 1]
+    return z - z.mean()
 
 
 def check_take(
@@ -125,8 +167,8 @@ def check_take(
     *,
     task: Task,
     plane: TaskPlane,
-    theta_deg: float,
-    rho: float,
+    theta_deg: float = math.nan,
+    rho: float = math.nan,
     closed_mid_take: bool = False,
     config: TakeCheckConfig | None = None,
 ) -> TakeCheck:
@@ -135,10 +177,10 @@ def check_take(
     Args:
         ee_pos: End-effector positions in the world frame, shape (T, 3) [m].
         timestamps: Sample times, shape (T,) [s].
-        task: The task recorded.
+        task: The task recorded (``off_guide`` is checked for a task with a guide only).
         plane: Its task plane.
-        theta_deg: The take's θ [deg] (the guide's rotation; 0 when NaN).
-        rho: The take's ρ (the guide's scale; 1 when NaN).
+        theta_deg: The take's θ [deg]; unused: the checks compare shapes up to a similarity.
+        rho: The take's ρ; unused, as θ.
         closed_mid_take: The tab closed while recording (adds ``closed_mid_take``).
         config: Thresholds; the defaults when None.
     """
@@ -147,17 +189,22 @@ def check_take(
     times = np.asarray(timestamps, dtype=np.float64).reshape(-1)
     duration = float(times[-1] - times[0]) if len(times) > 1 else 0.0
     motion = float(np.max(np.linalg.norm(pos - pos[0], axis=1))) if len(pos) else 0.0
-    theta = 0.0 if not math.isfinite(theta_deg) else float(theta_deg)
-    scale = 1.0 if not (math.isfinite(rho) and rho > 0.0) else float(rho)
-    guide = similarity_transform(canonical_loop(task, 240), theta, scale)
-    share = loop_share(plane.to_plane(pos), guide, config.tolerance_share)
+    try:
+        found = own_loop(plane.to_plane(pos), times, "the take")
+    except DemoError:  # fewer than 4 samples, times not increasing, NaN: no loop to find
+        found = None
+    loop = found.loop if found is not None and found.closes else None
+    misfit = guide_misfit(loop, task) if loop is not None and task in TASKS else math.nan
     flags: list[TakeFlag] = []
     if duration < config.min_duration_s:
         flags.append("too_short")
     if motion < config.min_motion_m:
         flags.append("no_motion")
-    if share < config.min_loop_share:
+    if loop is None:
         flags.append("incomplete")
     if closed_mid_take:
         flags.append("closed_mid_take")
-    return TakeCheck(tuple(flags), duration, motion, share, config)
+    if misfit > config.max_guide_misfit:
+        flags.append("off_guide")
+    loops = found.loops if loop is not None and found is not None else 0.0
+    return TakeCheck(tuple(flags), duration, motion, loops, misfit, config)

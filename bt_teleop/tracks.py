@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
-from bt_pipeline.data.records import DemoRecord, Recording
+from bt_pipeline.data.records import INFO_FLAGS, DemoRecord, Recording
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import BtError, RecordingError
 
@@ -105,13 +105,15 @@ class ReplayTrack:
     """A raw demo that may be the best: it follows the guide about as closely as any usable
     demo (the shape gate, :mod:`bt_pipeline.clean.shape_gate`)."""
     flags: tuple[str, ...] = ()
-    """Failed take checks (demo attr ``flags``; ``closed_mid_take`` for ep_meta incomplete)."""
+    """Failed take checks (demo attr ``flags`` but its remarks, ``INFO_FLAGS``;
+    ``closed_mid_take`` for ep_meta incomplete)."""
     excluded: bool = False
     """Its file is excluded by moderation (a sidecar; the file is untouched)."""
     session: str = ""
     """The app session that recorded it (ep_meta ``session``; empty when unknown)."""
     warnings: tuple[str, ...] = ()
-    """Things worth a look that do not make it unusable (e.g. ``clamped``, ``ik_failures``)."""
+    """Things worth a look that do not make it unusable (e.g. ``clamped``, ``ik_failures``, and
+    the take checks' remark ``off_guide``)."""
     source: str = ""
     """For a cleaned demo, the key of the raw demo it was cleaned from (empty for raw ones)."""
 
@@ -188,6 +190,7 @@ def _raw_file(recording: Recording, path: Path, stamp: FileStamp) -> FileTracks:
             warnings.append("clamped")
         if isinstance(meta.get("ik_failures"), int) and meta["ik_failures"] > 0:
             warnings.append("ik_failures")
+        warnings += [flag for flag in record.flags if flag in INFO_FLAGS]  # off_guide: kept
         track = _track(
             key,
             "raw",
@@ -195,7 +198,7 @@ def _raw_file(recording: Recording, path: Path, stamp: FileStamp) -> FileTracks:
             name,
             record,
             stamp,
-            flags=record.flags,
+            flags=tuple(flag for flag in record.flags if flag not in INFO_FLAGS),
             session=str(meta.get("session", "")),
             warnings=tuple(warnings),
         )

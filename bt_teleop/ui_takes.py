@@ -2,8 +2,9 @@
 
 ::
 
-    save(session)             Stop & save -> file (+ attr flags) -> "Saved" or "Saved but
-                              flagged: <why>" with a Discard this take button
+    save(session)             Stop & save -> file (+ attr flags) -> "Saved" (with a remark:
+                              "off the guide: ...; kept and cleaned") or "Saved but flagged:
+                              <why>" with a Discard this take button
     discard_flagged()         that take is excluded (sidecar; the file is kept, Restore undoes)
     moderate(action, key)     exclude / restore a raw demo of the task (bt_teleop.moderation)
     set_operator_token(text)  the tab becomes an operator when the text is the app's token
@@ -77,7 +78,8 @@ class TakeDesk:
         self.note_saved(path, session.scene.task)
         self.logger.log_demo(path.stem, trail)
         if take.check.ok:
-            self.notify("Saved", f"{path.parent.name}/\n{path.name}")
+            lines = [f"{path.parent.name}/", path.name, *take.check.remarks()]
+            self.notify("Saved", "\n".join(lines))
         else:
             self.flagged = path
             reasons = take.check.reasons()

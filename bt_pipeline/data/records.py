@@ -18,8 +18,12 @@ from bt_pipeline.data.tasks import Task
 
 FloatArray = NDArray[np.float64]
 Source = Literal["teleop", "synthetic", "import"]
-TakeFlag = Literal["too_short", "no_motion", "incomplete", "closed_mid_take"]
-"""Why a take failed the app's checks (demo attr ``flags``; docs/recording-format.md)."""
+TakeFlag = Literal["too_short", "no_motion", "incomplete", "closed_mid_take", "off_guide"]
+"""What the app's take checks found (demo attr ``flags``; docs/recording-format.md): why a take
+failed them, or a remark (:data:`INFO_FLAGS`)."""
+INFO_FLAGS: frozenset[TakeFlag] = frozenset({"off_guide"})
+"""Flags that are remarks, not failures: a demo with only these is kept, scored and cleaned
+(``off_guide``: it closes a loop of its own whose shape is not the guide's)."""
 MIN_SAMPLES = 16
 """Fewest samples a demo may have."""
 

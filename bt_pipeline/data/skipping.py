@@ -4,8 +4,10 @@ Three kinds of input are left out with a one-line note naming them, and the rest
 
 * an **excluded file** (a moderation sidecar beside it, :mod:`bt_pipeline.data.moderation`),
   always;
-* a **flagged demo** (``DemoRecord.flags`` non-empty: the app's take checks), always: a flagged
-  demo is never the best demo;
+* a **flagged demo** (``DemoRecord.flags`` other than the remarks in
+  :data:`~bt_pipeline.data.records.INFO_FLAGS`: a failed take check), always: a flagged demo is
+  never the best demo. A demo whose only flag is ``off_guide`` (a loop of its own, not the
+  guide's shape) is processed like an unflagged one;
 * a demo a stage **cannot use** (no motion, not periodic, degenerate; :func:`skip_failing`),
   unless ``strict``, when the first one stops the run with a message naming it.
 
@@ -28,7 +30,7 @@ from bt_pipeline.data.limits import ReadLimits
 from bt_pipeline.data.moderation import exclusion
 from bt_pipeline.data.paths import expand_paths
 from bt_pipeline.data.recording import read_recording
-from bt_pipeline.data.records import DemoRecord, Recording
+from bt_pipeline.data.records import INFO_FLAGS, DemoRecord, Recording
 from bt_pipeline.exceptions import ConfigError, DemoError, RecordingError
 
 log = logging.getLogger("bt")
@@ -50,7 +52,7 @@ class UsableInput:
     demos: tuple[Demo, ...]
     """Unflagged demos in the pipeline's view, input order."""
     flagged: tuple[tuple[Demo, tuple[str, ...]], ...]
-    """Flagged demos and their flags."""
+    """Flagged demos and their failed checks (remarks such as ``off_guide`` left out)."""
     notes: tuple[str, ...]
     """One line per excluded file and flagged demo (``skipped <what>: <why>``)."""
 
@@ -98,7 +100,7 @@ def read_usable(
     for recording in recordings:
         label = str(recording.path) if recording.path else ""
         for demo in demos_from_recording(recording, n_samples, file=label):
-            flags = recording.demos[demo.name].flags
+            flags = tuple(f for f in recording.demos[demo.name].flags if f not in INFO_FLAGS)
             if flags:
                 flagged.append((demo, flags))
                 notes.append(_note(f"{demo.label}: flagged {', '.join(flags)}"))
