@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json as jsonlib
 from pathlib import Path
 from typing import Literal
@@ -9,6 +10,7 @@ from typing import Literal
 import tyro
 
 from bt_pipeline.cli.args import Paths, log, require_paths
+from bt_pipeline.data.random_loops import LoopKind
 from bt_pipeline.execute import ExecutorConfig, ExecutorName
 
 
@@ -97,6 +99,8 @@ def synth(
     seed: int = 0,
     overwrite: bool = False,
     style: Literal["single", "human"] = "single",
+    shape: LoopKind = "guide",
+    shape_seed: int | None = None,
 ) -> None:
     """Write a synthetic mixed-skill demo set (one expert-like demo, the rest naive) in format v1.
 
@@ -106,25 +110,42 @@ def synth(
     out-of-plane wobble, preferences drawn per set and hidden (NaN) in half of the seeds.
     Ground truth is stored in each demo's ``truth_*`` attrs.
 
+    ``--shape`` other than guide draws one intended loop for the set (bt_pipeline.data.
+    random_loops) and every demonstrator draws it under their own θ/ρ; the loop is stored in the
+    file's env_kwargs (shape, shape_coefficients, shape_kind, shape_seed) and the truth is that
+    loop.
+
     Args:
         out: Output file (.hdf5).
-        task: wiping, weaving or pick_and_place.
+        task: wiping, weaving or pick_and_place (the tasks with a built-in guide shape); with a
+            --shape other than guide or varied, any task name (it works in wiping's plane).
         demos: Number of demos.
         seed: Random seed; the same seed gives the same file.
         overwrite: Replace `out` if it exists.
         style: "single" (one loop per demo, 50 Hz, known θ/ρ) or "human".
+        shape: The loop the set draws: "guide" (the task's own), "varied" (the guide as a lab
+            would vary it), "random" (a loop of a random family) or a family: oval,
+            rounded_polygon, d_shape, figure_eight, arch, stroke, asymmetric.
+        shape_seed: Seed the loop is drawn from (default: --seed).
     """
+    from bt_pipeline.data.random_loops import draw_set_loop
     from bt_pipeline.data.recording import write_recording
     from bt_pipeline.data.synth import make_demo_set
     from bt_pipeline.data.synth_human import make_human_set
-    from bt_pipeline.data.tasks import parse_task
 
+    loop_seed = seed if shape_seed is None else shape_seed
+    loop = None if shape == "guide" else draw_set_loop(shape, loop_seed, task)
     if style == "human":
-        human = make_human_set(parse_task(task), n_demos=demos, seed=seed)
+        human = make_human_set(task, n_demos=demos, seed=seed, shape=loop)
         recording, expert = human.recording, human.demos[human.expert_index].name
     else:
-        single = make_demo_set(parse_task(task), n_demos=demos, seed=seed)
+        single = make_demo_set(task, n_demos=demos, seed=seed, shape=loop)
         recording, expert = single.recording, single.expert_name
+    if loop is not None:
+        kwargs = {**recording.env_args["env_kwargs"], "shape_kind": shape, "shape_seed": loop_seed}
+        env_args = {**recording.env_args, "env_kwargs": kwargs}
+        recording = dataclasses.replace(recording, env_args=env_args)
+        log.info("intended loop: %s (%.3f m)", loop.label, loop.size_m)
     path = write_recording(out, recording, overwrite=overwrite)
     print(path)
     log.info("expert-like demo: %s", expert)

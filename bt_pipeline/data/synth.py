@@ -30,6 +30,11 @@ canonical loop under its θ and ρ at the task centre, 600 points over one full 
 intended path at the demo's own timing (its phase progression without noise and defects) is
 stored in the demo's extra attrs as in the human style (``truth_uv``, ``truth_on_loop``, ...;
 see :mod:`bt_pipeline.data.synth_human`).
+
+Both styles draw the task's guide unless given a ``shape`` (a
+:class:`~bt_pipeline.data.loop_shape.LoopShape`, e.g. from
+:mod:`bt_pipeline.data.random_loops`): every demo of the set then draws that loop, its truth is
+that loop, and the recording's ``env_kwargs`` hold it (:mod:`bt_pipeline.data.synth_loop`).
 """
 
 from __future__ import annotations
@@ -41,15 +46,13 @@ from typing import Any, Literal, get_args
 
 import numpy as np
 
+from bt_pipeline.data.loop_shape import LoopShape
+from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.recording import DEFAULT_ENV_TYPE
 from bt_pipeline.data.records import DemoRecord, FloatArray, Recording, forward_difference_actions
-from bt_pipeline.data.shapes import (
-    SHAPE_SIZE,
-    canonical_loop,
-    canonical_shape,
-    similarity_transform,
-)
-from bt_pipeline.data.tasks import TASKS, Task, default_plane, parse_task
+from bt_pipeline.data.shapes import canonical_loop, similarity_transform
+from bt_pipeline.data.synth_loop import loop_positions, lopsided, resolve_task, shape_kwargs
+from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError
 
 Defect = Literal[
@@ -108,8 +111,9 @@ class SynthDemo:
     record: DemoRecord
     """The demo as it is stored in a recording."""
     truth: FloatArray
-    """Noise-free shape: the canonical loop under the demo's θ and ρ at the task centre,
-    shape (600, 2), in [m] (task coordinates), one full period, endpoint excluded."""
+    """Noise-free shape: the set's loop (the canonical one unless a shape was given) under the
+    demo's θ and ρ at the task centre, shape (600, 2), in [m] (task coordinates), one full
+    period, endpoint excluded."""
     is_expert: bool
     """Whether this is the set's expert-like demo."""
     defects: tuple[Defect, ...]
@@ -121,7 +125,7 @@ class SynthSet:
     """A synthetic mixed-skill demo set for one task."""
 
     task: Task
-    """The task every demo performs."""
+    """The task every demo performs (with a shape, any safe name)."""
     recording: Recording
     """The demos as a format-v1 recording (source "synthetic")."""
     demos: tuple[SynthDemo, ...]
@@ -140,40 +144,56 @@ class SynthSet:
         return {d.name: d.truth for d in self.demos}
 
 
-def make_demo_set(task: Task | str, n_demos: int = 4, seed: int = 0) -> SynthSet:
+def make_demo_set(
+    task: Task | str, n_demos: int = 4, seed: int = 0, *, shape: LoopShape | None = None
+) -> SynthSet:
     """Generate a mixed-skill set of `n_demos` demos of `task`, deterministic for `seed`.
 
     Demo k is named ``demo_<k>`` and belongs to demonstrator ``DEMONSTRATORS[k % 4]``.
 
     Args:
-        task: The task (a :data:`bt_pipeline.data.tasks.Task` name).
+        task: The task (a :data:`bt_pipeline.data.tasks.Task` name; with a shape, any safe name).
         n_demos: Number of demos, >= 1.
         seed: Seed of the random generator, an integer >= 0.
+        shape: The loop every demo draws, in task coordinates [m]; None: the task's guide.
 
     Returns:
         The set, with exactly one expert-like demo.
 
     Raises:
-        UnknownTaskError: `task` is not a known task.
-        ConfigError: `n_demos` < 1 or `seed` is not an integer >= 0.
+        UnknownTaskError: `task` is not a known task and no shape is given.
+        ConfigError: `n_demos` < 1, `seed` is not an integer >= 0, or an unsafe task name.
     """
-    task = parse_task(task)
+    task, task_index, plane = resolve_task(task, shape)
     n_demos, seed = check_set_args(n_demos, seed)
-    task_index = TASKS.index(task)
     expert_index = int(np.random.default_rng([seed, task_index]).integers(n_demos))
     demos = tuple(
-        _make_demo(task, k, k == expert_index, np.random.default_rng([seed, task_index, k]), seed)
+        _make_demo(
+            task,
+            k,
+            k == expert_index,
+            np.random.default_rng([seed, task_index, k]),
+            seed,
+            plane,
+            shape,
+        )
         for k in range(n_demos)
     )
     preset = {4: "D1", 20: "D2"}.get(n_demos, "custom")
     recording = Recording(
         task=task,
-        plane=default_plane(task),
+        plane=plane,
         demos={d.name: d.record for d in demos},
         env_args={
             "env_name": ENV_NAME,
             "type": DEFAULT_ENV_TYPE,
-            "env_kwargs": {"task": task, "seed": seed, "preset": preset, "n_demos": n_demos},
+            "env_kwargs": {
+                "task": task,
+                "seed": seed,
+                "preset": preset,
+                "n_demos": n_demos,
+                **shape_kwargs(shape),
+            },
         },
     )
     return SynthSet(task=task, recording=recording, demos=demos, expert_index=expert_index)
@@ -188,14 +208,14 @@ def check_set_args(n_demos: object, seed: object) -> tuple[int, int]:
     return int(n_demos), int(seed)
 
 
-def make_d1(task: Task | str, seed: int = 0) -> SynthSet:
+def make_d1(task: Task | str, seed: int = 0, *, shape: LoopShape | None = None) -> SynthSet:
     """The paper's D1: 4 demos, one per demonstrator (Sec. IV)."""
-    return make_demo_set(task, n_demos=4, seed=seed)
+    return make_demo_set(task, n_demos=4, seed=seed, shape=shape)
 
 
-def make_d2(task: Task | str, seed: int = 0) -> SynthSet:
+def make_d2(task: Task | str, seed: int = 0, *, shape: LoopShape | None = None) -> SynthSet:
     """The paper's D2: 20 demos, five per demonstrator (Sec. IV)."""
-    return make_demo_set(task, n_demos=20, seed=seed)
+    return make_demo_set(task, n_demos=20, seed=seed, shape=shape)
 
 
 def draw_defects(rng: np.random.Generator) -> tuple[Defect, ...]:
@@ -235,18 +255,6 @@ def _phase(speed: FloatArray, s: FloatArray, fraction: float) -> FloatArray:
     steps = 0.5 * (speed[1:] + speed[:-1]) * np.diff(s)
     progress = np.concatenate([[0.0], np.cumsum(steps)])
     return fraction * progress / progress[-1]
-
-
-def lopsided(uv: FloatArray, task: Task, rng: np.random.Generator) -> tuple[FloatArray, dict]:
-    """Bulge one side (x > 0 or x < 0) of a canonical-frame shape outward and shift it in y."""
-    half_w, half_h = (s / 2.0 for s in SHAPE_SIZE[task])
-    side = float(rng.choice([-1.0, 1.0]))
-    gain = rng.uniform(0.2, 0.35)
-    lift = rng.uniform(-0.25, 0.25) * half_h
-    weight = 1.0 / (1.0 + np.exp(-side * uv[:, 0] / (0.15 * half_w)))  # ~1 on that side
-    out = uv * (1.0 + gain * weight)[:, None]
-    out[:, 1] += lift * weight
-    return out, {"lopsided_side": side, "lopsided_gain": gain, "lopsided_lift_m": lift}
 
 
 def _tremor(t: FloatArray, amplitude: float, rng: np.random.Generator) -> FloatArray:
@@ -295,7 +303,13 @@ def add_noise_and_outliers(
 
 
 def _make_demo(
-    task: Task, k: int, is_expert: bool, rng: np.random.Generator, seed: int
+    task: Task,
+    k: int,
+    is_expert: bool,
+    rng: np.random.Generator,
+    seed: int,
+    plane: TaskPlane,
+    shape: LoopShape | None,
 ) -> SynthDemo:
     """Demo k of a set: one loop drawn by demonstrator k mod 4, expert-like or naive."""
     teacher = DEMONSTRATORS[k % len(DEMONSTRATORS)]
@@ -311,15 +325,15 @@ def _make_demo(
         params["loop_fraction"] = fraction
     start_phase = float(rng.uniform(0.0, 2.0 * np.pi))
     speed = _speed_profile(s, duration_s, defects, rng)
-    uv = canonical_shape(task, start_phase + 2.0 * np.pi * _phase(speed, s, fraction))
+    uv = loop_positions(task, shape, start_phase + 2.0 * np.pi * _phase(speed, s, fraction))
     intended = similarity_transform(uv, teacher.theta_deg, teacher.rho)
     if "lopsided" in defects:
-        uv, extra = lopsided(uv, task, rng)
+        uv, extra = lopsided(uv, task, rng, shape)
         params.update(extra)
     uv = similarity_transform(uv, teacher.theta_deg, teacher.rho)
     uv = add_noise_and_outliers(uv, t, defects, rng, params)
 
-    ee_pos = default_plane(task).to_world(uv)
+    ee_pos = plane.to_world(uv)
     record = DemoRecord(
         ee_pos=ee_pos,
         timestamps=t,
@@ -345,7 +359,9 @@ def _make_demo(
             }
         },
     )
-    truth_canonical = canonical_loop(task, TRUTH_SAMPLES)
+    truth_canonical = (
+        canonical_loop(task, TRUTH_SAMPLES) if shape is None else shape.points(TRUTH_SAMPLES)
+    )
     return SynthDemo(
         name=f"demo_{k}",
         record=record,
@@ -368,6 +384,7 @@ __all__ = [
     "Demonstrator",
     "SynthDemo",
     "SynthSet",
+    "lopsided",
     "make_d1",
     "make_d2",
     "make_demo_set",

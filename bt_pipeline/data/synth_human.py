@@ -14,7 +14,9 @@ The default style (:mod:`bt_pipeline.data.synth`) draws one loop per demo at 50 
   samples, and a first timestamp that is not 0;
 * the hand **wobbles** 1-4 mm out of the task plane;
 * in sets made with ``hidden=True`` every demo's θ/ρ are stored as NaN (unknown);
-* the demonstrators' preferences are drawn per set: θ ∈ [−30°, 30°], ρ ∈ [0.75, 1.35].
+* the demonstrators' preferences are drawn per set: θ ∈ [−30°, 30°], ρ ∈ [0.75, 1.35];
+* every demo draws the task's guide, or the set's ``shape`` when one is given (as in
+  :mod:`bt_pipeline.data.synth`: the truth is then that loop, recorded in ``env_kwargs``).
 
 The naive demos get the same defects as the default style (jitter, tremor, drift, spikes,
 lopsided, speed, hesitation, incomplete: the last loop stops at 70-90 %;
@@ -47,9 +49,11 @@ from typing import Any
 
 import numpy as np
 
+from bt_pipeline.data.loop_shape import LoopShape
+from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.recording import DEFAULT_ENV_TYPE
 from bt_pipeline.data.records import DemoRecord, FloatArray, Recording, forward_difference_actions
-from bt_pipeline.data.shapes import canonical_shape, similarity_transform
+from bt_pipeline.data.shapes import similarity_transform
 from bt_pipeline.data.synth import (
     ENV_NAME,
     Defect,
@@ -57,9 +61,9 @@ from bt_pipeline.data.synth import (
     add_noise_and_outliers,
     check_set_args,
     draw_defects,
-    lopsided,
 )
-from bt_pipeline.data.tasks import TASKS, Task, default_plane, parse_task
+from bt_pipeline.data.synth_loop import loop_positions, lopsided, resolve_task, shape_kwargs
+from bt_pipeline.data.tasks import Task
 
 TRUTH_ATTRS = ("truth_uv", "truth_on_loop", "truth_theta_deg", "truth_rho", "truth_cycles")
 """Extra demo attrs holding the ground truth of a human-style demo."""
@@ -95,6 +99,7 @@ class HumanSet:
     """A human-style mixed-skill demo set for one task."""
 
     task: Task
+    """The task (with a shape, any safe name)."""
     recording: Recording
     """The demos as a format-v1 recording."""
     demos: tuple[HumanDemo, ...]
@@ -105,25 +110,32 @@ class HumanSet:
 
 
 def make_human_set(
-    task: Task | str, n_demos: int = 4, seed: int = 0, hidden: bool | None = None
+    task: Task | str,
+    n_demos: int = 4,
+    seed: int = 0,
+    hidden: bool | None = None,
+    *,
+    shape: LoopShape | None = None,
 ) -> HumanSet:
     """Generate a human-style mixed-skill set, deterministic for `seed` (module doc).
 
     Demo k belongs to demonstrator k mod 4 (so 4 demos are the paper's D1 and 20 its D2).
 
     Args:
-        task: The task.
+        task: The task (with a shape, any safe name: see
+            :func:`~bt_pipeline.data.synth_loop.resolve_task`).
         n_demos: Number of demos, ≥ 1.
         seed: Seed, an integer ≥ 0.
         hidden: Store θ/ρ as NaN; None draws it from the seed (half of the sets).
+        shape: The loop every demo draws, in task coordinates [m]; None: the task's guide.
 
     Raises:
-        UnknownTaskError: Unknown task.
-        ConfigError: `n_demos` < 1 or a negative seed.
+        UnknownTaskError: Unknown task and no shape.
+        ConfigError: `n_demos` < 1, a negative seed or an unsafe task name.
     """
-    task = parse_task(task)
+    task, task_index, plane = resolve_task(task, shape)
     n_demos, seed = check_set_args(n_demos, seed)
-    set_rng = np.random.default_rng([int(seed), TASKS.index(task), 7])
+    set_rng = np.random.default_rng([int(seed), task_index, 7])
     if hidden is None:
         hidden = bool(set_rng.integers(2))
     teachers = tuple(
@@ -142,18 +154,26 @@ def make_human_set(
             teachers[k % 4],
             k == expert_index,
             hidden,
-            np.random.default_rng([int(seed), TASKS.index(task), 7, k]),
+            np.random.default_rng([int(seed), task_index, 7, k]),
+            plane,
+            shape,
         )
         for k in range(n_demos)
     )
     recording = Recording(
         task=task,
-        plane=default_plane(task),
+        plane=plane,
         demos={d.name: d.record for d in demos},
         env_args={
             "env_name": ENV_NAME,
             "type": DEFAULT_ENV_TYPE,
-            "env_kwargs": {"task": task, "seed": int(seed), "style": "human", "n_demos": n_demos},
+            "env_kwargs": {
+                "task": task,
+                "seed": int(seed),
+                "style": "human",
+                "n_demos": n_demos,
+                **shape_kwargs(shape),
+            },
         },
     )
     return HumanSet(task, recording, demos, expert_index, hidden)
@@ -219,6 +239,8 @@ def _make_demo(
     is_expert: bool,
     hidden: bool,
     rng: np.random.Generator,
+    plane: TaskPlane,
+    shape: LoopShape | None,
 ) -> HumanDemo:
     defects: tuple[Defect, ...] = () if is_expert else draw_defects(rng)
     params: dict[str, Any] = {}
@@ -245,12 +267,10 @@ def _make_demo(
     phase = float(rng.uniform(0, 2 * np.pi)) + 2 * np.pi * cycles * progress / progress[-1]
     if rng.random() < 0.15:
         phase = phase[0] - (phase - phase[0])  # Some demonstrators run the loop the other way.
-    intended_loop = similarity_transform(
-        canonical_shape(task, phase), teacher.theta_deg, teacher.rho
-    )
-    drawn_loop = canonical_shape(task, phase)
+    drawn_loop = loop_positions(task, shape, phase)
+    intended_loop = similarity_transform(drawn_loop, teacher.theta_deg, teacher.rho)
     if "lopsided" in defects:
-        drawn_loop, extra = lopsided(drawn_loop, task, rng)
+        drawn_loop, extra = lopsided(drawn_loop, task, rng, shape)
         params.update(extra)
     drawn_loop = similarity_transform(drawn_loop, teacher.theta_deg, teacher.rho)
 
@@ -298,7 +318,6 @@ def _make_demo(
     truth = fine_intended[pick]
     mask = fine_on[pick]
     noisy = add_noise_and_outliers(uv, t, defects, rng, params)
-    plane = default_plane(task)
     wobble_amp = float(rng.uniform(0.001, 0.004))
     wobble = wobble_amp * np.sin(2 * np.pi * rng.uniform(0.2, 1.0) * t + rng.uniform(0, 7))
     ee_pos = plane.to_world(noisy) + wobble[:, None] * plane.normal
