@@ -29,10 +29,15 @@ against before the best demo is known, so the loop is learned from every demo fi
    learned loop: the paper's x_i^aligned needs only θ_i − θ_best and ρ_i / ρ_best).
    θ of a loop with an n-fold symmetry is averaged modulo 360°/n, and a demo aligned about as
    well (within 3 %) at several turns takes the smallest (an oval is its own twin at 180°).
+6. **The best demo's loop.** Selection then picks the best demo against that loop; its own
+   loop, turned and scaled onto the consensus, replaces the consensus and the demos are
+   segmented and scored again against it (:func:`best_demo_loop`), as the paper takes the
+   canonical shape from the best demo.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -79,6 +84,8 @@ class TaskLoop:
     """What θ = 0, ρ = 1 mean for this loop."""
     notes: tuple[str, ...] = ()
     """Things a user should know (demos that close no loop, a guide that does not fit)."""
+    best: str | None = None
+    """The demo whose own loop the template is, once selection has picked it (step 6)."""
 
 
 def align(
@@ -198,6 +205,31 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
     return TaskLoop(framed, "learned", misfit, _labels(demos, kept), frame, tuple(notes))
 
 
+def best_demo_loop(task_loop: TaskLoop, demo: Demo) -> TaskLoop | None:
+    """The learned loop replaced by the best demo's own loop, in the same frame (step 6).
+
+    The consensus of noisy demos is a rough shape; the paper's canonical shape is the best
+    demo's (Sec. III-B). Once selection has picked it, its own loop, low-passed to 12
+    harmonics and turned and scaled onto the consensus (so the frame stays), is the template
+    the demos are measured against again. None for a guide, or when the best demo closes no loop.
+    """
+    if task_loop.source != "learned":
+        return None
+    positions, times = demo.raw_samples()
+    found = own_loop(positions, times, demo.label)
+    if not found.closes or found.loop is None:
+        return None
+    shape = LoopShape.from_points(found.loop, _HARMONICS)
+    current = _complex(task_loop.loop.points(LOOP_POINTS))
+    a, _, flipped, _ = align(current, _complex(shape.points(LOOP_POINTS)), _TIE)
+    shape = shape.reversed() if flipped else shape
+    shape = shape.transformed(math.degrees(math.atan2(a.imag, a.real)), abs(a))
+    shape = shape.transformed(translation=-shape.centre)
+    label = f"{demo.task} loop of its best demo, {demo.label}"
+    framed = LoopShape(shape.coefficients, label)
+    return dataclasses.replace(task_loop, loop=framed, best=demo.label)
+
+
 def _labels(demos: Sequence[Demo], kept: Sequence[int]) -> tuple[str, ...]:
     return tuple(demos[i].label for i in kept)
 
@@ -274,4 +306,11 @@ def _symmetry_order(z: np.ndarray) -> int:
     return 1
 
 
-__all__ = ["GUIDE_MISFIT", "LoopSource", "TaskLoop", "align", "learn_task_loop"]
+__all__ = [
+    "GUIDE_MISFIT",
+    "LoopSource",
+    "TaskLoop",
+    "align",
+    "best_demo_loop",
+    "learn_task_loop",
+]

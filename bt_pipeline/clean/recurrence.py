@@ -14,9 +14,13 @@ drawing of it. For one demo's raw samples:
 3. **Returns.** From each point y_k the path must first get ``2.5 x tol`` away, with
    tol = 15 % of E (a single loop that drifts 3 cm still closes; one that stops at 90 % is 30 %
    of its size short); its return is the nearest point of the first stretch that comes back
-   within tol. A return counts when the path there runs the same way (cos of the tangents, each
-   over ±1 % of the path, ≥ 0.8): an approach and a retreat along one line run opposite ways, and a
-   figure-eight's crossing runs across.
+   within tol and passes these tests. A return counts when the path there runs the same way
+   (cos ≥ 0.8 between the chord on which the path leaves y_k and the one on which it arrives
+   at its return, each 5 % of E long: one-sided, so an approach at an angle does not bend
+   them, and chords, so jitter in a pause does not turn them): an approach and a retreat
+   along one line run opposite ways, and a figure-eight's crossing runs across; and when the
+   stretch between them spans at least 75 % of E (a lobe of an eight closed by an approach
+   that runs beside it spans half).
 4. **Perimeter.** L, the median path length from a point to its return (over the points that
    return). One loop is the stretch from the point whose loop length is nearest L, among those
    nearest the middle of the path's returns, to its return; resampled to 256 points by arc
@@ -48,6 +52,8 @@ _TOLERANCE = 0.15  # A return comes back within this share of the loop's size (a
 # drifts 3 cm closes; one that stops at 90 % is 0.3 of its size short),
 _LEAVE = 2.5  # after getting this many tolerances away.
 _PARALLEL = 0.8  # Tangents at a point and its return run the same way (cos ≥ this).
+_CHORD = 0.05  # The way the path runs: a chord of this share of E.
+_SPAN = 0.75  # A loop spans at least this share of E.
 _MIDDLE = 0.1  # E is read between these shares of the path's length from each end.
 LOOP_POINTS = 256
 """Points of the loop a demo gives (uniform in arc length, endpoint excluded)."""
@@ -128,9 +134,6 @@ def loop_of_path(path: FloatArray) -> OwnLoop:
     if size <= 10 * _MIN_SPACING_M:
         return OwnLoop(False, size, math.nan, 0.0, None, math.nan)
     tol = _TOLERANCE * size
-    w = max(2, n // 100)  # Tangents over ±1 % of the path: jitter and spikes do not turn them.
-    tangent = y[np.minimum(np.arange(n) + w, n - 1)] - y[np.maximum(np.arange(n) - w, 0)]
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-15
     distance = np.sqrt(np.sum((y[:, None, :] - y[None, :, :]) ** 2, axis=2))
     returns = np.full(n, -1, dtype=np.intp)
     for k in range(n - 2):
@@ -138,16 +141,14 @@ def loop_of_path(path: FloatArray) -> OwnLoop:
         away = np.flatnonzero(row > _LEAVE * tol)
         if away.size == 0:
             break  # Nor will any later point get away and back (the path ends).
-        after = row[away[0] :]
-        back = np.flatnonzero(after < tol)
-        if back.size == 0:
-            continue
-        rest = after[back[0] :]
-        leaves = rest >= tol
-        stop = int(np.argmax(leaves)) if leaves.any() else rest.size
-        j = k + 1 + int(away[0]) + int(back[0]) + int(np.argmin(rest[:stop]))
-        if float(tangent[k] @ tangent[j]) >= _PARALLEL:
-            returns[k] = j
+        offset = k + 1 + int(away[0])
+        # Each stretch that comes back within tol, in turn, until one closes a loop (an eight
+        # passes its crossing half way round).
+        for a, b in _runs(row[away[0] :] < tol):
+            j = offset + a + int(np.argmin(row[away[0] + a : away[0] + b]))
+            if _same_way(y, distance, k, j, _CHORD * size) and _spans(y[k : j + 1], size):
+                returns[k] = j
+                break
     found = np.flatnonzero(returns >= 0)
     if found.size == 0:
         return OwnLoop(False, size, math.nan, 0.0, None, math.nan)
@@ -172,6 +173,33 @@ def loop_of_path(path: FloatArray) -> OwnLoop:
         loop=loop,
         closure_m=float(distance[k, j]),
     )
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """Half-open index ranges [a, b) of the runs of True in `flags`."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def _same_way(y: FloatArray, distance: FloatArray, k: int, j: int, chord: float) -> bool:
+    """Whether the path leaves y_k the way it arrives at y_j: cos ≥ 0.8 between the chords from
+    y_k to the first point `chord` away after it and to y_j from the last point `chord` away
+    before it (one-sided, so an approach or a retreat at an angle does not bend them; chords,
+    so jitter in a pause does not turn them)."""
+    ahead = np.flatnonzero(distance[k, k + 1 : j + 1] >= chord)
+    behind = np.flatnonzero(distance[j, k:j] >= chord)
+    if ahead.size == 0 or behind.size == 0:
+        return False
+    leaving = y[k + 1 + int(ahead[0])] - y[k]
+    arriving = y[j] - y[k + int(behind[-1])]
+    norm = float(np.linalg.norm(leaving) * np.linalg.norm(arriving))
+    return norm > 0.0 and float(leaving @ arriving) / norm >= _PARALLEL
+
+
+def _spans(stretch: FloatArray, size: float) -> bool:
+    """Whether a closed stretch spans about the whole path (a lobe of an eight, or a loop cut
+    off by an approach that runs beside the path, spans half of it)."""
+    return float(np.max(np.ptp(stretch, axis=0))) >= _SPAN * size
 
 
 __all__ = ["LOOP_POINTS", "OwnLoop", "loop_of_path", "moving_path", "own_loop"]

@@ -1,0 +1,219 @@
+"""The task's loop: a demo's own loop by recurrence, closed-form alignment, the learned loop."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bt_pipeline.clean.guide_fit import arc_length_resample
+from bt_pipeline.clean.loop_learn import align, learn_task_loop
+from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
+from bt_pipeline.data.demo import Demo
+from bt_pipeline.data.loop_shape import LoopShape
+from bt_pipeline.data.shapes import canonical_loop
+from bt_pipeline.data.tasks import default_plane
+from bt_pipeline.exceptions import DemoError
+
+
+def blob(seed: int, size_m: float = 0.2) -> LoopShape:
+    """A smooth loop with no symmetry, drawn here (not by a generator the cleaner knows)."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(-4, 5)
+    c = (rng.normal(size=9) + 1j * rng.normal(size=9)) * 0.25 / (1.0 + np.abs(k)) ** 2
+    c[4] = 0.0
+    c[5] = 1.0  # A dominant first harmonic keeps it a simple loop.
+    loop = LoopShape(c, "blob")
+    return loop.transformed(rho=size_m / loop.size_m)
+
+
+def drawn(
+    loop: LoopShape,
+    loops: float,
+    theta: float = 0.0,
+    rho: float = 1.0,
+    noise_m: float = 0.0005,
+    seed: int = 0,
+    approach: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A human-like take of `loop`: rest, approach, `loops` loops with a pause and uneven speed,
+    retreat, rest; 30-60 Hz uneven sample times."""
+    rng = np.random.default_rng(seed)
+    rate = rng.uniform(30.0, 60.0)
+    period = rng.uniform(2.0, 4.0)
+    t_loop = np.arange(0.0, loops * period, 1.0 / 400.0)
+    speed = 1.0 + 0.4 * np.sin(2 * np.pi * t_loop / (1.7 * period))
+    pause = (t_loop > 0.4 * period) & (t_loop < 0.4 * period + 0.6)
+    speed[pause] = 0.0
+    phase = np.cumsum(speed)
+    phase = 2 * np.pi * loops * phase / phase[-1] + rng.uniform(0, 2 * np.pi)
+    path = loop.transformed(theta, rho, (0.03, -0.02)).at(phase)
+    parts = [path]
+    if approach:
+        rest_a = path[0] + np.array([0.12, -0.09])
+        rest_b = path[-1] + np.array([-0.1, -0.11])
+        lead = np.linspace(rest_a, path[0], 500)
+        tail = np.linspace(path[-1], rest_b, 500)
+        parts = [np.repeat(rest_a[None], 300, 0), lead, path, tail, np.repeat(rest_b[None], 300, 0)]
+    fine = np.concatenate(parts)
+    t_fine = np.arange(fine.shape[0]) / 400.0
+    steps = rng.uniform(0.75, 1.25, size=int(t_fine[-1] * rate) + 10) / rate
+    times = np.cumsum(steps)
+    times = times[times < t_fine[-1]] + 3.7
+    x = np.stack([np.interp(times - 3.7, t_fine, fine[:, d]) for d in range(2)], axis=1)
+    return x + rng.normal(0.0, noise_m, x.shape), times
+
+
+def demo_of(
+    x: np.ndarray, t: np.ndarray, name: str, task: str, theta: float | None, rho: float | None
+) -> Demo:
+    return Demo(
+        positions=x[:: max(1, x.shape[0] // 300)][:300],
+        task=task,
+        file="",
+        name=name,
+        demonstrator=name,
+        theta_deg=theta,
+        rho=rho,
+        plane=default_plane("wiping"),
+        duration_s=float(t[-1] - t[0]),
+        raw_positions=x,
+        raw_times_s=t,
+    )
+
+
+def as_complex(points: np.ndarray) -> np.ndarray:
+    z = points[:, 0] + 1j * points[:, 1]
+    return z - z.mean()
+
+
+def shape_error(a: LoopShape, b: LoopShape) -> float:
+    """Similarity-free distance of two loops' shapes, share of the RMS radius."""
+    pa = arc_length_resample(np.concatenate([p := a.points(1024), p[:1]]), LOOP_POINTS + 1)[:-1]
+    pb = arc_length_resample(np.concatenate([q := b.points(1024), q[:1]]), LOOP_POINTS + 1)[:-1]
+    return align(as_complex(pa), as_complex(pb))[3]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_align_recovers_a_known_similarity_shift_and_direction(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    z = as_complex(blob(seed).points(LOOP_POINTS))
+    a_true = rng.uniform(0.6, 1.5) * np.exp(1j * rng.uniform(-np.pi, np.pi))
+    shift = int(rng.integers(LOOP_POINTS))
+    w = np.roll(z, -shift) / a_true
+    w = w[::-1] if seed % 2 else w
+    a, s, flipped, distance = align(z, w)
+    assert flipped == bool(seed % 2)
+    assert distance < 1e-9
+    assert abs(a - a_true) < 1e-9 * abs(a_true)
+    assert np.allclose(a * np.roll(w[::-1] if flipped else w, s), z)
+
+
+def test_own_loop_of_several_loops_with_approach_pause_and_retreat() -> None:
+    loop = blob(3)
+    perimeter = float(np.sum(np.linalg.norm(np.diff(loop.points(4096), axis=0), axis=1)))
+    x, t = drawn(loop, 2.6, theta=20.0, rho=1.2, seed=1)
+    found = own_loop(x, t)
+    assert found.closes
+    assert abs(found.perimeter_m / (1.2 * perimeter) - 1.0) < 0.05
+    assert 2.6 <= found.loops <= 3.6  # The approach and retreat add path.
+    assert found.loop is not None
+    truth = loop.transformed(20.0, 1.2)
+    assert shape_error(truth, LoopShape.from_points(found.loop, 12)) < 0.03
+
+
+@pytest.mark.parametrize("fraction", [0.5, 0.75])
+def test_part_of_a_loop_does_not_close(fraction: float) -> None:
+    x, t = drawn(blob(5), fraction, seed=2)
+    assert not own_loop(x, t).closes
+
+
+def test_out_and_back_along_one_line_does_not_close() -> None:
+    """An approach and a retreat along the same line return to each other, running the other
+    way: no loop."""
+    t = np.arange(0.0, 6.0, 1 / 50)
+    s = np.sin(np.pi * t / 6.0) * 0.2
+    x = np.stack([s, 0.3 * s], axis=1)
+    assert not own_loop(x, t).closes
+
+
+def test_a_figure_eight_is_one_loop_not_a_lobe() -> None:
+    eight = LoopShape.guide("weaving")
+    x, t = drawn(eight, 1.0, seed=4)
+    found = own_loop(x, t)
+    perimeter = float(np.sum(np.linalg.norm(np.diff(eight.points(4096), axis=0), axis=1)))
+    assert found.closes and abs(found.perimeter_m / perimeter - 1.0) < 0.06
+
+
+def _set(
+    loop: LoopShape, task: str, given: bool, seed: int, m: int = 5
+) -> tuple[list[Demo], np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    thetas, rhos = rng.uniform(-20, 20, m), rng.uniform(0.8, 1.3, m)
+    demos = []
+    for i in range(m):
+        noise = 0.0004 if i == 0 else rng.uniform(0.001, 0.003)
+        x, t = drawn(loop, rng.uniform(1.0, 3.0), thetas[i], rhos[i], noise, seed + 10 * i)
+        demos.append(
+            demo_of(
+                x, t, f"demo_{i}", task, thetas[i] if given else None, rhos[i] if given else None
+            )
+        )
+    return demos, thetas, rhos
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_loop_unlike_any_guide_is_learned_close_to_its_true_shape(seed: int) -> None:
+    loop = blob(20 + seed)
+    demos, thetas, rhos = _set(loop, "stirring", False, seed)
+    learned = learn_task_loop(demos)
+    assert learned.source == "learned" and len(learned.used) == len(demos)
+    assert shape_error(loop, learned.loop) < 0.04
+    # The set's frame: the demos' relative preferences have circular-mean θ 0, geo-mean ρ 1.
+    mean_turn = math.degrees(np.angle(np.mean(np.exp(1j * np.radians(thetas)))))
+    expected = loop.transformed(mean_turn, float(np.exp(np.mean(np.log(rhos)))))
+    z_l, z_e = (as_complex(s.points(LOOP_POINTS)) for s in (learned.loop, expected))
+    a = align(z_e, z_l, 0.03)[0]
+    # Within 6 %: each demo's own loop is read on a path its noise lengthens and its smoothing
+    # shrinks; what the cleaner needs is the demos' relative preferences, measured by
+    # benchmarks/bench_foreign_loops.py and bench_clean_human.py --shape.
+    assert abs(math.degrees(np.angle(a))) < 3.0 and abs(abs(a) - 1.0) < 0.06
+
+
+def test_given_preferences_fix_the_learned_loop_s_frame() -> None:
+    """θ/ρ written in a file are used as given: the learned loop is turned and scaled so the
+    stated preferences describe the demos."""
+    loop = blob(31)
+    demos, _, _ = _set(loop, "stirring", True, 7)
+    learned = learn_task_loop(demos)
+    z_l, z_t = (as_complex(s.points(LOOP_POINTS)) for s in (learned.loop, loop))
+    a = align(z_t, z_l, 0.03)[0]
+    assert abs(math.degrees(np.angle(a))) < 3.0 and abs(abs(a) - 1.0) < 0.04
+    assert learned.frame == "the θ/ρ the demos state"
+
+
+def test_demos_that_follow_the_guide_keep_the_guide() -> None:
+    demos, _, _ = _set(LoopShape.guide("wiping"), "wiping", False, 3)
+    learned = learn_task_loop(demos)
+    assert learned.source == "guide" and learned.loop.is_guide
+    assert learned.guide_misfit < 0.05
+
+
+def test_an_oval_filed_as_wiping_is_learned_and_says_so() -> None:
+    oval = LoopShape.from_points(canonical_loop("wiping", 64) * [1.0, 1.9], 8)  # Not the guide.
+    demos, _, _ = _set(oval, "wiping", False, 5)
+    learned = learn_task_loop(demos)
+    assert learned.source == "learned"
+    assert any("do not follow the task's guide" in note for note in learned.notes)
+
+
+def test_no_demo_closing_a_loop() -> None:
+    loop = blob(8)
+    parts = [drawn(loop, 0.6, seed=s) for s in range(3)]
+    demos = [demo_of(x, t, f"demo_{i}", "stirring", None, None) for i, (x, t) in enumerate(parts)]
+    with pytest.raises(DemoError, match="closes a loop of its own"):
+        learn_task_loop(demos)
+    guided = [demo_of(x, t, f"demo_{i}", "wiping", None, None) for i, (x, t) in enumerate(parts)]
+    fallback = learn_task_loop(guided)
+    assert fallback.source == "guide" and fallback.notes
