@@ -1,32 +1,25 @@
 """Intended loops drawn at random: shapes bt was not built around (``bt synth --shape``).
 
-The synthetic generators draw the task's guide by default. To test the cleaner on loops nobody
-drew by hand, each set can instead draw one of these, returned as a
+The synthetic generators draw the task's guide unless given another loop. These are drawn as a
 :class:`~bt_pipeline.data.loop_shape.LoopShape` centred on its bounding-box centre, the larger
-side of its bounding box drawn in [0.15, 0.30] m, labelled with its family:
+side of the box drawn in [0.15, 0.30] m, labelled with its family (parameters drawn per loop):
 
-=================  ==============================================================================
-family             what it is (parameters drawn per loop)
-=================  ==============================================================================
-``oval``           an ellipse of aspect 0.25-1; half of them eggs (one end 15-35 % wider)
-``rounded_polygon``  a rounded triangle, square or pentagon, squashed to aspect 0.75-1
-``d_shape``        a disc with one side cut flat (chord at 0-50 % of the radius), aspect 0.6-1
-``figure_eight``   a lemniscate with unequal lobes (one 0.6-0.9× the other); crosses itself once
-``arch``           like pick_and_place's: an outbound arch and a shallower return, height and
-                   return depth each drawn; kept upright and travelled as the guide is
-``stroke``         a thin back-and-forth stroke: an ellipse of aspect 0.04-0.12
-``asymmetric``     random Fourier (:func:`random_loop`): harmonics 1..K, K in 2-5, amplitudes
-                   ~1/k^p, random phases, one axis squashed by 0.3-1
-=================  ==============================================================================
+* ``oval``: an ellipse of aspect 0.25-1; half of them eggs (width skewed 15-35 % to one end);
+* ``rounded_polygon``: a rounded triangle, square or pentagon, squashed to aspect 0.75-1;
+* ``d_shape``: a disc cut flat at 0-50 % of its radius from the centre, aspect 0.6-1;
+* ``figure_eight``: a lemniscate with unequal lobes (one 0.6-0.9× the other), aspect 0.3-0.8;
+  the only family that crosses itself (once);
+* ``arch``: like pick_and_place's, an outbound arch over the top and a shallower return, with
+  height and return depth drawn; kept upright and travelled as the guide is;
+* ``stroke``: a thin back-and-forth stroke, an ellipse of aspect 0.04-0.12;
+* ``asymmetric``: random Fourier (:func:`random_loop`).
 
-All but the arch are drawn at a random orientation and in either direction. Every loop is
-re-parametrised so that its speed along the loop is close to even (the generators' speed
-profiles do the timing), then stored with :data:`HARMONICS` harmonics. A drawn loop is redrawn
-until its smallest radius of curvature is at least :data:`MIN_RADIUS_FRACTION` of its size
-(ovals: half their aspect squared, ≥ 3 %; strokes are as thin as drawn) and, but for the
-figure-eight, it does not cross itself.
-
-:func:`varied_guide` draws bt's own guides as a lab would vary them, and :func:`draw_loop`
+All but the arch get a random orientation and direction. Every loop is re-parametrised to a
+speed along it close to even (the generators' speed profiles do the timing) and stored with
+:data:`HARMONICS` harmonics. A loop is redrawn until its smallest radius of curvature is at
+least :data:`MIN_RADIUS_FRACTION` of its size (ovals: 3 %, an ellipse's ends being aspect²/2 of
+it; strokes: as thin as drawn) and, but for the figure-eight, it does not cross itself.
+:func:`varied_guide` draws bt's own guides as a lab would vary them; :func:`draw_loop`
 dispatches on a :data:`LoopKind`.
 """
 
@@ -77,8 +70,8 @@ Curve = Callable[[FloatArray], np.ndarray]
 def random_loop(rng: np.random.Generator) -> LoopShape:
     """A smooth closed loop from random Fourier coefficients (the ``asymmetric`` family).
 
-    Harmonics 1..K (K in 2-5) in both directions around a dominant first harmonic, amplitudes
-    decaying like 1/k^p (p in 1.2-2.5), random phases; one axis squashed by 0.3-1, a random
+    A unit circle (harmonic 1) plus harmonics ±2..±K (K in 2-5) of amplitude 0.25-0.6 × U(0.2,
+    1) / k^p (p in 1.2-2.5) at random phases; one axis squashed by 0.3-1 (the aspect), a random
     orientation and direction. Redrawn until it does not cross itself and its smallest radius
     of curvature is at least :data:`MIN_RADIUS_FRACTION` of its size.
     """
@@ -152,7 +145,8 @@ def draw_loop(kind: LoopKind, rng: np.random.Generator, task: str | None = None)
         task: The task; needed by ``"guide"`` and ``"varied"``.
 
     Raises:
-        ConfigError: Unknown kind, or a guide kind without one of the three tasks.
+        ConfigError: Unknown kind.
+        UnknownTaskError: ``"guide"`` or ``"varied"`` without one of the three tasks.
     """
     if kind in ("guide", "varied"):
         if task not in TASKS:
@@ -273,7 +267,7 @@ def _asymmetric(rng: np.random.Generator) -> Curve:
     strength = float(rng.uniform(0.25, 0.6))
     harmonics = [k for k in range(-top, top + 1) if abs(k) > 1]  # the squash sets the aspect
     coefficients = {
-        k: strength * rng.uniform(0.2, 1.0) / abs(k) ** decay * np.exp(1j * rng.uniform(0, 7))
+        k: strength * rng.uniform(0.2, 1.0) / abs(k) ** decay * np.exp(2j * np.pi * rng.random())
         for k in harmonics
     }
     squash = float(rng.uniform(0.3, 1.0))
