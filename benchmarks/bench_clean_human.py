@@ -32,21 +32,29 @@ import numpy as np
 
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.random_loops import LoopKind, draw_set_loop
 from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.data.synth_human import make_human_set
-from bt_pipeline.data.synth_truth import truth_ratios
+from bt_pipeline.data.synth_truth import relative_hits, truth_ratios
 from bt_pipeline.data.tasks import TASKS
 
 
 def measure(
-    task: str, n: int, seed: int, style: str, chunk_size: int = 10**9
+    task: str,
+    n: int,
+    seed: int,
+    style: str,
+    chunk_size: int = 10**9,
+    loop_kind: LoopKind = "guide",
 ) -> dict[str, list[float]]:
-    """Ratios and rates of one cleaned set (Stage 2 in chunks of at most `chunk_size` demos)."""
+    """Ratios and rates of one cleaned set (Stage 2 in chunks of at most `chunk_size` demos),
+    its demos drawing `loop_kind` (the task's guide, a varied guide or a loop drawn at random)."""
+    loop = None if loop_kind == "guide" else draw_set_loop(loop_kind, seed, task)
     if style == "human":
-        synth = make_human_set(task, n, seed)
+        synth = make_human_set(task, n, seed, shape=loop)
         hidden, expert, recording = synth.hidden, synth.expert_index, synth.recording
     else:
-        single = make_demo_set(task, n, seed)
+        single = make_demo_set(task, n, seed, shape=loop)
         hidden, expert, recording = False, single.expert_index, single.recording
     demos = demos_from_recording(recording)
     start = time.perf_counter()
@@ -63,10 +71,20 @@ def measure(
             out["hidden_naive_shape"].append(shape)
             out["hidden_naive_timing"].append(timing)
         if hidden:
+            out["learned"].append(float(result.loop is not None and result.loop.source != "guide"))
             p = result.preferences[i]
             theta, rho = record.attrs["truth_theta_deg"], record.attrs["truth_rho"]
             out["hidden_ok"].append(float(abs(p.theta_deg - theta) < 5 and abs(p.rho - rho) < 0.05))
             out["hidden_theta_ok"].append(float(abs(p.theta_deg - theta) < 5))
+    if hidden:
+        truth = [r.attrs for r in recording.demos.values()]
+        hits = relative_hits(
+            np.array([p.theta_deg for p in result.preferences]),
+            np.array([p.rho for p in result.preferences]),
+            np.array([float(a["truth_theta_deg"]) for a in truth]),
+            np.array([float(a["truth_rho"]) for a in truth]),
+        )
+        out["relative_ok"].extend(hits.astype(float).tolist())
     return out
 
 
@@ -77,6 +95,12 @@ def main() -> None:
     parser.add_argument("--styles", default="human,single")
     parser.add_argument("--tasks", default=",".join(TASKS))
     parser.add_argument("--chunk-sizes", default="all", help="K per run: all (one batch) or ints")
+    parser.add_argument(
+        "--shapes",
+        default="guide",
+        help="loops the demos draw, comma-separated: guide, varied, random or a family "
+        "(oval, rounded_polygon, d_shape, figure_eight, arch, stroke, asymmetric)",
+    )
     args = parser.parse_args()
     sizes = {"D1": 4, "D2": 20, "D48": 48}
     chunks = [10**9 if k == "all" else int(k) for k in args.chunk_sizes.split(",")]
@@ -84,16 +108,19 @@ def main() -> None:
     print(
         "| style | task | set | naive shape (mean / worst) | naive timing (mean / worst) | "
         "expert shape (worst) | expert timing (worst) | best = expert | hidden θ within 5° | "
-        "hidden θ within 5° and ρ within 0.05 | naive shape / timing, θ/ρ hidden (mean) |"
+        "hidden θ within 5° and ρ within 0.05 | naive shape / timing, θ/ρ hidden (mean) | "
+        "relative θ within 5° and ρ within 5 %, hidden | learned loop (hidden sets) |"
         + (" K | clean wall [s] |" if with_k else "")
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if with_k else ""))
-    for style in args.styles.split(","):
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if with_k else ""))
+    for style, shape in (
+        (st, sh) for st in args.styles.split(",") for sh in args.shapes.split(",")
+    ):
         for task in args.tasks.split(","):
             for preset, chunk_size in ((p, k) for p in args.presets.split(",") for k in chunks):
                 runs: dict[str, list[float]] = defaultdict(list)
                 for seed in range(args.seeds):
-                    measured = measure(task, sizes[preset], seed, style, chunk_size)
+                    measured = measure(task, sizes[preset], seed, style, chunk_size, shape)
                     for key, values in measured.items():
                         runs[key].extend(values)
                 k_label = "all" if chunk_size >= sizes[preset] else str(chunk_size)
@@ -113,10 +140,11 @@ def main() -> None:
                 )
 
                 print(
-                    f"| {style} | {task} | {preset} | {pair('naive_shape')} | "
+                    f"| {style} | {task} ({shape}) | {preset} | {pair('naive_shape')} | "
                     f"{pair('naive_timing')} | {np.max(runs['expert_shape']):.2f} | "
                     f"{np.max(runs['expert_timing']):.2f} | {share('selected')} | "
-                    f"{share('hidden_theta_ok')} | {share('hidden_ok')} | {hidden_means} |{extra}",
+                    f"{share('hidden_theta_ok')} | {share('hidden_ok')} | {hidden_means} | "
+                    f"{share('relative_ok')} | {share('learned')} |{extra}",
                     flush=True,
                 )
 

@@ -27,17 +27,7 @@ import numpy as np
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.recording import read_recording
-from bt_pipeline.data.synth_truth import shape_distance
-
-
-def relative_hits(
-    thetas: np.ndarray, rhos: np.ndarray, true_thetas: np.ndarray, true_rhos: np.ndarray
-) -> np.ndarray:
-    """Whether each demo's θ − mean θ is within 5° and ρ / geometric-mean ρ within 5 % of the
-    truth's same quantities, shape (M,)."""
-    d_theta = (thetas - thetas.mean()) - (true_thetas - true_thetas.mean())
-    rel = (rhos / np.exp(np.log(rhos).mean())) / (true_rhos / np.exp(np.log(true_rhos).mean()))
-    return (np.abs(d_theta) <= 5.0) & (np.abs(rel - 1.0) <= 0.05)
+from bt_pipeline.data.synth_truth import relative_hits, shape_distance
 
 
 def measure(root: Path, name: str, truth: dict, seed: int = 0) -> dict[str, object]:
@@ -99,7 +89,7 @@ def main() -> None:
             f"| {name} | {m['loop']} | {ns.mean():.2f} / {ns.max():.2f} | "
             f"{nt.mean():.2f} / {nt.max():.2f} | {m['expert_shape']:.2f} | "
             f"{m['expert_timing']:.2f} | {'yes' if m['selected'] else 'no'} | "
-            f"{'—' if hits is None else f'{100 * float(hits):.0f}%'} | {m['wall_s']:.1f} |",
+            f"{'—' if hits is None else f'{100 * float(str(hits)):.0f}%'} | {m['wall_s']:.1f} |",
             flush=True,
         )
 

@@ -101,3 +101,16 @@ def oracle_similarity(
     drawn, meant = drawn - drawn.mean(), meant - meant.mean()
     s = np.vdot(meant, drawn) / np.vdot(meant, meant)  # ρ'/ρ e^{i(θ'-θ)}
     return float(np.degrees(np.angle(s))), float(abs(s))
+
+
+def relative_hits(
+    thetas: ArrayLike, rhos: ArrayLike, true_thetas: ArrayLike, true_rhos: ArrayLike
+) -> np.ndarray:
+    """Whether each demo's θ relative to the set's mean θ is within 5° of the truth's, and its ρ
+    relative to the set's geometric-mean ρ within 5 %, shape (M,) (bool): what a loop learned
+    from the demos can identify (its own frame is the set's)."""
+    th, r = np.asarray(thetas, dtype=np.float64), np.asarray(rhos, dtype=np.float64)
+    tt, tr = np.asarray(true_thetas, dtype=np.float64), np.asarray(true_rhos, dtype=np.float64)
+    d_theta = (th - th.mean()) - (tt - tt.mean())
+    rel = (r / np.exp(np.log(r).mean())) / (tr / np.exp(np.log(tr).mean()))
+    return (np.abs(d_theta) <= 5.0) & (np.abs(rel - 1.0) <= 0.05)
