@@ -89,7 +89,7 @@ from soak_tabs import TabsProcess
 
 import bt_teleop.library
 import bt_teleop.library_loader
-from bt_pipeline.data.tasks import parse_task
+from bt_pipeline.data.tasks import parse_guided_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.app import AppOptions, TeleopApp, freeze_startup_objects
 from bt_teleop.cleaning import task_dir
@@ -262,7 +262,7 @@ def drive(
 
 def empty_library(recordings_dir: Any, task: str, **_: Any) -> bt_teleop.library.TaskLibrary:
     """``--library-loads none``: the task's library as if it had no demos (nothing is read)."""
-    return bt_teleop.library.TaskLibrary(parse_task(task), (), ())
+    return bt_teleop.library.TaskLibrary(parse_guided_task(task), (), ())
 
 
 def read_new_files(
@@ -271,7 +271,7 @@ def read_new_files(
     """``--library-loads read-new``: every file of the task through the loader's `read` (so
     each new file is read and scored once, as the app does), then an empty library (nothing
     listed, scored over the task, or shown)."""
-    folder = task_dir(recordings_dir, parse_task(task))
+    folder = task_dir(recordings_dir, parse_guided_task(task))
     for path in bt_teleop.library.task_files(folder) if folder.is_dir() else []:
         try:
             read(path, "raw")

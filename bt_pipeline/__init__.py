@@ -9,7 +9,14 @@ from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo, group_by_task, load_dem
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.records import DemoRecord, Recording
-from bt_pipeline.data.tasks import TASKS, Task
+from bt_pipeline.data.tasks import (
+    TASKS,
+    GuidedTask,
+    Task,
+    has_guide,
+    parse_guided_task,
+    parse_task,
+)
 from bt_pipeline.exceptions import (
     BtError,
     ConfigError,
@@ -29,6 +36,7 @@ __all__ = [
     "Demo",
     "DemoError",
     "DemoRecord",
+    "GuidedTask",
     "Recording",
     "RecordingError",
     "ScoreConfig",
@@ -38,8 +46,11 @@ __all__ = [
     "UnknownTaskError",
     "closure_loss",
     "group_by_task",
+    "has_guide",
     "load_demos",
     "mutual_information",
+    "parse_guided_task",
+    "parse_task",
     "read_recording",
     "score_demos",
     "select_best",

@@ -16,7 +16,7 @@ class ConfigError(BtError, ValueError):
 
 
 class UnknownTaskError(ConfigError):
-    """A task name that bt does not know."""
+    """A task name that is not valid, or a task without a built-in guide where one is needed."""
 
 
 class RecordingError(BtError):

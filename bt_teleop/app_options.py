@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bt_pipeline.data.tasks import Task, parse_task
+from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.library_view import DEFAULT_LISTED
 from bt_teleop.rerun_live import RERUN_MODES, RerunMode
@@ -46,7 +46,7 @@ class AppOptions:
     """Refinement epochs of the Clean button (None: the cleaner's default)."""
     clean_in_subprocess: bool = True
     """Run clean jobs in a separate process (keeps the sessions responsive)."""
-    initial_task: Task = "wiping"
+    initial_task: GuidedTask = "wiping"
     """The task a new tab opens with."""
     rerun_grpc_port: int = 9876
     """Preferred port of Rerun's gRPC server (serve mode)."""
@@ -94,5 +94,5 @@ class AppOptions:
         if not (self.publish_hz > 0.0 and self.publish_hz <= 240.0):
             raise ConfigError(f"publish_hz must be in (0, 240]; got {self.publish_hz}")
         parse_robot(self.robot)
-        parse_task(self.initial_task)
+        parse_guided_task(self.initial_task)
         object.__setattr__(self, "recordings", Path(self.recordings))

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult
-from bt_pipeline.data.tasks import parse_task
+from bt_pipeline.data.tasks import parse_guided_task
 from bt_pipeline.exceptions import DemoError
 
 CLEANED_DIRNAME = ".cleaned"
@@ -31,12 +31,12 @@ def cleaned_dir(recordings_dir: str | Path) -> Path:
 
 def cleaned_path(recordings_dir: str | Path, task: str) -> Path:
     """``<recordings>/.cleaned/<task>.cleaned.hdf5``."""
-    return cleaned_dir(recordings_dir) / f"{parse_task(task)}.cleaned.hdf5"
+    return cleaned_dir(recordings_dir) / f"{parse_guided_task(task)}.cleaned.hdf5"
 
 
 def task_dir(recordings_dir: str | Path, task: str) -> Path:
     """``<recordings>/<task>``: the raw demos of `task`."""
-    return Path(recordings_dir) / parse_task(task)
+    return Path(recordings_dir) / parse_guided_task(task)
 
 
 def clean_task(
@@ -72,7 +72,7 @@ def clean_task(
 
     options = options or CleanOptions(progress=False)
     notes = notes if notes is not None else []
-    parsed = parse_task(task)
+    parsed = parse_guided_task(task)
     source_dir = task_dir(recordings_dir, parsed)
     if not source_dir.is_dir():
         # Messages reach the page: they name no server path.

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from bt_pipeline.clean.pipeline import CleanOptions
-from bt_pipeline.data.tasks import Task, parse_task
+from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.clean_task import CLEANED_DIRNAME, clean_task, cleaned_dir, cleaned_path, task_dir
 from bt_teleop.rerun_clean_log import CleanLogTarget, log_clean_to
@@ -53,7 +53,7 @@ DEFAULT_TIMEOUT_S = 900.0
 class CleanProgress:
     """A snapshot of a clean job."""
 
-    task: Task
+    task: GuidedTask
     """The task being cleaned."""
     state: JobState
     """running, done or failed."""
@@ -79,7 +79,7 @@ class CleanProgress:
 class CleanJob:
     """One clean job; its progress is updated by the runner's reader thread."""
 
-    def __init__(self, task: Task, epochs: int, owner: object = None) -> None:
+    def __init__(self, task: GuidedTask, epochs: int, owner: object = None) -> None:
         self.task = task
         self.owner = owner
         """Who started it (the UI uses it to notify that session only)."""
@@ -140,10 +140,11 @@ class CleanRunner:
         self.on_finish = on_finish
         self.timeout_s = timeout_s
         self._lock = threading.Lock()
-        self._jobs: dict[Task, CleanJob] = {}
+        self._jobs: dict[GuidedTask, CleanJob] = {}
         self._last: CleanJob | None = None
-        self._processes: dict[Task, Any] = {}  # multiprocessing.Process (type depends on context)
-        self._threads: dict[Task, threading.Thread] = {}
+        # multiprocessing.Process (its type depends on the context)
+        self._processes: dict[GuidedTask, Any] = {}
+        self._threads: dict[GuidedTask, threading.Thread] = {}
         self._closed = False
 
     @property
@@ -154,7 +155,7 @@ class CleanRunner:
     def job_for(self, task: str) -> CleanJob | None:
         """The running or last job of `task`, or None."""
         with self._lock:
-            return self._jobs.get(parse_task(task))
+            return self._jobs.get(parse_guided_task(task))
 
     def jobs(self) -> list[CleanJob]:
         """The running or last job of every task that had one."""
@@ -171,7 +172,7 @@ class CleanRunner:
             ConfigError: A job for `task` is already running, or the runner is closed.
             UnknownTaskError: `task` is unknown.
         """
-        parsed = parse_task(task)
+        parsed = parse_guided_task(task)
         epochs = self.options.refine_config().resolve().epochs
         with self._lock:
             if self._closed:
@@ -208,7 +209,7 @@ class CleanRunner:
 
     def cancel(self, task: str, reason: str = "cancelled") -> bool:
         """Stop `task`'s running job (its output is not written); True when one was running."""
-        parsed = parse_task(task)
+        parsed = parse_guided_task(task)
         with self._lock:
             job, process = self._jobs.get(parsed), self._processes.get(parsed)
         if job is None or job.finished:
@@ -319,7 +320,7 @@ def lower_thread_priority(increment: int = CLEAN_NICE) -> None:
 
 def run_clean_job(
     recordings_dir: Path,
-    task: Task,
+    task: GuidedTask,
     options: CleanOptions,
     messages: Any,
     single_thread: bool,

@@ -32,7 +32,7 @@ import numpy as np
 
 from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.paths import RECORDING_SUFFIXES
-from bt_pipeline.data.tasks import Task, parse_task
+from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.cleaning import cleaned_path, task_dir
 from bt_teleop.escape import markdown_text
@@ -60,7 +60,7 @@ _WARNING_TEXT = {"off_guide": "off the guide: kept and cleaned"}  # a take-check
 class TaskLibrary:
     """Everything replayable for one task (listed, not loaded: see :mod:`bt_teleop.tracks`)."""
 
-    task: Task
+    task: GuidedTask
     raw: tuple[ReplayTrack, ...]
     """Raw demos, oldest file first (flagged and excluded ones included)."""
     cleaned: tuple[ReplayTrack, ...]
@@ -122,7 +122,7 @@ def load_library(
             take changes the others' Ũ only when it moves a metric's min or max).
     """
     read = read or read_file_tracks
-    parsed = parse_task(task)
+    parsed = parse_guided_task(task)
     folder = task_dir(recordings_dir, parsed)
     files: list[FileTracks] = []
     if folder.is_dir():

@@ -14,7 +14,7 @@ import unicodedata
 from datetime import UTC, datetime
 from pathlib import Path
 
-from bt_pipeline.data.tasks import parse_task
+from bt_pipeline.data.tasks import parse_guided_task
 from bt_pipeline.exceptions import ConfigError
 
 MAX_NAME_CHARS = 32
@@ -84,7 +84,7 @@ def demo_path(
         UnknownTaskError: `task` is unknown.
         ConfigError: `suffix` is not hex, or the result would leave the task folder.
     """
-    task_dir = Path(recordings_dir) / parse_task(task)
+    task_dir = Path(recordings_dir) / parse_guided_task(task)
     suffix = secrets.token_hex(3) if suffix is None else suffix
     if not re.fullmatch(r"[0-9a-f]{1,16}", suffix):
         raise ConfigError(f"file name suffix must be 1-16 lowercase hex digits; got {suffix!r}")

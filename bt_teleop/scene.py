@@ -33,7 +33,7 @@ import numpy as np
 
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.tasks import Task, parse_task
+from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.workspace import Workspace
 
@@ -68,7 +68,7 @@ LOGGER = logging.getLogger("bt.teleop")
 class SceneModel:
     """A compiled task scene with the robot and its tool, and what the controller needs of it."""
 
-    task: Task
+    task: GuidedTask
     """The task the scene is for."""
     robot: Robot
     """Which FR3 model drives it."""
@@ -140,7 +140,7 @@ def load_scene(
         ConfigError: `robot` is unknown, the scene file is missing or lacks a custom field, or
             the Menagerie model cannot be found.
     """
-    task_name = parse_task(task)
+    task_name = parse_guided_task(task)
     robot_name = parse_robot(robot)
     path = Path(scene_file) if scene_file is not None else SCENES_DIR / f"{task_name}.xml"
     if not path.is_file():

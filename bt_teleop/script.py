@@ -27,7 +27,7 @@ import numpy as np
 
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import MIN_SAMPLES, FloatArray
-from bt_pipeline.data.tasks import Task, parse_task
+from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.scene import Robot, SceneModel, load_scene, parse_robot
 from bt_teleop.session import Session, SessionConfig
@@ -53,7 +53,7 @@ SCRIPT_KEYS = (
 class TeleopScript:
     """A parsed, checked script."""
 
-    task: Task
+    task: GuidedTask
     """The task (its scene)."""
     waypoints: FloatArray
     """Rows ``[t_s, u, v]`` (plane) or ``[t_s, x, y, z]`` (world), shape (K, 3 or 4)."""
@@ -116,7 +116,7 @@ def parse_script(raw: Mapping[str, Any], source: str = "script") -> TeleopScript
         if key not in raw:
             raise ConfigError(f"{source}: missing {key!r}")
     try:
-        task = parse_task(raw["task"])
+        task = parse_guided_task(raw["task"])
     except ConfigError as exc:
         raise type(exc)(f"{source}: {exc}") from None
     frame = raw.get("frame", "plane")

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.tasks import Task
+from bt_pipeline.data.tasks import GuidedTask
 from bt_teleop.session_config import SessionStatus
 
 __all__ = ["ChildMemory", "Recovery"]
@@ -42,7 +42,7 @@ class Recovery:
 
     reason: str
     """Why the old child was lost (its status line's warning until then)."""
-    task: Task
+    task: GuidedTask
     """The task both children simulate."""
     sim_time_s: float
     """The old child's last known simulation time [s] (the new one starts at 0)."""
@@ -110,7 +110,7 @@ class ChildMemory:
         elif name == "exit" and value is not None:
             self.saved_late.append(value)
 
-    def recovery(self, reason: str, task: Task) -> Recovery:
+    def recovery(self, reason: str, task: GuidedTask) -> Recovery:
         """The :class:`Recovery` of the lost child (its take and late saves then forgotten)."""
         last, take_by, saved = self.status, self.take_by, tuple(self.saved_late)
         self.take_by, self.saved_late = None, []

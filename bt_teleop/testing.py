@@ -269,9 +269,9 @@ def guide_uv(t_s: float, task: str = "wiping", period_s: float = 4.0) -> FloatAr
 @functools.cache
 def _guide_loop(task: str) -> FloatArray:
     from bt_pipeline.data.shapes import canonical_loop
-    from bt_pipeline.data.tasks import parse_task
+    from bt_pipeline.data.tasks import parse_guided_task
 
-    return canonical_loop(parse_task(task), 360)
+    return canonical_loop(parse_guided_task(task), 360)
 
 
 def circle_uv(t_s: float, radius_m: float = 0.06, period_s: float = 4.0) -> FloatArray:

@@ -132,7 +132,7 @@ class FileTracks:
     stamp: FileStamp
     """The version of the file read."""
     task: Task
-    """The task of its demos."""
+    """The task of its demos, as the file says (the library keeps files of its own task only)."""
     tracks: tuple[ReplayTrack, ...]
     """Its demos, in file order (``utility`` and ``excluded`` unset: they depend on the task's
     other files and on the moderation sidecar, so the library sets them at each load)."""

@@ -39,7 +39,7 @@ from typing import Any
 import viser
 
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.tasks import Task, parse_task
+from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.escape import breakable, display_text
 from bt_teleop.library import TaskLibrary
@@ -105,7 +105,7 @@ class ClientUI:
 
     def select_task(self, task: str) -> None:
         """Load `task`'s scene for this tab (refused while recording)."""
-        self._queue(self._do_select_task, parse_task(task))
+        self._queue(self._do_select_task, parse_guided_task(task))
 
     def record(self) -> None:
         """Start recording with the demonstrator, θ and ρ in the GUI."""
@@ -164,7 +164,7 @@ class ClientUI:
         return done.wait(timeout_s)
 
     @property
-    def task(self) -> Task:
+    def task(self) -> GuidedTask:
         """The tab's task."""
         return self.session.scene.task
 
@@ -219,7 +219,7 @@ class ClientUI:
 
     # -- scene --------------------------------------------------------------------------------
 
-    def _new_session(self, task: Task) -> TabSession:
+    def _new_session(self, task: GuidedTask) -> TabSession:
         ctx = self.ctx  # a child process per tab (session_process.py) unless told otherwise
         session = open_session(
             load_scene(task, ctx.robot),
@@ -340,7 +340,7 @@ class ClientUI:
 
     # -- commands (worker thread) ---------------------------------------------------------------
 
-    def _do_select_task(self, task: Task) -> None:
+    def _do_select_task(self, task: GuidedTask) -> None:
         if task == self.task:
             return
         if self.session.recording:

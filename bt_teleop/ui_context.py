@@ -9,7 +9,7 @@ import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bt_pipeline.data.tasks import Task
+from bt_pipeline.data.tasks import GuidedTask
 from bt_teleop.cleaning import CleanRunner
 from bt_teleop.library_loader import LibraryLoader
 from bt_teleop.library_view import DEFAULT_LISTED
@@ -61,7 +61,7 @@ class UiContext:
     """Scene updates per second sent to each tab."""
     save_incomplete: bool = True
     """A closed tab's recording in progress: save it flagged incomplete (True) or discard it."""
-    initial_task: Task = "wiping"
+    initial_task: GuidedTask = "wiping"
     listed_demos: int = DEFAULT_LISTED
     """Newest takes of a task the Demo and Replay pickers offer (bt_teleop/library_view.py)."""
     event_loop: asyncio.AbstractEventLoop | None = None

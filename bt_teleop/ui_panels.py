@@ -23,7 +23,7 @@ from typing import Any, Protocol
 
 import viser
 
-from bt_pipeline.data.tasks import TASKS, Task
+from bt_pipeline.data.tasks import TASKS, GuidedTask
 from bt_teleop.cleaning import CleanProgress
 from bt_teleop.escape import html_text, markdown_text
 from bt_teleop.library import TaskLibrary
@@ -43,7 +43,7 @@ class TabActions(Protocol):
     """What the panels' callbacks ask of a tab; each call returns at once."""
 
     @property
-    def task(self) -> Task: ...
+    def task(self) -> GuidedTask: ...
     def select_task(self, task: str) -> None: ...
     def record(self) -> None: ...
     def stop_and_save(self) -> None: ...

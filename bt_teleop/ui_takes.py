@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from bt_pipeline.data.moderation import exclude
-from bt_pipeline.data.tasks import Task
+from bt_pipeline.data.tasks import GuidedTask
 from bt_pipeline.exceptions import BtError, SessionLostError
 from bt_teleop.library import TaskLibrary
 from bt_teleop.moderation import Moderator, token_matches
@@ -87,13 +87,13 @@ class TakeDesk:
             self.notify("Saved but flagged", f"{path.name}\n{'; '.join(reasons)}", color="yellow")
         return path
 
-    def note_saved(self, path: Path, task: Task) -> None:
+    def note_saved(self, path: Path, task: GuidedTask) -> None:
         """A take of `task` was saved to `path`: remember it, and tell every tab to reload."""
         self.saved.append(path)
         self.saved_count += 1
         self.ctx.versions.bump(task)
 
-    def discard_flagged(self, task: Task) -> None:
+    def discard_flagged(self, task: GuidedTask) -> None:
         """Exclude the flagged take just saved (its file stays; Restore brings it back)."""
         path, self.flagged = self.flagged, None
         self.controls.show_take_check(None)

@@ -12,13 +12,13 @@ import tyro
 from bt_pipeline import score_demos
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth import make_d2
-from bt_pipeline.data.tasks import Task
+from bt_pipeline.data.tasks import GuidedTask
 from bt_pipeline.viz.tables import print_score_tables
 
 
 @dataclass
 class Args:
-    task: Task = "wiping"
+    task: GuidedTask = "wiping"
     """Task of the synthetic D2 set (20 demos, 4 demonstrators)."""
     seed: int = 0
     """Seed of the set."""

@@ -1,7 +1,8 @@
 """Shared fixtures: small valid recordings in memory and on disk.
 
-* ``make_recording(task="wiping", n_demos=3, n_samples=50, seed=0, ...)`` returns a valid
-  :class:`~bt_pipeline.data.records.Recording` of circles drawn in the task's default plane.
+* ``make_recording(task="wiping", n_demos=3, n_samples=50, seed=0, ..., plane=None)`` returns a
+  valid :class:`~bt_pipeline.data.records.Recording` of circles drawn in the task's default
+  plane (or `plane`: tasks without a built-in guide, such as ``"stirring"``, have none).
 * ``write_example_file(directory, name="example.hdf5", **make_recording_kwargs)`` writes one to
   ``directory / name`` and returns the path.
 * ``make_app(**AppOptions overrides)`` starts a teleop app recording under ``tmp_path``, and
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.records import DemoRecord, Recording, Source
 from bt_pipeline.data.tasks import Task, default_plane
@@ -36,15 +38,16 @@ def build_recording(
     optional: bool = False,
     masks: dict[str, list[str]] | None = None,
     attrs: dict[str, Any] | None = None,
+    plane: TaskPlane | None = None,
 ) -> Recording:
-    """A valid recording: demo k draws one circle in the default plane of `task`.
+    """A valid recording: demo k draws one circle in `plane` (the default plane of `task`).
 
     Demo k is rotated by θ = 20k [deg] and scaled by ρ = 1 + 0.1k; odd demos store θ and ρ as
     NaN (unknown). Timestamps are about 20 ms apart with seeded jitter; positions carry 1 mm of
     seeded noise.
 
     Args:
-        task: The task (and so the plane).
+        task: The task (and so the plane, unless `plane` is given).
         n_demos: Number of demos, named demo_0 ... demo_{n_demos - 1}.
         n_samples: Samples T per demo.
         seed: Seed of the jitter and noise.
@@ -52,9 +55,11 @@ def build_recording(
         optional: Also fill ee_quat, joint_pos, gripper, states, created, ep_meta and extra attrs.
         masks: robomimic filter keys.
         attrs: Extra ``/data`` attrs.
+        plane: The task plane; None takes the default plane of `task` (a task without a
+            built-in guide, such as ``"stirring"``, has none: give one).
     """
     rng = np.random.default_rng(seed)
-    plane = default_plane(task)
+    plane = default_plane(task) if plane is None else plane
     demos: dict[str, DemoRecord] = {}
     for k in range(n_demos):
         theta_deg, rho = 20.0 * k, 1.0 + 0.1 * k

@@ -115,7 +115,7 @@ def test_score_table_marks_the_best_and_groups_by_task(capsys, tmp_path, wiping_
     ("args", "message"),
     [
         (["score", "does/not/exist.hdf5"], "no recordings found"),
-        (["synth", "--task", "sweeping", "--out", "x.hdf5"], "unknown task 'sweeping'"),
+        (["synth", "--task", "sweeping", "--out", "x.hdf5"], "task 'sweeping' has no built-in"),
     ],
 )
 def test_errors_print_one_line_and_exit_2(capsys, args, message) -> None:

@@ -12,6 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 from rerun.experimental import LeRobotReader
 
+from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.records import Recording
 from bt_pipeline.exceptions import ConfigError
@@ -22,10 +23,10 @@ from tests.conftest import build_recording
 FPS = 30
 
 
-def full_recording(task: str = "wiping") -> Recording:
+def full_recording(task: str = "wiping", plane: TaskPlane | None = None) -> Recording:
     """3 demos with quaternion, joints and gripper (the fixture's extra attrs, flags among them,
-    dropped: a flagged take is never exported)."""
-    recording = build_recording(task, n_demos=3, n_samples=60, optional=True)  # type: ignore[arg-type]
+    dropped: a flagged take is never exported); `plane` as in :func:`build_recording`."""
+    recording = build_recording(task, n_demos=3, n_samples=60, optional=True, plane=plane)
     demos = {k: dataclasses.replace(d, attrs={}) for k, d in recording.demos.items()}
     return dataclasses.replace(recording, demos=demos)
 
@@ -121,3 +122,41 @@ def test_task_texts() -> None:
     assert texts["weaving"] == "Weave" and texts["wiping"]
     with pytest.raises(ConfigError, match="TASK=TEXT"):
         parse_task_texts(["Clean it"], ["wiping", "weaving"])
+
+
+def test_a_task_without_a_guide_is_exported_with_a_sentence_of_its_name(capsys, tmp_path) -> None:
+    from tests.test_cli import run
+    from tests.test_tasks import STIRRING_PLANE
+
+    src = write_recording(tmp_path / "stirring.hdf5", full_recording("stirring", STIRRING_PLANE))
+    code, out, err = run(
+        capsys, "export", str(src), "--format", "lerobot", "--out", str(tmp_path / "ds")
+    )
+    assert code == 0, err
+    root = Path(out.strip())
+    tasks = pq.read_table(root / "meta/tasks.parquet").to_pydict()
+    assert tasks["task"] == ["Perform stirring in repeated loops."]
+    episodes = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert [e["bt/task"] for e in episodes] == ["stirring"] * 3
+    env = np.asarray(_frames(root)["observation.environment_state"], dtype=np.float64)
+    assert np.abs(env).max() < 0.2  # the file's own plane: circles of radius 0.08-0.096 m
+    assert LeRobotReader(root).episodes() == [0, 1, 2]
+    code, _, err = run(
+        capsys, "export", str(src), "--format", "lerobot", "--out", str(tmp_path / "ds2"),
+        "--task-text", "stirring=Stir the pot clockwise.",
+    )  # fmt: skip
+    assert code == 0, err
+    tasks = pq.read_table(tmp_path / "ds2/meta/tasks.parquet").to_pydict()
+    assert tasks["task"] == ["Stir the pot clockwise."]
+
+
+def test_task_texts_of_tasks_without_a_guide() -> None:
+    assert parse_task_texts([], ["scrub-d_shape"]) == {
+        "scrub-d_shape": "Perform scrub d shape in repeated loops."
+    }
+    texts = parse_task_texts(["Stir the pot: speed=slow"], ["stirring"])
+    assert texts == {"stirring": "Stir the pot: speed=slow"}
+    with pytest.raises(
+        ConfigError, match=r"TASK=TEXT with TASK one of the exported tasks \(stirring\)"
+    ):
+        parse_task_texts(["buff-it=Buff"], ["stirring"])

@@ -143,3 +143,45 @@ def test_excluded_files_and_flagged_takes_are_not_exported(tmp_path) -> None:
     out = export_robomimic([tmp_path / "in"], tmp_path / "wiping.robomimic.hdf5")
     with h5py.File(out[0].path) as file:
         assert len(_demo_names(file)) == 1  # only the unflagged demo of the kept file
+
+
+def test_a_task_without_a_guide_is_exported_and_imported_back(capsys, tmp_path) -> None:
+    from tests.test_cli import run
+    from tests.test_tasks import write_stirring_file
+
+    src = write_stirring_file(tmp_path / "in", n_demos=4, n_samples=60)
+    wiping = write_recording(tmp_path / "in" / "wiping.hdf5", make_demo_set("wiping", 2).recording)
+    code, out, err = run(
+        capsys, "export", str(src), "--format", "robomimic", "--out", str(tmp_path / "s.hdf5")
+    )
+    assert code == 0, err
+    with h5py.File(out.strip()) as f:
+        assert f["data"].attrs["task"] == "stirring"
+        assert json.loads(str(f["data"].attrs["env_args"]))["env_kwargs"]["task"] == "stirring"
+        assert _demo_names(f) == ["demo_0", "demo_1", "demo_2", "demo_3"]
+        assert np.all(np.isfinite(_ds(f, "data/demo_0/rewards")))
+    code, out, err = run(
+        capsys,
+        "export",
+        str(src),
+        str(wiping),
+        "--format",
+        "robomimic",
+        "--out",
+        str(tmp_path / "all"),
+    )
+    assert code == 0, err
+    assert sorted(Path(p).name for p in out.split()) == [
+        "stirring.robomimic.hdf5",
+        "wiping.robomimic.hdf5",
+    ]
+    back = tmp_path / "back.hdf5"
+    code, _, err = run(
+        capsys, "import", str(tmp_path / "all/stirring.robomimic.hdf5"), "--from", "robomimic",
+        "--task", "stirring", "--out", str(back),
+    )  # fmt: skip
+    assert code == 0, err
+    recording = read_recording(back)
+    original = read_recording(src)
+    assert recording.task == "stirring" and len(recording.demos) == 4
+    np.testing.assert_allclose(recording.demos["demo_2"].ee_pos, original.demos["demo_2"].ee_pos)

@@ -185,3 +185,58 @@ def test_missing_end_effector_is_named(tmp_path) -> None:
         f.create_dataset("data/demo_0/obs/agentview_image", data=np.zeros((20, 4, 4, 3)))
     with pytest.raises(RecordingError, match=r"demo_0: no end-effector position.*--ee-key"):
         read_robomimic(path, "wiping", None)
+
+
+def test_import_robomimic_as_a_task_without_a_guide_fits_its_plane(capsys, tmp_path) -> None:
+    from tests.test_cli import run
+
+    src = write_robomimic_file(tmp_path / "other_lab.hdf5")
+    out = tmp_path / "stirring.hdf5"
+    code, printed, err = run(
+        capsys, "import", str(src), "--from", "robomimic", "--task", "stirring", "--out", str(out)
+    )
+    assert code == 0, err
+    assert printed.strip() == str(out)
+    recording = read_recording(out)
+    assert recording.task == "stirring" and len(recording.demos) == 4
+    # No built-in plane for stirring: --plane auto (the default) fits the tilted one.
+    assert abs(float(recording.plane.normal @ np.cross(*TRUE_AXES))) > 0.999
+    assert recording.masks == {"train": ["demo_0", "demo_1", "demo_2"], "valid": ["demo_3"]}
+
+
+def test_import_lerobot_as_a_task_without_a_guide(capsys, tmp_path) -> None:
+    from tests.test_cli import run
+    from tests.test_tasks import STIRRING_PLANE
+
+    src = write_recording(tmp_path / "s.hdf5", full_recording("stirring", STIRRING_PLANE))
+    root = export_lerobot([src], tmp_path / "ds", fps=25).root
+    out = tmp_path / "back.hdf5"
+    code, _, err = run(
+        capsys, "import", str(root), "--from", "lerobot", "--task", "stirring", "--out", str(out)
+    )
+    assert code == 0, err
+    recording = read_recording(out)
+    assert recording.task == "stirring" and len(recording.demos) == 3
+    assert abs(float(recording.plane.normal @ STIRRING_PLANE.normal)) > 0.999
+    code, _, err = run(
+        capsys, "import", str(root), "--from", "lerobot", "--task", "buffing", "--out", str(out),
+        "--overwrite",
+    )  # fmt: skip
+    assert code == 2 and "no episode of task buffing" in err
+
+
+@pytest.mark.parametrize("name", ["../x", "a/b", "", "x" * 65, "a b", "a\x00b", ".hidden"])
+def test_import_refuses_hostile_task_names_in_one_line(capsys, tmp_path, name: str) -> None:
+    from tests.test_cli import run
+
+    src = write_robomimic_file(tmp_path / "other_lab.hdf5", n_demos=1)
+    out = tmp_path / "out.hdf5"
+    code, printed, err = run(
+        capsys, "import", str(src), "--from", "robomimic", "--task", name, "--out", str(out)
+    )
+    assert code == 2 and printed == ""
+    assert err.count("\n") == 1
+    assert err.startswith("bt: error: invalid task name ")
+    assert "a task name is 1-64 characters of letters, digits, '_' and '-'" in err
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other_lab.hdf5"]

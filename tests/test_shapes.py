@@ -84,8 +84,10 @@ def test_canonical_loop_excludes_the_endpoint() -> None:
 
 
 def test_bad_arguments_are_rejected() -> None:
-    with pytest.raises(UnknownTaskError, match="valid tasks are"):
-        canonical_shape("painting", np.zeros(3))  # type: ignore[arg-type]
+    with pytest.raises(UnknownTaskError, match="task 'painting' has no built-in guide shape"):
+        canonical_shape("painting", np.zeros(3))
+    with pytest.raises(UnknownTaskError, match="invalid task name"):
+        canonical_loop("../wiping")
     with pytest.raises(ConfigError, match="n >= 3"):
         canonical_loop("wiping", 2)
     with pytest.raises(ConfigError, match="rho"):

@@ -85,3 +85,27 @@ def test_clean_demonstrator_keeps_free_text_printable() -> None:
     assert clean_demonstrator("  Zoë \n Smith\t") == "Zoë Smith"
     assert clean_demonstrator("\x00\x01") == "anonymous"
     assert len(clean_demonstrator("y" * 300)) == 64
+
+
+@pytest.mark.parametrize("task", ["stirring", "Wiping", "../escape", "wiping/..", ""])
+def test_the_app_keeps_to_its_three_tasks(tmp_path: Path, task: str) -> None:
+    """Files may name any task; the app has scenes and folders for the three guided ones only."""
+    from bt_teleop.app_options import AppOptions
+    from bt_teleop.clean_task import cleaned_path, task_dir
+    from bt_teleop.scene import load_scene
+    from bt_teleop.script import parse_script
+
+    valid = "valid tasks are wiping, weaving, pick_and_place"
+    with pytest.raises(UnknownTaskError, match=valid):
+        demo_path(tmp_path, task, "ann", WHEN)
+    with pytest.raises(UnknownTaskError, match=valid):
+        task_dir(tmp_path, task)
+    with pytest.raises(UnknownTaskError, match=valid):
+        cleaned_path(tmp_path, task)
+    with pytest.raises(UnknownTaskError, match=valid):
+        load_scene(task)
+    with pytest.raises(UnknownTaskError, match=valid):
+        parse_script({"task": task, "waypoints": [[0, 0, 0], [1, 0.01, 0]]})
+    with pytest.raises(UnknownTaskError, match=valid):
+        AppOptions(initial_task=task, recordings=tmp_path)  # type: ignore[arg-type]
+    assert list(tmp_path.iterdir()) == []

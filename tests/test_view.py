@@ -116,3 +116,21 @@ def test_missing_paths_is_one_clear_error(capsys) -> None:
         main(["view"])
     assert exit_info.value.code == 2
     assert "give at least one PATH" in capsys.readouterr().err
+
+
+def test_a_task_without_a_guide_is_viewed(capsys, tmp_path) -> None:
+    from tests.test_cli import run
+    from tests.test_tasks import write_stirring_file
+
+    src = write_stirring_file(tmp_path, n_demos=3, n_samples=40)
+    rrd = tmp_path / "x.rrd"
+    code, out, err = run(capsys, "view", str(src), "--out", str(rrd))
+    assert code == 0, err
+    assert out.strip() == str(rrd)
+    chunks = _entities(rrd)
+    stem = entity_name(src.stem)
+    for k in range(3):
+        group = "person_0" if k % 2 == 0 else "person_1"
+        assert f"/stirring/world/{group}/{stem}_demo_{k}/ee" in chunks
+        assert f"/stirring/plane/{group}/{stem}_demo_{k}/ee" in chunks
+    assert "/stirring/world/task_plane" in chunks and "/stirring/scores/utility" in chunks

@@ -68,9 +68,11 @@ def import_(
     Args:
         file: The robomimic .hdf5 file or the LeRobot dataset directory.
         from_: Its format.
-        task: The task its demos perform: wiping, weaving or pick_and_place.
+        task: The task its demos perform: any name of 1-64 letters, digits, '_' and '-'
+            (e.g. stirring); wiping, weaving and pick_and_place have built-in guides.
         out: The format-v1 file to write.
-        plane: "auto" (fit by PCA of the end-effector positions) or 9 numbers
+        plane: "auto" (fit by PCA of the end-effector positions; the default for every task,
+            and the way to a plane for a task without a built-in one) or 9 numbers
             ox,oy,oz,ux,uy,uz,vx,vy,vz: the plane's origin and in-plane axes [m].
         ee_key: The end-effector position: an obs key (robomimic) or FEATURE[:START] (lerobot).
         overwrite: Replace an existing `out`.

@@ -187,7 +187,8 @@ def data_group(file: h5py.File, where: str) -> tuple[h5py.Group, Task]:
 
     Raises:
         RecordingError: No ``/data`` group, another format, an unsupported version or an
-            unknown task.
+            invalid task name (any name :func:`~bt_pipeline.data.tasks.parse_task` accepts is
+            read, with or without a built-in guide).
     """
     label = f"{where}: /data"
     data = file.get("data")

@@ -1,8 +1,9 @@
 """Canonical task shapes in task-plane coordinates and the demonstrator similarity transform.
 
-Each task has one closed, smooth (C^∞: a trigonometric polynomial), periodic shape x(φ) with
-phase φ ∈ [0, 2π), centred at the origin of task coordinates (the centre of its bounding box)
-and symmetric about the y axis (paper Sec. III, L1). Increasing φ is the canonical direction.
+Each task with a built-in guide (:data:`~bt_pipeline.data.tasks.TASKS`) has one closed, smooth
+(C^∞: a trigonometric polynomial), periodic shape x(φ) with phase φ ∈ [0, 2π), centred at the
+origin of task coordinates (the centre of its bounding box) and symmetric about the y axis (paper
+Sec. III, L1). Increasing φ is the canonical direction. Other tasks have no built-in shape.
 
 * ``wiping``: a rounded rectangle, 0.24 m × 0.12 m, traced counter-clockwise.
 * ``weaving``: a figure-eight (lemniscate of Gerono) with its two loops left and right of the
@@ -24,10 +25,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.tasks import Task, parse_task
-from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.data.tasks import TASKS, GuidedTask, Task, has_guide, parse_task
+from bt_pipeline.exceptions import ConfigError, UnknownTaskError
 
-SHAPE_SIZE: dict[Task, tuple[float, float]] = {
+SHAPE_SIZE: dict[GuidedTask, tuple[float, float]] = {
     "wiping": (0.24, 0.12),
     "weaving": (0.30, 0.15),
     "pick_and_place": (0.30, 0.15),
@@ -51,9 +52,15 @@ def canonical_shape(task: Task, phase: ArrayLike) -> FloatArray:
         Task-plane positions x(φ), shape (n, 2) (the phase's shape plus a last axis of 2), in [m].
 
     Raises:
-        UnknownTaskError: `task` is not one of :data:`bt_pipeline.data.tasks.TASKS`.
+        UnknownTaskError: `task` is not a valid task name, or a task without a built-in guide
+            (not one of :data:`bt_pipeline.data.tasks.TASKS`).
     """
     task = parse_task(task)
+    if not has_guide(task):
+        raise UnknownTaskError(
+            f"task {task!r} has no built-in guide shape; built-in shapes exist for "
+            f"{', '.join(TASKS)} only"
+        )
     phi = np.asarray(phase, dtype=np.float64)
     half_w, half_h = (s / 2.0 for s in SHAPE_SIZE[task])
     if task == "wiping":
@@ -93,7 +100,7 @@ def canonical_loop(task: Task, n: int = 300) -> FloatArray:
 
     Raises:
         ConfigError: `n` < 3.
-        UnknownTaskError: `task` is not a known task.
+        UnknownTaskError: `task` has no built-in guide (see :func:`canonical_shape`).
     """
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 3:
         raise ConfigError(f"canonical_loop needs an integer n >= 3; got {n!r}")

@@ -18,8 +18,8 @@ import numpy as np
 
 from bt_pipeline.data.limits import check_index_digits, check_text
 from bt_pipeline.data.records import MIN_SAMPLES, DemoRecord, Recording, Source
-from bt_pipeline.data.tasks import TASKS
-from bt_pipeline.exceptions import RecordingError
+from bt_pipeline.data.tasks import parse_task
+from bt_pipeline.exceptions import RecordingError, UnknownTaskError
 
 FORMAT = "bt-demos"
 """Value of the ``/data`` attr ``format``."""
@@ -148,10 +148,10 @@ def check_recording(recording: Recording, where: str, *, extra_attrs: bool = Tru
     Raises:
         RecordingError: The first problem found, naming the demo and the field.
     """
-    if recording.task not in TASKS:
-        raise RecordingError(
-            f"{where}: unknown task {recording.task!r}; valid tasks are {', '.join(TASKS)}"
-        )
+    try:
+        parse_task(recording.task)
+    except UnknownTaskError as exc:
+        raise RecordingError(f"{where}: task: {exc}") from None
     check_plane(recording.plane.origin, recording.plane.axes, where)
     if recording.env_args:
         check_env_args(recording.env_args, where)

@@ -30,7 +30,7 @@ from scipy.spatial import KDTree
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.shapes import canonical_loop, canonical_shape, similarity_transform
 from bt_pipeline.data.synth import DEMONSTRATORS, TRUTH_SAMPLES, Demonstrator
-from bt_pipeline.data.tasks import Task
+from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.evaluate.distance import chamfer_distance
 from bt_pipeline.evaluate.learners import (
     LearnedPolicy,
@@ -64,13 +64,18 @@ class PerfectSet:
 
 
 def perfect_demos(
-    task: Task,
+    task: GuidedTask,
     teachers: Sequence[Demonstrator],
     per_teacher: int,
     n_samples: int = 300,
     seed: int = 0,
 ) -> PerfectSet:
-    """`per_teacher` perfect demos of each demonstrator, each with its own timing (module doc)."""
+    """`per_teacher` perfect demos of each demonstrator, each with its own timing (module doc).
+
+    Raises:
+        UnknownTaskError: `task` has no built-in guide shape (perfect demos are drawn on it).
+    """
+    task = parse_guided_task(task)
     rng = np.random.default_rng(seed)
     s = np.linspace(0.0, 1.0, n_samples)
     positions, names = [], []
@@ -113,7 +118,7 @@ def perturbed_starts(
 class CompetenceRow:
     """One learner's competence on perfect demos of one task."""
 
-    task: Task
+    task: GuidedTask
     learner: LearnerName
     check: str
     """``"one"`` (one demonstrator) or ``"four"`` (the D1 demonstrators)."""
@@ -156,7 +161,7 @@ class CompetenceRow:
 
 
 def competence(
-    task: Task,
+    task: GuidedTask,
     learner: LearnerName,
     teachers: Sequence[Demonstrator],
     per_teacher: int,
@@ -251,7 +256,7 @@ def _convergence(
 
 def competence_check(
     check: str,
-    task: Task,
+    task: GuidedTask,
     learner: LearnerName,
     quick: bool = False,
     seed: int = 0,

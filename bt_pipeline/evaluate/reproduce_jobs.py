@@ -21,7 +21,7 @@ from bt_pipeline.data.demo import Demo, demos_from_recording
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.synth import make_d1, make_d2
-from bt_pipeline.data.tasks import TASKS, Task
+from bt_pipeline.data.tasks import TASKS, GuidedTask, Task, parse_guided_task
 from bt_pipeline.evaluate.distance import distance_to_truth
 from bt_pipeline.evaluate.learners import LEARNERS, LearnerName, learner_config
 from bt_pipeline.evaluate.metrics import Yardstick, build_yardstick
@@ -44,7 +44,11 @@ log = logging.getLogger("bt")
 SetName = Literal["D1", "D2"]
 """The paper's synthetic sets: D1 (4 demos, one per demonstrator), D2 (20, five each)."""
 SETS: tuple[SetName, ...] = ("D1", "D2")
-PAPER_ILEED_D1_GAIN: dict[Task, float] = {"wiping": 0.88, "pick_and_place": 0.418, "weaving": 0.084}
+PAPER_ILEED_D1_GAIN: dict[GuidedTask, float] = {
+    "wiping": 0.88,
+    "pick_and_place": 0.418,
+    "weaving": 0.084,
+}
 """Increase of ILEED's mean normalised reward on D1, cleaned minus noisy (paper Sec. IV)."""
 
 
@@ -56,8 +60,8 @@ class ReproduceConfig:
     """Use the learners' quick presets (and the quick rollout count)."""
     seeds: int = 1
     """Seeds 0 .. seeds - 1 of the synthetic sets, the cleaner and the learners."""
-    tasks: tuple[Task, ...] = TASKS
-    """Tasks."""
+    tasks: tuple[GuidedTask, ...] = TASKS
+    """Tasks: synthetic sets exist only for the tasks with a built-in guide shape."""
     sets: tuple[SetName, ...] = SETS
     """Synthetic sets."""
     learners: tuple[LearnerName, ...] = LEARNERS
@@ -84,6 +88,8 @@ class ReproduceConfig:
             raise ConfigError(f"--workers must be ≥ 1; got {self.workers}")
         if not self.tasks or not self.sets:
             raise ConfigError("reproduce needs at least one task and one set")
+        for task in self.tasks:
+            parse_guided_task(task)
         for name in self.sets:
             if name not in SETS:
                 raise ConfigError(f"unknown set {name!r}; valid sets: {', '.join(SETS)}")
@@ -136,7 +142,7 @@ class PreparedSet:
 
     seed: int
     set_name: SetName
-    task: Task
+    task: GuidedTask
     data: dict[Dataset, tuple[FloatArray, tuple[str, ...]]]
     """Training positions (M, N, 2) [m] and demonstrators of each dataset (noisy, cleaned, and
     truth with the oracle)."""
@@ -156,7 +162,7 @@ class PreparedSet:
     """Wall time of this preparation [s]."""
 
 
-def prepare_set(job: tuple[int, SetName, Task, ReproduceConfig]) -> PreparedSet:
+def prepare_set(job: tuple[int, SetName, GuidedTask, ReproduceConfig]) -> PreparedSet:
     """Generate and clean one (seed, set, task) and build its yardstick and rollout starts (a job
     of the first stage; runs in a worker when workers > 1)."""
     seed, set_name, task, config = job
@@ -262,7 +268,7 @@ class ReproduceRun:
         return (*DATASETS, "truth") if self.config.oracle else DATASETS
 
 
-CompetenceJob = tuple[str, Task, LearnerName, ReproduceConfig]
+CompetenceJob = tuple[str, GuidedTask, LearnerName, ReproduceConfig]
 """("one" or "four", task, learner, config): one competence check."""
 
 
@@ -317,7 +323,7 @@ def run_reproduce(
     """
     start = time.perf_counter()
     executor = executor or ExecutorConfig("processes", config.workers)
-    keys: list[tuple[int, SetName, Task]] = [
+    keys: list[tuple[int, SetName, GuidedTask]] = [
         (s, n, t) for n in config.sets for t in config.tasks for s in range(config.seeds)
     ]
     with reuse_workers(executor):  # one pool of workers for both stages

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -33,7 +34,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from bt_pipeline.data.atomic import publish_dir, recover_dir, temp_name
-from bt_pipeline.data.tasks import Task
+from bt_pipeline.data.tasks import GuidedTask, Task, has_guide, is_task_name
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.interop import lerobot_stats
 from bt_pipeline.interop.resample import FixedRateDemo, resample_fixed_rate
@@ -49,12 +50,20 @@ FILE_SIZE_MB = 100
 """LeRobot's data file size limit: a new data file starts past it."""
 CHUNK_SIZE = 1000
 """LeRobot's most files per chunk folder."""
-DEFAULT_TASK_TEXT: dict[Task, str] = {
+DEFAULT_TASK_TEXT: dict[GuidedTask, str] = {
     "wiping": "Wipe the surface in repeated loops.",
     "weaving": "Weave through the frame in repeated figure-eight loops.",
     "pick_and_place": "Carry the object over the arch and bring it back, repeatedly.",
 }
-"""The task sentence of each task unless ``--task-text`` gives another."""
+"""The task sentence of each built-in task unless ``--task-text`` gives another."""
+
+
+def default_task_text(task: Task) -> str:
+    """The task sentence of `task` unless ``--task-text`` gives another: the built-in sentence,
+    or for a task without one its name in words ("Perform stirring in repeated loops.")."""
+    if has_guide(task):
+        return DEFAULT_TASK_TEXT[task]
+    return f"Perform {re.sub(r'[_-]+', ' ', task).strip()} in repeated loops."
 
 
 @dataclass(frozen=True)
@@ -77,14 +86,14 @@ def parse_task_texts(items: Sequence[str], tasks: Sequence[Task]) -> dict[Task, 
     Raises:
         ConfigError: A TASK that is not exported, or a bare TEXT with several tasks.
     """
-    texts: dict[Task, str] = {task: DEFAULT_TASK_TEXT[task] for task in tasks}
+    texts: dict[Task, str] = {task: default_task_text(task) for task in tasks}
     by_name: dict[str, Task] = {task: task for task in tasks}
     for item in items:
         name, sep, text = item.partition("=")
         named = by_name.get(name.strip()) if sep else None
         if named is not None:
             texts[named] = text.strip()
-        elif len(tasks) == 1 and not (sep and name.strip().isidentifier()):
+        elif len(tasks) == 1 and not (sep and is_task_name(name.strip())):
             texts[tasks[0]] = item.strip()
         else:
             raise ConfigError(

@@ -29,7 +29,7 @@ import numpy as np
 from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo, resample_uniform
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.shapes import canonical_shape, similarity_transform
-from bt_pipeline.data.tasks import Task, default_plane
+from bt_pipeline.data.tasks import GuidedTask, Task, default_plane, parse_guided_task
 
 _FINE_HZ = 400.0  # The motion is built on this clock, then read at the sample times.
 
@@ -57,13 +57,18 @@ class OperatorSet:
 
 
 def operator_set(task: Task, seed: int, n_demos: int = 5, hidden: bool = False) -> OperatorSet:
-    """A set of `n_demos` demos, one operator each; θ/ρ stored as unknown when `hidden`."""
+    """A set of `n_demos` demos, one operator each; θ/ρ stored as unknown when `hidden`.
+
+    Raises:
+        UnknownTaskError: `task` has no built-in guide shape (the operators draw it).
+    """
+    guided = parse_guided_task(task)
     rng = np.random.default_rng([seed, 99])
     steady = int(rng.integers(n_demos))
     demos = []
     for k in range(n_demos):
         theta, rho = float(rng.uniform(-40, 40)), float(rng.uniform(0.65, 1.6))
-        demos.append(_demo(task, rng, k, k == steady, theta, rho, hidden))
+        demos.append(_demo(guided, rng, k, k == steady, theta, rho, hidden))
     return OperatorSet(tuple(demos), steady)
 
 
@@ -94,7 +99,7 @@ def _away(point: FloatArray, rng: np.random.Generator) -> FloatArray:
 
 
 def _demo(
-    task: Task,
+    task: GuidedTask,
     rng: np.random.Generator,
     k: int,
     steady: bool,

@@ -124,7 +124,7 @@ def log_epoch(rec: rr.RecordingStream, task: Task, stats: EpochStats, names: Seq
     rec.disable_timeline(EPOCH_TIMELINE)
 
 
-def clean_blueprint(tasks: Iterable[Task | str]) -> rrb.Blueprint:
+def clean_blueprint(tasks: Iterable[Task]) -> rrb.Blueprint:
     """The viewer layout for cleaner recordings of `tasks` (one tab per task when several).
 
     Per task: a 2-D view of raw demos, best demo, x^d, aligned references and V_E; a 2-D view of
@@ -132,7 +132,7 @@ def clean_blueprint(tasks: Iterable[Task | str]) -> rrb.Blueprint:
     metric); time series of loss, β_i and R̄_i per epoch; the summary table and the notes.
 
     Raises:
-        UnknownTaskError: A task name bt does not know.
+        UnknownTaskError: An invalid task name (:func:`~bt_pipeline.data.tasks.parse_task`).
         ConfigError: No tasks.
     """
     parsed: list[Task] = [parse_task(str(name)) for name in tasks]
@@ -153,7 +153,7 @@ def save_clean_rrd(
     result: TaskCleanResult,
     path: str | os.PathLike[str],
     *,
-    blueprint_tasks: Iterable[Task | str] | None = None,
+    blueprint_tasks: Iterable[Task] | None = None,
 ) -> Path:
     """Write one task's result and its blueprint to an .rrd file, atomically.
 
@@ -174,7 +174,7 @@ def save_clean_rrd(
 
     Raises:
         ConfigError: `path` does not end in .rrd, or Rerun is disabled (RERUN=off).
-        UnknownTaskError: `blueprint_tasks` names a task bt does not know.
+        UnknownTaskError: `blueprint_tasks` holds an invalid task name.
     """
     path = Path(path)
     if path.suffix != ".rrd":
@@ -361,7 +361,7 @@ def _log_text(
     )
 
 
-def plane_views(task: Task | str) -> tuple[rrb.Spatial2DView, rrb.Spatial2DView]:
+def plane_views(task: Task) -> tuple[rrb.Spatial2DView, rrb.Spatial2DView]:
     """A task's two 2-D views: raw demos, best, x^d, aligned references, V_E; cleaned demos."""
     root = f"/{task}"
     plane = f"{root}/plane"
