@@ -22,7 +22,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from bt_pipeline.clean.guide_fit import PreferenceRange
+from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange
 from bt_pipeline.clean.periodic import PreferenceEstimate, retime_reference, segment_all
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.stage2.chunked import chunk_sizes
@@ -102,12 +102,13 @@ def demo_metrics(
 
 
 def segment_step(
-    demos: Sequence[Demo], shared: tuple[PreferenceRange | None, LoopShape | None]
+    demos: Sequence[Demo],
+    shared: tuple[PreferenceRange | None, LoopShape | None, dict[str, GuideFit] | None],
 ) -> list[Segment]:
     """The periodic span of each demo (:func:`~bt_pipeline.clean.periodic.segment_all`), from
-    (the allowed θ/ρ, the task's loop: None for its guide)."""
-    allowed, loop = shared
-    return list(segment_all(demos, allowed, loop))
+    (the allowed θ/ρ, the task's loop: None for its guide, fits to start from by demo label)."""
+    allowed, loop, hints = shared
+    return list(segment_all(demos, allowed, loop, hints))
 
 
 def retime_step(

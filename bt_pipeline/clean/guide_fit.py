@@ -129,6 +129,7 @@ def fit_guide(
     max_iterations: int = 25,
     initial: GuideFit | None = None,
     consensus: bool = True,
+    hint: GuideFit | None = None,
 ) -> GuideFit:
     """Fit the task's guide to a demo by a trimmed similarity ICP (module doc).
 
@@ -142,6 +143,7 @@ def fit_guide(
         trim: Share of the points kept in each refit (the best-fitting ones).
         max_iterations: Most ICP iterations per start.
         initial: Start from this fit only (a refit of a similar demo).
+        hint: Also start from this fit (the demo's own loop aligned to the task's loop).
         consensus: Resolve a lopsided loop by consensus over half-loop refits (step 4).
 
     Raises:
@@ -176,6 +178,16 @@ def fit_guide(
     candidates = [(float(start), float(rho0), centre0.copy()) for start in starts]
     if initial is not None:
         candidates = [(initial.theta_deg, initial.rho, np.array(initial.translation))]
+    elif hint is not None:
+        th0 = float(np.clip(hint.theta_deg, -allowed.theta_max_deg, allowed.theta_max_deg))
+        r0 = float(np.clip(hint.rho, allowed.rho_min, allowed.rho_max))
+        candidates.append(
+            (
+                th0 if theta_deg is None else float(theta_deg),
+                r0 if rho is None else float(rho),
+                np.array(hint.translation),
+            )
+        )
     best: GuideFit | None = None
     # Every start for a few iterations, then the two best to convergence (bounded).
     for budget, survivors in ((_COARSE_ITERATIONS, _SURVIVORS), (max_iterations, 1)):

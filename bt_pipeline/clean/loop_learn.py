@@ -27,8 +27,11 @@ against before the best demo is known, so the loop is learned from every demo fi
    circular-mean θ 0 and geometric-mean ρ 1; when demos state θ/ρ, so that theirs match the
    stated ones on average instead (θ/ρ written in a file are used as given, relative to the
    learned loop: the paper's x_i^aligned needs only θ_i − θ_best and ρ_i / ρ_best).
-   θ of a loop with an n-fold symmetry is averaged modulo 360°/n, and a demo aligned about as
-   well (within 3 %) at several turns takes the smallest (an oval is its own twin at 180°).
+   θ of a loop with an n-fold symmetry (n > 2) is averaged modulo 360°/n; otherwise each turn
+   counts as itself or its 180° twin, whichever lies on the side most turns lie (an oval, or
+   an eight travelled the other way, is its own twin at 180°, and a plain mean of both sides
+   lands 90° off); a demo aligned about as well (within 3 %) at several turns takes the
+   smallest.
 6. **The best demo's loop.** Selection then picks the best demo against that loop; its own
    loop, turned and scaled onto the consensus, replaces the consensus and the demos are
    segmented and scored again against it (:func:`best_demo_loop`), as the paper takes the
@@ -45,7 +48,7 @@ from typing import Literal
 
 import numpy as np
 
-from bt_pipeline.clean.guide_fit import arc_length_resample
+from bt_pipeline.clean.guide_fit import GuideFit, arc_length_resample
 from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.loop_shape import LoopShape
@@ -86,6 +89,30 @@ class TaskLoop:
     """Things a user should know (demos that close no loop, a guide that does not fit)."""
     best: str | None = None
     """The demo whose own loop the template is, once selection has picked it (step 6)."""
+    own: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, repr=False)
+    """Each demo's own loop (256 points, arc length) by label, for the demos that close one."""
+
+    def hints(self) -> dict[str, GuideFit]:
+        """Each demo's own loop aligned to this loop in closed form, as a fit to start the
+        segmentation's from (a learned loop only: a guide set's fits stay as they were). A
+        whole-loop alignment does not settle on one lobe of an eight, as a trimmed fit from a
+        few starting turns can."""
+        if self.source != "learned":
+            return {}
+        points = arc_length_resample(_closed(self.loop.points(1024)), LOOP_POINTS + 1)[:-1]
+        z = points[:, 0] + 1j * points[:, 1]
+        out = {}
+        for label, loop in self.own.items():
+            w = loop[:, 0] + 1j * loop[:, 1]
+            a = align(z - z.mean(), w - w.mean(), _TIE)[0]  # template ≈ a · demo (centred)
+            pref = 1.0 / a
+            t = w.mean() - pref * z.mean()
+            size = abs(pref) * self.loop.size_m
+            theta = math.degrees(math.atan2(pref.imag, pref.real))
+            out[label] = GuideFit(
+                theta, abs(pref), np.array([t.real, t.imag]), 0.0, size, self.loop
+            )
+        return out
 
 
 def align(
@@ -152,12 +179,14 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
     guided = has_guide(task)
     loops: list[np.ndarray] = []
     used: list[int] = []
+    own: dict[str, np.ndarray] = {}
     for i, demo in enumerate(demos):
         positions, times = demo.raw_samples()
         found = own_loop(positions, times, demo.label)
         if found.closes and found.loop is not None:
             loops.append(_complex(found.loop))
             used.append(i)
+            own[demo.label] = found.loop
     notes: list[str] = []
     if not loops:
         names = ", ".join(d.label for d in demos)
@@ -202,7 +231,7 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
             f"{len(kept)} demos, is used"
         )
     framed, frame = _frame(learned, [demos[i] for i in kept], [loops[used.index(i)] for i in kept])
-    return TaskLoop(framed, "learned", misfit, _labels(demos, kept), frame, tuple(notes))
+    return TaskLoop(framed, "learned", misfit, _labels(demos, kept), frame, tuple(notes), own=own)
 
 
 def best_demo_loop(task_loop: TaskLoop, demo: Demo) -> TaskLoop | None:
@@ -215,11 +244,10 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo) -> TaskLoop | None:
     """
     if task_loop.source != "learned":
         return None
-    positions, times = demo.raw_samples()
-    found = own_loop(positions, times, demo.label)
-    if not found.closes or found.loop is None:
+    loop = task_loop.own.get(demo.label)
+    if loop is None:
         return None
-    shape = LoopShape.from_points(found.loop, _HARMONICS)
+    shape = LoopShape.from_points(loop, _HARMONICS)
     current = _complex(task_loop.loop.points(LOOP_POINTS))
     a, _, flipped, _ = align(current, _complex(shape.points(LOOP_POINTS)), _TIE)
     shape = shape.reversed() if flipped else shape
@@ -287,10 +315,33 @@ def _frame(
         theta_off, rho_off = thetas_a, log_a
         frame = "the set's: circular-mean θ = 0 and geometric-mean ρ = 1 over its demos"
     order = _symmetry_order(z)
-    angle = np.radians(theta_off) * order
-    mean_theta = math.degrees(math.atan2(np.mean(np.sin(angle)), np.mean(np.cos(angle)))) / order
+    if order > 2:
+        mean_theta = _circular_mean(theta_off * order) / order
+    else:
+        mean_theta = _majority_turn(theta_off)
     scale = math.exp(float(np.median(rho_off)))
     return learned.transformed(mean_theta, scale), frame
+
+
+def _circular_mean(degrees: np.ndarray) -> float:
+    angle = np.radians(degrees)
+    return math.degrees(math.atan2(float(np.mean(np.sin(angle))), float(np.mean(np.cos(angle)))))
+
+
+def _wrap(degrees: np.ndarray) -> np.ndarray:
+    return (degrees + 180.0) % 360.0 - 180.0
+
+
+def _majority_turn(thetas: np.ndarray) -> float:
+    """The circular mean of the turns, each taken as itself or its 180° twin, whichever lies on
+    the side most of them lie: a loop nearly the same turned by 180° (an eight with its
+    direction reversed, an oval) aligns some demos at their twin, and a plain mean of both
+    sides lands 90° off."""
+    base = _circular_mean(2.0 * thetas) / 2.0
+    near = np.abs(_wrap(thetas - base)) <= 90.0
+    ref = base if 2 * int(near.sum()) >= thetas.size else base + 180.0
+    folded = np.where(np.abs(_wrap(thetas - ref)) <= 90.0, thetas, thetas - 180.0)
+    return _circular_mean(folded)
 
 
 def _symmetry_order(z: np.ndarray) -> int:

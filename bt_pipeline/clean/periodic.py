@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from bt_pipeline.clean.guide_fit import PreferenceRange, arc_length_resample
+from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, arc_length_resample
 from bt_pipeline.clean.segment import Segment, segment_demo, span_times, track_phase
 from bt_pipeline.clean.stage1.alignment import apply_preference
 from bt_pipeline.data.demo import Demo, resample_uniform
@@ -69,10 +69,13 @@ class PreferenceEstimate:
 
 
 def segment_all(
-    demos: Sequence[Demo], allowed: PreferenceRange | None = None, loop: LoopShape | None = None
+    demos: Sequence[Demo],
+    allowed: PreferenceRange | None = None,
+    loop: LoopShape | None = None,
+    hints: dict[str, GuideFit] | None = None,
 ) -> tuple[Segment, ...]:
     """The periodic part of every demo (θ/ρ fixed where the demo states them), measured against
-    `loop` (None: each demo's task guide)."""
+    `loop` (None: each demo's task guide), with a fit to start from per demo label (`hints`)."""
     segments = []
     for demo in demos:
         positions, times = demo.raw_samples()
@@ -85,6 +88,7 @@ def segment_all(
                 theta_deg=demo.theta_deg if demo.rho is not None else None,
                 rho=demo.rho if demo.theta_deg is not None else None,
                 allowed=allowed,
+                hint=(hints or {}).get(demo.label),
             )
         )
     return tuple(segments)

@@ -143,6 +143,7 @@ def segment_demo(
     theta_deg: float | None = None,
     rho: float | None = None,
     allowed: PreferenceRange | None = None,
+    hint: GuideFit | None = None,
 ) -> Segment:
     """The kept span and cycle count of one demo (module doc).
 
@@ -154,6 +155,8 @@ def segment_demo(
         theta_deg: Known θ [deg] of the demo, or None.
         rho: Known ρ, or None.
         allowed: Allowed θ/ρ when estimated.
+        hint: A fit to start from as well as the usual starts: the demo's own loop aligned to
+            the task's loop (:attr:`~bt_pipeline.clean.loop_learn.TaskLoop.hints`).
 
     Raises:
         DemoError: Mismatched or non-finite input, times not increasing, or no motion.
@@ -179,7 +182,7 @@ def segment_demo(
     if last - first < 8:
         raise DemoError(f"{name} does not move more than {1e3 * _REST_M:.0f} mm from its rest pose")
     moving = smooth[first : last + 1]
-    fit = fit_guide(moving, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
+    fit = fit_guide(moving, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho, hint=hint)
     guide = fit.guide(_TRACK_POINTS)
 
     # Distance to the guide with a slow drift removed (a running median of the offsets).
@@ -226,7 +229,9 @@ def segment_demo(
     # Drift first (what does not repeat loop to loop), then fits from every start and from that.
     span_phase = track_phase(lspan - drift[fa : fb + 1], guide) / guide.shape[0]
     span_drift = periodic_drift(lspan, span_phase, periodic_degree(cycles))
-    fit = fit_guide(lspan - span_drift, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho)
+    fit = fit_guide(
+        lspan - span_drift, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho, hint=hint
+    )
     fit = fit_guide(
         lspan - span_drift, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
     )

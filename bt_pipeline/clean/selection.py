@@ -128,7 +128,7 @@ def _select(
         per_demo(
             segment_step,
             list(demos),
-            (allowed, task_loop.loop),
+            (allowed, task_loop.loop, task_loop.hints()),
             executor=executor,
             chunk_size=chunk_size,
             label=f"segment {demos[0].task}",
@@ -196,7 +196,7 @@ def take_score(
         DemoError: The demo does not move or has no loop.
     """
     config = config or ScoreConfig()
-    (segment,) = segment_step([demo], (allowed or PreferenceRange(), None))
+    (segment,) = segment_step([demo], (allowed or PreferenceRange(), None, None))
     (preference,) = pool_preferences([demo], [segment])
     span = span_demo(demo, segment, demo.n_samples, preference)
     return _ranking_inputs(span, segment, preference, config)[1]
