@@ -169,22 +169,9 @@ def cleaned_recording(
             "cleaned_variant": result.refine.variant,
             "cleaned_seed": options.seed,
             "cleaned_epochs": result.refine.epochs,
-            **_loop_attrs(result),
+            **(result.loop.attrs() if result.loop else {}),
         },
     )
-
-
-def _loop_attrs(result: TaskCleanResult) -> dict[str, Any]:
-    """Which loop the task's demos were measured against and how well the guide fitted them
-    (docs/refinement.md, "The task's loop")."""
-    if result.loop is None:
-        return {}
-    return {
-        "loop_source": result.loop.source,
-        "loop_guide_misfit": result.loop.guide_misfit,
-        "loop_frame": result.loop.frame,
-        "loop_demos": len(result.loop.used),
-    }
 
 
 def _span_attrs(result: TaskCleanResult, i: int) -> dict[str, Any]:

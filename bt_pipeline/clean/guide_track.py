@@ -10,6 +10,7 @@ closed guide loop sampled once round (P points, endpoint excluded) in task coord
   that is not periodic in the phase, whatever the loop's shape;
 * :func:`along_guide` / :func:`tangential`: whether each sample moves along the guide;
 * :func:`runs_of`: runs of flagged samples;
+* :func:`travel`: where a span travels along the loop (its slow ends cut);
 * :func:`trim_raw_ends`: a span's raw ends moved in past samples off the guide.
 """
 
@@ -30,6 +31,10 @@ _LOOP_POINTS = 512  # Points of the periodic model's loop that the phase is read
 _PERIODIC_MAX_DEGREE = 2  # Highest degree of the span's drift (periodic_drift),
 _PERIODIC_MIN_CYCLES = 1.5  # estimated in spans of at least this many loops.
 _KEEPS_GOING = 0.9  # A drift whose end is this share of its farthest reach keeps its direction.
+_SPEED_SMOOTH_S = 0.05  # Gaussian σ of the phase before its speed is read [s].
+_TRAVEL_SHARE = 0.45  # The span travels faster than this share of its typical phase speed,
+_TRAVEL_MIN_SHARE = 0.2  # or than this share where the slower edge travels more than
+_TRAVEL_MAX_TRIM = 0.15  # this many loops (a hesitant loop, not an approach).
 _MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
 _EDGE_MEDIANS = 4.0  # A raw end sample farther off the guide than this many medians of the
 _EDGE_P95S = 1.5  # span's middle distances, this many 95th percentiles
@@ -98,6 +103,35 @@ def track_phase(
     return min(
         tracks, key=lambda ph: float(np.mean(np.sum((ring[ph.astype(int) % p] - x) ** 2, 1)))
     )
+
+
+def travel(phase: FloatArray, p: int, clock_hz: float = 50.0) -> tuple[int, int]:
+    """First and last index of a span's travel along the loop (segment.py, step 5).
+
+    The phase speed (σ = 0.05 s, in the direction of travel) is compared with the span's
+    typical speed (its 75th percentile, so pauses do not lower it). The span starts at the
+    first sample faster than 45 % of that, unless the slower part before it already travels
+    more than 15 % of a loop (a hesitant first loop, not an approach): then at the first
+    sample faster than 20 %. The end likewise. The slow end of an approach that creeps onto
+    the guide, a rest on the loop and the slow start of a retreat fall out; pauses between
+    loops stay.
+    """
+    sign = 1.0 if phase[-1] >= phase[0] else -1.0
+    travelled = sign * (phase - phase[0]) / p  # Loops.
+    speed = np.gradient(gaussian_filter1d(travelled, _SPEED_SMOOTH_S * clock_hz))
+    typical = float(np.percentile(speed, 75))
+    if typical <= 0.0:
+        return 0, phase.size - 1
+    fast = np.flatnonzero(speed > _TRAVEL_SHARE * typical)
+    moving = np.flatnonzero(speed > _TRAVEL_MIN_SHARE * typical)
+    if fast.size < 2 or moving.size < 2:
+        return 0, phase.size - 1
+    head, tail = int(fast[0]), int(fast[-1])
+    if travelled[head] - travelled[moving[0]] > _TRAVEL_MAX_TRIM:
+        head = int(moving[0])
+    if travelled[moving[-1]] - travelled[tail] > _TRAVEL_MAX_TRIM:
+        tail = int(moving[-1])
+    return head, tail
 
 
 def _branch_starts(ring: FloatArray, first: FloatArray) -> list[int]:

@@ -33,7 +33,8 @@ against before the best demo is known, so the loop is learned from every demo fi
    lands 90° off); a demo aligned about as well (within 3 %) at several turns takes the
    smallest.
 6. **The best demo's loop.** Selection then picks the best demo against that loop; its own
-   loop, turned and scaled onto the consensus, replaces the consensus and the demos are
+   loop, with its stated θ/ρ removed (the paper's x^g) or, when hidden, turned and scaled onto
+   the consensus, replaces the consensus and the demos are
    segmented and scored again against it (:func:`best_demo_loop`), as the paper takes the
    canonical shape from the best demo.
 """
@@ -91,6 +92,16 @@ class TaskLoop:
     """The demo whose own loop the template is, once selection has picked it (step 6)."""
     own: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, repr=False)
     """Each demo's own loop (256 points, arc length) by label, for the demos that close one."""
+
+    def attrs(self) -> dict[str, str | float | int]:
+        """The cleaned file's ``/data`` attrs naming the loop the demos were measured against
+        and how well the guide fitted them (docs/recording-format.md)."""
+        return {
+            "loop_source": self.source,
+            "loop_guide_misfit": self.guide_misfit,
+            "loop_frame": self.frame,
+            "loop_demos": len(self.used),
+        }
 
     def hints(self) -> dict[str, GuideFit]:
         """Each demo's own loop aligned to this loop in closed form, as a fit to start the
@@ -251,7 +262,11 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo) -> TaskLoop | None:
     current = _complex(task_loop.loop.points(LOOP_POINTS))
     a, _, flipped, _ = align(current, _complex(shape.points(LOOP_POINTS)), _TIE)
     shape = shape.reversed() if flipped else shape
-    shape = shape.transformed(math.degrees(math.atan2(a.imag, a.real)), abs(a))
+    if demo.theta_deg is not None and demo.rho is not None:
+        # Its stated θ/ρ removed: the paper's x^g = R(−θ_best)(x^d − c) / ρ_best (Sec. III-B).
+        shape = shape.transformed(-demo.theta_deg, 1.0 / demo.rho)
+    else:
+        shape = shape.transformed(math.degrees(math.atan2(a.imag, a.real)), abs(a))
     shape = shape.transformed(translation=-shape.centre)
     label = f"{demo.task} loop of its best demo, {demo.label}"
     framed = LoopShape(shape.coefficients, label)

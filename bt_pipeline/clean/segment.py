@@ -78,6 +78,7 @@ from bt_pipeline.clean.guide_track import (
     runs_of,
     tangential,
     track_phase,
+    travel,
     trim_raw_ends,
 )
 from bt_pipeline.data.loop_shape import LoopShape, as_loop
@@ -102,10 +103,6 @@ _DENSE_POINTS = 8192  # Guide points for the end trim's distances (about 0.15 mm
 _TIGHT = 3.0  # On-loop tolerance: this many times the 90th percentile of the on-loop distances,
 _CORE_CUT = 0.2  # The tight tolerance ignores this share of the on-loop samples at each end.
 _TIGHT_MIN_M = 0.003  # but at least this [m] (and at most the loose tolerance).
-_SPEED_SMOOTH_S = 0.05  # Gaussian σ of the phase before its speed is read [s].
-_TRAVEL_SHARE = 0.45  # The span travels faster than this share of its typical phase speed,
-_TRAVEL_MIN_SHARE = 0.2  # or than this share where the slower edge travels more than
-_TRAVEL_MAX_TRIM = 0.15  # this many loops (a hesitant loop, not an approach).
 
 
 @dataclass(frozen=True)
@@ -309,7 +306,7 @@ def _kept_span(
         while b < last and loose[b + 1]:
             b += 1
     span = clear[a : b + 1]
-    head, tail = _travel(track_phase(span, guide), guide.shape[0])
+    head, tail = travel(track_phase(span, guide), guide.shape[0])
     # A loop that starts (or ends) slowly on the guide keeps that ramp: walk back over samples
     # that lie within the tight tolerance and move along the guide's tangent (an approach's
     # slow end comes in from the side).
@@ -353,35 +350,6 @@ def _continues(piece: FloatArray, along: np.ndarray, guide: FloatArray, rate: fl
     phase = track_phase(piece, guide)
     piece_rate = float(phase[-1] - phase[0]) / (guide.shape[0] * piece.shape[0])
     return (1.0 if rate >= 0.0 else -1.0) * piece_rate >= _CONTINUE_RATE * abs(rate)
-
-
-def _travel(phase: FloatArray, p: int) -> tuple[int, int]:
-    """First and last index of the span's travel along the loop (step 5 of the module doc).
-
-    The phase speed (σ = 0.05 s, in the direction of travel) is compared with the span's
-    typical speed (its 75th percentile, so pauses do not lower it). The span starts at the
-    first sample faster than 45 % of that, unless the slower part before it already travels
-    more than 15 % of a loop (a hesitant first loop, not an approach): then at the first
-    sample faster than 20 %. The end likewise. The slow end of an approach that creeps onto
-    the guide, a rest on the loop and the slow start of a retreat fall out; pauses between
-    loops stay.
-    """
-    sign = 1.0 if phase[-1] >= phase[0] else -1.0
-    travelled = sign * (phase - phase[0]) / p  # Loops.
-    speed = np.gradient(gaussian_filter1d(travelled, _SPEED_SMOOTH_S * _CLOCK_HZ))
-    typical = float(np.percentile(speed, 75))
-    if typical <= 0.0:
-        return 0, phase.size - 1
-    fast = np.flatnonzero(speed > _TRAVEL_SHARE * typical)
-    moving = np.flatnonzero(speed > _TRAVEL_MIN_SHARE * typical)
-    if fast.size < 2 or moving.size < 2:
-        return 0, phase.size - 1
-    head, tail = int(fast[0]), int(fast[-1])
-    if travelled[head] - travelled[moving[0]] > _TRAVEL_MAX_TRIM:
-        head = int(moving[0])
-    if travelled[moving[-1]] - travelled[tail] > _TRAVEL_MAX_TRIM:
-        tail = int(moving[-1])
-    return head, tail
 
 
 def moving_part(smooth: FloatArray, path: FloatArray) -> tuple[int, int]:

@@ -35,7 +35,13 @@ from bt_pipeline.clean.periodic import (
     span_demo,
 )
 from bt_pipeline.clean.segment import Segment
-from bt_pipeline.clean.shape_gate import eligible, gate_best, guide_misfit
+from bt_pipeline.clean.shape_gate import (
+    LEARNED_MISFIT_FACTOR,
+    MISFIT_FACTOR,
+    eligible,
+    gate_best,
+    guide_misfit,
+)
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.execute import ExecutorConfig
@@ -69,6 +75,8 @@ class Selection:
     """Wall time of ``loop``, ``segment`` and ``score`` [s]."""
     loop: TaskLoop
     """The loop the demos were measured against: the task's guide or learned from them."""
+    misfits: tuple[float, ...] = ()
+    """The shape gate's misfit of each demo (:func:`~bt_pipeline.clean.shape_gate.guide_misfit`)."""
 
     def span_json(self, i: int) -> dict[str, Any]:
         """Demo i's :func:`span_attrs` and whether its θ/ρ were estimated."""
@@ -106,7 +114,9 @@ def select_demos(
     selection = _select(demos, task_loop, config, allowed, executor, chunk_size)
     best_loop = best_demo_loop(task_loop, demos[selection.scores.best_index])
     if best_loop is not None:  # Once more against the best demo's own loop (loop_learn step 6).
-        again = _select(demos, best_loop, config, allowed, executor, chunk_size)
+        # The gate keeps the first pass's misfits: against the best demo's own loop, that demo
+        # would always follow it most closely.
+        again = _select(demos, best_loop, config, allowed, executor, chunk_size, selection.misfits)
         spent = {k: v + again.seconds.get(k, 0.0) for k, v in selection.seconds.items()}
         selection = dataclasses.replace(again, seconds=spent)
     selection.seconds["loop"] = learned
@@ -120,8 +130,10 @@ def _select(
     allowed: PreferenceRange,
     executor: ExecutorConfig | None,
     chunk_size: int,
+    gate: Sequence[float] = (),
 ) -> Selection:
-    """:func:`select_demos` against one loop."""
+    """:func:`select_demos` against one loop (the shape gate reads `gate`, when given, as the
+    demos' misfits)."""
     seconds: dict[str, float] = {}
     start = time.perf_counter()
     segments = tuple(
@@ -162,8 +174,9 @@ def _select(
     by_utility = score_demos(spans, config, metrics=[t.ranked for _, t in parts])
     # The best demo is taken among those that follow the guide about as closely as any: Ũ is
     # blind to a slow wobble (bt_pipeline/clean/shape_gate.py).
-    misfits = [t.misfit for _, t in parts]
-    scores = gate_best(by_utility, misfits)
+    misfits = list(gate) if gate else [t.misfit for _, t in parts]
+    factor = LEARNED_MISFIT_FACTOR if task_loop.source == "learned" else MISFIT_FACTOR
+    scores = gate_best(by_utility, misfits, factor)
     if scores.best_index != by_utility.best_index:
         first, best = by_utility.best_index, scores.best_index
         notes.append(
@@ -173,7 +186,17 @@ def _select(
             f"{100 * misfits[best]:.2f} %): {spans[best].label} is the best demo"
         )
     seconds["score"] = time.perf_counter() - start
-    return Selection(spans, segments, preferences, plain, scores, tuple(notes), seconds, task_loop)
+    return Selection(
+        spans,
+        segments,
+        preferences,
+        plain,
+        scores,
+        tuple(notes),
+        seconds,
+        task_loop,
+        tuple(misfits),
+    )
 
 
 @dataclass(frozen=True, slots=True)  # one per take in the app's library: no __dict__
