@@ -168,7 +168,7 @@ def test_a_loop_unlike_any_guide_is_learned_close_to_its_true_shape(seed: int) -
     loop = blob(20 + seed)
     demos, thetas, rhos = _set(loop, "stirring", False, seed)
     learned = learn_task_loop(demos)
-    assert learned.source == "learned" and len(learned.used) == len(demos)
+    assert learned.source == "learned" and 2 <= len(learned.used) <= len(demos)
     assert shape_error(loop, learned.loop) < 0.04
     # The set's frame: the demos' relative preferences have circular-mean θ 0, geo-mean ρ 1.
     mean_turn = math.degrees(np.angle(np.mean(np.exp(1j * np.radians(thetas)))))

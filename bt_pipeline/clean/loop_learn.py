@@ -12,8 +12,10 @@ against before the best demo is known, so the loop is learned from every demo fi
    a = ⟨z, w_s⟩ / ⟨w_s, w_s⟩ (rotation and scale at once) leaves a residual
    |z|² − |⟨z, w_s⟩|² / |w_s|², computed for all shifts at once by FFT. The distance is the
    root of the smallest residual over |z|²: a share of the loop's size.
-3. **Consensus.** The medoid (the loop with the smallest median distance to the others; at
-   most 40 demos are compared pairwise) is the first reference; every loop within 3 x the
+3. **Consensus.** Only demos whose path holds 2 loops or more take part when there are two
+   such (a single loop closes at one point, where an approach joining it may bring a piece of
+   itself into the loop read). The medoid (the loop with the smallest median distance to the
+   others; at most 40 demos are compared pairwise) is the first reference; every loop within 3 x the
    median distance of it (other tasks' loops, a lobe of an eight, fall out) is aligned to it
    and the point-wise median is taken; then once more against that median. The consensus is
    low-passed to 12 harmonics and centred on its bounding box.
@@ -34,7 +36,8 @@ against before the best demo is known, so the loop is learned from every demo fi
    smallest.
 6. **The best demo's loop.** Selection then picks the best demo against that loop; its own
    loop, with its stated θ/ρ removed (the paper's x^g) or, when hidden, turned and scaled onto
-   the consensus, replaces the consensus and the demos are
+   the consensus, replaces the consensus when that demo's path holds 2 loops or more (one
+   loop closes at a single point, where an approach may join it) and the demos are
    segmented and scored again against it (:func:`best_demo_loop`), as the paper takes the
    canonical shape from the best demo.
 """
@@ -65,6 +68,7 @@ _HARMONICS = 12  # Harmonics of a learned loop.
 _MAX_PAIRWISE = 40  # Loops compared pairwise for the medoid.
 _OUTLIER = 3.0  # Loops farther than this many median distances from the medoid are left out,
 _OUTLIER_FLOOR = 0.05  # and never those within this share of the size.
+_REPEATS = 2.0  # The best demo's own loop replaces the consensus when it holds this many loops.
 _TIE = 0.03  # Alignments this close to the best are ties: the one that turns least wins.
 _SYMMETRY = 0.03  # A loop with an n-fold symmetry matches itself turned by 360°/n this well.
 
@@ -92,6 +96,8 @@ class TaskLoop:
     """The demo whose own loop the template is, once selection has picked it (step 6)."""
     own: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, repr=False)
     """Each demo's own loop (256 points, arc length) by label, for the demos that close one."""
+    repeats: dict[str, float] = dataclasses.field(default_factory=dict, repr=False)
+    """Each such demo's path length in loops (:attr:`OwnLoop.loops`, approach included)."""
 
     def attrs(self) -> dict[str, str | float | int]:
         """The cleaned file's ``/data`` attrs naming the loop the demos were measured against
@@ -191,6 +197,7 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
     loops: list[np.ndarray] = []
     used: list[int] = []
     own: dict[str, np.ndarray] = {}
+    repeats: dict[str, float] = {}
     for i, demo in enumerate(demos):
         positions, times = demo.raw_samples()
         found = own_loop(positions, times, demo.label)
@@ -198,6 +205,7 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
             loops.append(_complex(found.loop))
             used.append(i)
             own[demo.label] = found.loop
+            repeats[demo.label] = found.loops
     notes: list[str] = []
     if not loops:
         names = ", ".join(d.label for d in demos)
@@ -214,9 +222,16 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
             f"no demo of task {task!r} closes a loop of its own, so its loop cannot be learned "
             f"({names})"
         )
-    consensus, members = _consensus(loops)
+    # Loops from demos that repeat them (two or more) are read between two returns, inside the
+    # periodic part; a single loop closes at one point, where an approach may join it and
+    # bring a piece of itself along. The repeated ones build the consensus when there are two.
+    repeated = [k for k, i in enumerate(used) if repeats[demos[i].label] >= _REPEATS]
+    pool = repeated if len(repeated) >= 2 else list(range(len(loops)))
+    consensus, chosen = _consensus([loops[k] for k in pool])
+    members = [pool[k] for k in chosen]
+    outliers = [k for k in pool if k not in members]
     kept = [used[m] for m in members]
-    left_out = [demos[i].label for i in used if i not in kept]
+    left_out = [demos[used[k]].label for k in outliers]
     if left_out:
         notes.append(
             f"{', '.join(left_out)}: their loops differ from the other {task} demos' and were "
@@ -241,8 +256,18 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
             "own loop, learned from "
             f"{len(kept)} demos, is used"
         )
-    framed, frame = _frame(learned, [demos[i] for i in kept], [loops[used.index(i)] for i in kept])
-    return TaskLoop(framed, "learned", misfit, _labels(demos, kept), frame, tuple(notes), own=own)
+    framing = [k for k in range(len(used)) if k not in outliers]
+    framed, frame = _frame(learned, [demos[used[k]] for k in framing], [loops[k] for k in framing])
+    return TaskLoop(
+        framed,
+        "learned",
+        misfit,
+        _labels(demos, kept),
+        frame,
+        tuple(notes),
+        own=own,
+        repeats=repeats,
+    )
 
 
 def best_demo_loop(task_loop: TaskLoop, demo: Demo) -> TaskLoop | None:
@@ -251,13 +276,14 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo) -> TaskLoop | None:
     The consensus of noisy demos is a rough shape; the paper's canonical shape is the best
     demo's (Sec. III-B). Once selection has picked it, its own loop, low-passed to 12
     harmonics and turned and scaled onto the consensus (so the frame stays), is the template
-    the demos are measured against again. None for a guide, or when the best demo closes no loop.
+    the demos are measured against again. None for a guide, or when the best demo closes no loop
+    or holds fewer than 2 (a single loop closes at one point, where an approach may join it).
     """
     if task_loop.source != "learned":
         return None
     loop = task_loop.own.get(demo.label)
-    if loop is None:
-        return None
+    if loop is None or task_loop.repeats.get(demo.label, 0.0) < _REPEATS:
+        return None  # A single loop closes at one point only, where an approach may join it.
     shape = LoopShape.from_points(loop, _HARMONICS)
     current = _complex(task_loop.loop.points(LOOP_POINTS))
     a, _, flipped, _ = align(current, _complex(shape.points(LOOP_POINTS)), _TIE)

@@ -1,0 +1,126 @@
+"""Cleaning demos of loops no guide draws, end to end: learned loop, any task name, guide sets.
+
+Truth is the generators' (the intended path at each sample, ``truth_uv``), never the cleaner's
+learned loop or references. The loops come from ``bt_pipeline.data.random_loops`` (random
+Fourier curves and families no guide draws) and from a hand-made oval built here.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
+from bt_pipeline.cli import main
+from bt_pipeline.data.demo import demos_from_recording
+from bt_pipeline.data.random_loops import draw_set_loop
+from bt_pipeline.data.recording import read_recording, write_recording
+from bt_pipeline.data.synth_human import make_human_set
+from bt_pipeline.data.synth_truth import truth_ratios
+
+FAST = CleanOptions(epochs=30, progress=False, write_rrd=False)
+
+
+def bt(*args: str) -> int:
+    """Run ``bt args`` in-process; its exit code."""
+    try:
+        main(list(args))
+    except SystemExit as stopped:
+        return int(stopped.code or 0)
+    return 0
+
+
+def _ratios(synth, result) -> tuple[list[float], float]:
+    demos = result.demos
+    naive, expert = [], 1.0
+    for i, record in enumerate(synth.recording.demos.values()):
+        raw = demos_from_recording(synth.recording)[i].raw_samples()
+        shape, _ = truth_ratios(record, raw, result.on_raw_times(i))
+        if i == synth.expert_index:
+            expert = shape
+        else:
+            naive.append(shape)
+    assert len(demos) == len(synth.recording.demos)
+    return naive, expert
+
+
+@pytest.mark.parametrize(("kind", "seed"), [("asymmetric", 2), ("d_shape", 4), ("oval", 3)])
+def test_a_random_loop_is_cleaned_closer_to_its_truth(kind: str, seed: int) -> None:
+    """Human-style demos (approach, loops, pauses, retreat, uneven times, θ/ρ hidden or given)
+    of a loop no guide draws: the loop is learned, the expert-like demo is the best and kept,
+    and the naive demos come out closer to the loop their demonstrator meant."""
+    loop = draw_set_loop(kind, seed, "stirring")  # type: ignore[arg-type]
+    synth = make_human_set("stirring", 4, seed, shape=loop)
+    result = clean_demos(demos_from_recording(synth.recording), FAST)
+    assert result.loop is not None and result.loop.source == "learned"
+    assert result.best_index == synth.expert_index
+    naive, expert = _ratios(synth, result)
+    assert expert <= 1.1
+    assert float(np.mean(naive)) < 0.6, naive
+    assert sum(r < 1.0 for r in naive) >= 2, naive
+
+
+def test_guide_shaped_sets_keep_the_guide() -> None:
+    """Demos drawn on bt's own guides are measured against the guide as before: the learned
+    consensus agrees with it, so nothing of the guide-based cleaning changes."""
+    for task, seed in (("wiping", 0), ("weaving", 1), ("pick_and_place", 2)):
+        synth = make_human_set(task, 4, seed)
+        result = clean_demos(demos_from_recording(synth.recording), FAST)
+        assert result.loop is not None and result.loop.source == "guide", (task, seed)
+        assert result.loop.guide_misfit < 0.12
+
+
+def test_an_oval_filed_as_wiping_is_cleaned_against_its_own_loop(tmp_path: Path) -> None:
+    """Another lab's wiping: an oval, not bt's rounded rectangle. The cleaned file says which
+    loop was used and how far the guide was off."""
+    oval = draw_set_loop("oval", 1, "wiping")
+    synth = make_human_set("wiping", 4, 1, shape=oval)
+    path = tmp_path / "oval.hdf5"
+    write_recording(path, synth.recording)
+    out = tmp_path / "out"
+    assert bt("clean", str(path), "--out", str(out), "--epochs", "20", "--no-rrd") == 0
+    cleaned = read_recording(out / "wiping.cleaned.hdf5")
+    assert cleaned.attrs["loop_source"] == "learned"
+    assert float(cleaned.attrs["loop_guide_misfit"]) > 0.04
+    assert len(cleaned.demos) == 4
+
+
+def test_a_task_named_stirring_is_imported_scored_and_cleaned(capsys, tmp_path: Path) -> None:
+    """A rhythmic task bt has no guide for: written by another tool (robomimic), imported with
+    ``bt import --task stirring`` (plane fitted), scored and cleaned."""
+    robomimic = pytest.importorskip("h5py")
+    loop = draw_set_loop("rounded_polygon", 5, "stirring")
+    synth = make_human_set("stirring", 4, 5, shape=loop)
+    source = tmp_path / "theirs.hdf5"
+    with robomimic.File(source, "w") as f:
+        data = f.create_group("data")
+        for k, record in enumerate(synth.recording.demos.values()):
+            demo = data.create_group(f"demo_{k}")
+            demo.create_dataset("obs/robot0_eef_pos", data=record.ee_pos)
+            demo.create_dataset("actions", data=np.zeros((record.ee_pos.shape[0], 7)))
+    imported = tmp_path / "stirring.hdf5"
+    assert (
+        bt(
+            "import",
+            str(source),
+            "--from",
+            "robomimic",
+            "--task",
+            "stirring",
+            "--out",
+            str(imported),
+        )
+        == 0
+    )
+    capsys.readouterr()
+    assert read_recording(imported).task == "stirring"
+    assert bt("score", str(imported), "--json") == 0
+    scored = json.loads(capsys.readouterr().out)
+    assert [t["task"] for t in scored["tasks"]] == ["stirring"]
+    out = tmp_path / "out"
+    assert bt("clean", str(imported), "--out", str(out), "--epochs", "20", "--no-rrd") == 0
+    cleaned = read_recording(out / "stirring.cleaned.hdf5")
+    assert cleaned.task == "stirring" and cleaned.attrs["loop_source"] == "learned"
