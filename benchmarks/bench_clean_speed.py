@@ -86,14 +86,14 @@ def main_human(repeats: int) -> None:
     base = rows[0][1]
     print(f"\n`bt clean`, human style (wiping), 50 Hz, median of {repeats} runs after warm-up\n")
     print(
-        "| M | s per demo | total [s] | read | segment | score | stage 1 | stage 2 | metrics | "
-        "write | total / total(M=8, 20 s) |"
+        "| M | s per demo | total [s] | read | loop | segment | score | stage 1 | stage 2 | "
+        "metrics | write | total / total(M=8, 20 s) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for (m, seconds), median, split in rows:
         parts = " | ".join(
             f"{split.get(key, 0.0):.2f}"
-            for key in ("read", "segment", "score", "stage1", "stage2", "metrics", "write")
+            for key in ("read", "loop", "segment", "score", "stage1", "stage2", "metrics", "write")
         )
         print(f"| {m} | {seconds:g} | {median:.2f} | {parts} | {median / base:.2f} |")
 
@@ -133,14 +133,14 @@ def main() -> None:
     base = next(r[2] for r in rows if r[0] == sizes[0] and r[1] == "default")
     print(f"\n`bt clean`, task {args.task}, N = 300, median of {args.repeats} runs\n")
     print(
-        "| M | variant | total [s] | read | segment | score | stage 1 | stage 2 | metrics | "
+        "| M | variant | total [s] | read | loop | segment | score | stage 1 | stage 2 | metrics | "
         "write | s per demo | total / total(M=4, default) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for m, variant, median, split in rows:
         parts = " | ".join(
             f"{split.get(key, 0.0):.2f}"
-            for key in ("read", "segment", "score", "stage1", "stage2", "metrics", "write")
+            for key in ("read", "loop", "segment", "score", "stage1", "stage2", "metrics", "write")
         )
         print(
             f"| {m} | {variant} | {median:.2f} | {parts} | {median / m:.3f} | {median / base:.2f} |"
