@@ -7,6 +7,7 @@ Fourier curves and families no guide draws) and from a hand-made oval built here
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from bt_pipeline.cli import main
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.random_loops import draw_set_loop
 from bt_pipeline.data.recording import read_recording, write_recording
+from bt_pipeline.data.records import forward_difference_actions
 from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.data.synth_truth import truth_ratios
 
@@ -124,3 +126,63 @@ def test_a_task_named_stirring_is_imported_scored_and_cleaned(capsys, tmp_path: 
     assert bt("clean", str(imported), "--out", str(out), "--epochs", "20", "--no-rrd") == 0
     cleaned = read_recording(out / "stirring.cleaned.hdf5")
     assert cleaned.task == "stirring" and cleaned.attrs["loop_source"] == "learned"
+
+
+def _human(kind: str, seed: int, n: int = 4):
+    return make_human_set("stirring", n, seed, shape=draw_set_loop(kind, seed, "stirring"))  # type: ignore[arg-type]
+
+
+def test_two_shapes_mixed_in_one_task_name_the_odd_demos(tmp_path: Path) -> None:
+    """Demos of two different loops filed under one task: the loop is learned from the larger
+    group, the others are named in a note, and every demo is still cleaned."""
+    main_set, other = _human("asymmetric", 6, 4), _human("stroke", 7, 3)
+    demos = demos_from_recording(main_set.recording)
+    strays = demos_from_recording(other.recording)
+    strays = [dataclasses.replace(d, name=f"odd_{k}") for k, d in enumerate(strays)]
+    repeated = [d for d in strays if own_repeats(d) >= 2.0]
+    result = clean_demos(demos + strays, FAST)
+    assert result.loop is not None and result.loop.source == "learned"
+    assert len(result.demos) == len(demos) + len(strays)
+    assert repeated  # The strokes repeat, so they would take part in the consensus.
+    note = next(n for n in result.notes if "left out of the task's learned loop" in n)
+    assert all(d.label in note for d in repeated)
+    assert not any(d.label in note for d in demos)
+
+
+def own_repeats(demo) -> float:
+    from bt_pipeline.clean.recurrence import own_loop
+
+    found = own_loop(*demo.raw_samples())
+    return found.loops if found.closes else 0.0
+
+
+def test_no_demo_closes_a_loop_is_one_clear_error(capsys, tmp_path: Path) -> None:
+    """Demos that each hold a fraction of a loop of a task with no guide: nothing to learn the
+    loop from, so one line names the demos and the exit code is 2, as for other bad input."""
+    synth = _human("oval", 8, 3)
+    demos = synth.recording.demos
+    for name, record in list(demos.items()):
+        on = np.flatnonzero(record.attrs["truth_on_loop"])
+        cycles = max(float(record.attrs["truth_cycles"]), 1.0)
+        end = int(on[0] + 0.4 * (on[-1] - on[0]) / cycles)  # 0.4 of a loop, then stop.
+        demos[name] = dataclasses.replace(
+            record,
+            ee_pos=record.ee_pos[:end],
+            timestamps=record.timestamps[:end],
+            actions=forward_difference_actions(record.ee_pos[:end], record.timestamps[:end]),
+            attrs={},
+        )
+    path = tmp_path / "parts.hdf5"
+    write_recording(path, synth.recording)
+    capsys.readouterr()
+    assert bt("clean", str(path), "--out", str(tmp_path / "out"), "--no-rrd") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert any("closes a loop of its own" in line for line in err), err
+    assert not (tmp_path / "out" / "stirring.cleaned.hdf5").exists()
+
+
+def test_a_single_demo_of_a_new_task_is_cleaned_against_its_own_loop() -> None:
+    synth = _human("d_shape", 9, 1)
+    result = clean_demos(demos_from_recording(synth.recording), FAST)
+    assert result.loop is not None and result.loop.source == "learned"
+    assert any("only demo" in note for note in result.notes)
