@@ -57,7 +57,11 @@ def demos():
 def test_segmentation_in_worker_processes_is_the_serial_one(demos) -> None:
     serial = per_demo(segment_step, demos, (None, None, None), executor=None, chunk_size=3)
     pooled = per_demo(
-        segment_step, demos, (None, None, None), executor=ExecutorConfig("processes", 2), chunk_size=3
+        segment_step,
+        demos,
+        (None, None, None),
+        executor=ExecutorConfig("processes", 2),
+        chunk_size=3,
     )
     assert len(pooled) == len(demos)
     assert same(pooled, serial)  # every field, bit for bit
