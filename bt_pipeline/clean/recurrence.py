@@ -41,7 +41,6 @@ from scipy.ndimage import gaussian_filter1d
 
 from bt_pipeline.clean.guide_fit import arc_length_resample
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.exceptions import DemoError
 
 _CLOCK_HZ = 50.0  # Analysis clock [Hz] (as segment.py).
 _SMOOTH_S = 0.08  # Gaussian σ of the path the rests are found on [s] (as segment.py),
@@ -83,16 +82,9 @@ def moving_path(positions: ArrayLike, times_s: ArrayLike, name: str = "demo") ->
     Raises:
         DemoError: Mismatched, non-finite or non-increasing input.
     """
-    from bt_pipeline.clean.segment import moving_part
+    from bt_pipeline.clean.segment import checked_samples, moving_part
 
-    x = np.asarray(positions, dtype=np.float64)
-    t = np.asarray(times_s, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 2 or t.shape != (x.shape[0],) or x.shape[0] < 4:
-        raise DemoError(f"{name}: need positions (T >= 4, 2) and times (T,); got {x.shape}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(t))):
-        raise DemoError(f"{name} has NaN or infinite positions or times")
-    if np.any(np.diff(t) <= 0):
-        raise DemoError(f"{name}: timestamps must increase strictly")
+    x, t = checked_samples(positions, times_s, name)
     clock = np.arange(t[0], t[-1], 1.0 / _CLOCK_HZ)
     if clock.size < 8:
         return x

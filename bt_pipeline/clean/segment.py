@@ -159,16 +159,7 @@ def segment_demo(
         DemoError: Mismatched or non-finite input, times not increasing, or no motion.
     """
     loop = as_loop(loop)
-    x = np.asarray(positions, dtype=np.float64)
-    t = np.asarray(times_s, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 2 or t.shape != (x.shape[0],) or x.shape[0] < 4:
-        raise DemoError(
-            f"{name}: need positions (T >= 4, 2) and times (T,); got {x.shape} and {t.shape}"
-        )
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(t))):
-        raise DemoError(f"{name} has NaN or infinite positions or times")
-    if np.any(np.diff(t) <= 0):
-        raise DemoError(f"{name}: timestamps must increase strictly")
+    x, t = checked_samples(positions, times_s, name)
     clock = np.arange(t[0], t[-1], 1.0 / _CLOCK_HZ)
     if clock.size < 8:
         raise DemoError(f"{name} lasts {t[-1] - t[0]:.3f} s; at least 0.08 s is needed")
@@ -272,6 +263,28 @@ def segment_demo(
             )
         ),
     )
+
+
+def checked_samples(
+    positions: ArrayLike, times_s: ArrayLike, name: str
+) -> tuple[FloatArray, FloatArray]:
+    """A demo's raw samples as float arrays, checked: (T >= 4, 2) finite positions and (T,)
+    finite, strictly increasing times.
+
+    Raises:
+        DemoError: Mismatched shapes, NaN or infinite values, or times not increasing.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    t = np.asarray(times_s, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 2 or t.shape != (x.shape[0],) or x.shape[0] < 4:
+        raise DemoError(
+            f"{name}: need positions (T >= 4, 2) and times (T,); got {x.shape} and {t.shape}"
+        )
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(t))):
+        raise DemoError(f"{name} has NaN or infinite positions or times")
+    if np.any(np.diff(t) <= 0):
+        raise DemoError(f"{name}: timestamps must increase strictly")
+    return x, t
 
 
 def _kept_span(
@@ -390,4 +403,11 @@ def span_times(times_s: ArrayLike, segment: Segment) -> np.ndarray:
     return (t >= segment.start_s - 1e-9) & (t <= segment.end_s + 1e-9)
 
 
-__all__ = ["Segment", "moving_part", "segment_demo", "span_times", "track_phase"]
+__all__ = [
+    "Segment",
+    "checked_samples",
+    "moving_part",
+    "segment_demo",
+    "span_times",
+    "track_phase",
+]
