@@ -21,9 +21,10 @@ against before the best demo is known, so the loop is learned from every demo fi
    low-passed to 12 harmonics and centred on its bounding box.
 4. **Guide or learned.** A task with a built-in guide keeps its guide when some demo's own
    loop lies within 4 % (RMS, of its RMS radius) of a similarity of the guide and the
-   consensus within 12 %: the demos follow it (an expert-like demo of a guide set is 0.3-1 %
-   off; a consensus of 3-4 noisy demos 1-10 %; a wiping oval 12 %), and today's guide-based
-   results stay as they were. Otherwise the learned loop is used.
+   consensus within 12 %: the demos follow it (an expert-like demo of a guide set is 0.1-3 %
+   off over 40 sets; a consensus of 3-4 noisy demos 1-11 %; the foreign wiping oval's closest
+   demo 9 %, its consensus 13 %), and today's guide-based results stay as they were.
+   Otherwise the learned loop is used.
 5. **Frame.** A learned loop's θ = 0, ρ = 1 is the set's: each demo's similarity to the
    consensus is read off its alignment, and the loop is turned and scaled so that these have
    circular-mean θ 0 and geometric-mean ρ 1; when demos state θ/ρ, so that theirs match the
@@ -61,9 +62,10 @@ from bt_pipeline.exceptions import DemoError
 
 GUIDE_FOLLOWED = 0.04
 """The guide is used when some demo's own loop lies within this share of its RMS radius of a
-similarity of the guide (an expert-like demo of a guide set: 0.3-1 %; a wiping oval: 12 %)"""
+similarity of the guide (an expert-like demo of a guide set: 0.1-3 %; the closest demo of the
+foreign wiping oval: 9 %)"""
 GUIDE_MISFIT = 0.12
-"""and the learned consensus within this share (3-4 noisy demos: 1-10 % on guide sets)."""
+"""and the learned consensus within this share (3-4 noisy demos: 1-11 % on guide sets)."""
 _HARMONICS = 12  # Harmonics of a learned loop.
 _MAX_PAIRWISE = 40  # Loops compared pairwise for the medoid.
 _OUTLIER = 3.0  # Loops farther than this many median distances from the medoid are left out,
