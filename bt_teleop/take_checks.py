@@ -39,9 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bt_pipeline.clean.guide_fit import arc_length_resample
-from bt_pipeline.clean.loop_learn import GUIDE_MISFIT, align
-from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
+from bt_pipeline.clean.loop_learn import GUIDE_MISFIT, align, loop_signature
+from bt_pipeline.clean.recurrence import own_loop
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import INFO_FLAGS, FloatArray, TakeFlag
@@ -141,24 +140,15 @@ def guide_misfit(loop_uv: FloatArray, task: str) -> float:
     Returns:
         The RMS residual as a share (0..1) of the loop's RMS radius (inf for a degenerate loop).
     """
-    return align(_uniform(np.asarray(loop_uv, dtype=np.float64)), _guide_points(task))[3]
+    return align(loop_signature(np.asarray(loop_uv, dtype=np.float64)), _guide_points(task))[3]
 
 
 @functools.cache
 def _guide_points(task: str) -> np.ndarray:
     """`task`'s guide as 256 centred complex points uniform in arc length (read-only)."""
-    z = _uniform(LoopShape.guide(task).points(1024))
+    z = loop_signature(LoopShape.guide(task).points(1024))
     z.setflags(write=False)
     return z
-
-
-def _uniform(points: np.ndarray) -> np.ndarray:
-    """A closed loop (P, 2), endpoint excluded, as 256 complex points uniform in arc length,
-    centred on their mean."""
-    closed = np.concatenate([points.reshape(-1, 2), points.reshape(-1, 2)[:1]])
-    resampled = arc_length_resample(closed, LOOP_POINTS + 1)[:-1]
-    z = resampled[:, 0] + 1j * resampled[:, 1]
-    return z - z.mean()
 
 
 def check_take(

@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bt_pipeline.clean.guide_fit import arc_length_resample
-from bt_pipeline.clean.loop_learn import align, learn_task_loop
+from bt_pipeline.clean.loop_learn import align, learn_task_loop, loop_signature
 from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.loop_shape import LoopShape
@@ -90,9 +89,7 @@ def as_complex(points: np.ndarray) -> np.ndarray:
 
 def shape_error(a: LoopShape, b: LoopShape) -> float:
     """Similarity-free distance of two loops' shapes, share of the RMS radius."""
-    pa = arc_length_resample(np.concatenate([p := a.points(1024), p[:1]]), LOOP_POINTS + 1)[:-1]
-    pb = arc_length_resample(np.concatenate([q := b.points(1024), q[:1]]), LOOP_POINTS + 1)[:-1]
-    return align(as_complex(pa), as_complex(pb))[3]
+    return align(loop_signature(a.points(1024)), loop_signature(b.points(1024)))[3]
 
 
 @pytest.mark.parametrize("seed", range(4))

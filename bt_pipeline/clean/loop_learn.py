@@ -118,14 +118,15 @@ class TaskLoop:
         few starting turns can."""
         if self.source != "learned":
             return {}
-        points = arc_length_resample(_closed(self.loop.points(1024)), LOOP_POINTS + 1)[:-1]
-        z = points[:, 0] + 1j * points[:, 1]
+        points = arc_points(self.loop.points(1024))
+        z_mean = complex(points[:, 0].mean(), points[:, 1].mean())
+        z = _complex(points)
         out = {}
         for label, loop in self.own.items():
-            w = loop[:, 0] + 1j * loop[:, 1]
-            a = align(z - z.mean(), w - w.mean(), _TIE)[0]  # template ≈ a · demo (centred)
+            w_mean = complex(loop[:, 0].mean(), loop[:, 1].mean())
+            a = align(z, _complex(loop), _TIE)[0]  # template ≈ a · demo (centred)
             pref = 1.0 / a
-            t = w.mean() - pref * z.mean()
+            t = w_mean - pref * z_mean
             size = abs(pref) * self.loop.size_m
             theta = math.degrees(math.atan2(pref.imag, pref.real))
             out[label] = GuideFit(
@@ -245,7 +246,7 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
     misfit = math.nan
     if guided:
         guide = LoopShape.guide(task)
-        drawn = _complex(arc_length_resample(_closed(guide.points(1024)), LOOP_POINTS + 1)[:-1])
+        drawn = loop_signature(guide.points(1024))
         misfit = align(_complex(learned.points(LOOP_POINTS)), drawn)[3]
         closest = min(align(loop, drawn)[3] for loop in loops)
         if closest <= GUIDE_FOLLOWED and misfit <= GUIDE_MISFIT:
@@ -305,8 +306,17 @@ def _labels(demos: Sequence[Demo], kept: Sequence[int]) -> tuple[str, ...]:
     return tuple(demos[i].label for i in kept)
 
 
-def _closed(points: np.ndarray) -> np.ndarray:
-    return np.concatenate([points, points[:1]])
+def arc_points(points: np.ndarray) -> np.ndarray:
+    """A closed loop (P, 2), endpoint excluded, resampled to 256 points uniform in arc length
+    (endpoint excluded), as :func:`~bt_pipeline.clean.recurrence.own_loop` gives a demo's."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    return arc_length_resample(np.concatenate([p, p[:1]]), LOOP_POINTS + 1)[:-1]
+
+
+def loop_signature(points: np.ndarray) -> np.ndarray:
+    """A closed loop (P, 2) as :func:`align` compares loops: 256 complex points uniform in arc
+    length, centred on their mean."""
+    return _complex(arc_points(points))
 
 
 def _consensus(loops: list[np.ndarray]) -> tuple[np.ndarray, list[int]]:
@@ -405,6 +415,8 @@ __all__ = [
     "LoopSource",
     "TaskLoop",
     "align",
+    "arc_points",
     "best_demo_loop",
     "learn_task_loop",
+    "loop_signature",
 ]

@@ -19,9 +19,8 @@ Without a shape the generators' output is what it always was, bit for bit.
 
 from __future__ import annotations
 
-import re
 import zlib
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -29,10 +28,16 @@ from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.shapes import SHAPE_SIZE, canonical_shape
-from bt_pipeline.data.tasks import TASKS, Task, default_plane
+from bt_pipeline.data.tasks import (
+    TASK_NAME_RULE,
+    TASKS,
+    Task,
+    default_plane,
+    parse_guided_task,
+    parse_task,
+)
 from bt_pipeline.exceptions import ConfigError, UnknownTaskError
 
-_SAFE_TASK = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")  # As tasks.py's newer parse_task.
 _BOX_POINTS = 1024  # Points a shape's bounding box is read on (as LoopShape.size_m).
 
 
@@ -41,8 +46,7 @@ def resolve_task(task: str, shape: LoopShape | None) -> tuple[Task, int, TaskPla
 
     One of the three tasks keeps its index in :data:`TASKS` and its default plane. Another name
     is taken only with a shape (there is no guide to draw) and only if it is safe: it seeds from
-    its CRC-32 and works in wiping's plane (the module doc). Decided here, not by
-    :func:`~bt_pipeline.data.tasks.parse_task`, so it holds however that treats unknown names.
+    its CRC-32 and works in wiping's plane (the module doc).
     """
     if task in TASKS:
         return task, TASKS.index(task), default_plane(task)
@@ -51,27 +55,11 @@ def resolve_task(task: str, shape: LoopShape | None) -> tuple[Task, int, TaskPla
             f"task {task!r:.80} has no built-in guide to draw; valid tasks are {', '.join(TASKS)} "
             "(another name needs a shape)"
         )
-    if not isinstance(task, str) or not _SAFE_TASK.fullmatch(task):
-        raise ConfigError(
-            f"task name {task!r:.80} is not safe: 1-64 letters, digits, '_' or '-', starting "
-            "with a letter or digit"
-        )
-    # Any safe name is a task here; tasks.py's Task is widening to any such name.
-    return cast(Task, task), zlib.crc32(task.encode("ascii")), default_plane("wiping")
-
-
-def _guided(task: str):
-    """`task` as the element of :data:`TASKS` it equals (raises UnknownTaskError if none).
-
-    The return type is left to inference, TASKS' element type, so :data:`SHAPE_SIZE` takes it
-    whatever tasks.py names the guided tasks' type.
-    """
-    for guided in TASKS:
-        if guided == task:
-            return guided
-    raise UnknownTaskError(
-        f"task {task!r} has no built-in guide; valid tasks are {', '.join(TASKS)}"
-    )
+    try:
+        name = parse_task(task)
+    except UnknownTaskError as error:
+        raise ConfigError(f"task name {task!r:.80} is not safe: {TASK_NAME_RULE}") from error
+    return name, zlib.crc32(name.encode("ascii")), default_plane("wiping")
 
 
 def shape_kwargs(shape: LoopShape | None) -> dict[str, Any]:
@@ -99,7 +87,7 @@ def lopsided(
     """
     centre = None
     if shape is None:
-        half_w, half_h = (s / 2.0 for s in SHAPE_SIZE[_guided(task)])
+        half_w, half_h = (s / 2.0 for s in SHAPE_SIZE[parse_guided_task(task)])
     else:
         box = shape.points(_BOX_POINTS)
         centre = 0.5 * (box.min(axis=0) + box.max(axis=0))
