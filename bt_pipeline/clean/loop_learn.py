@@ -21,9 +21,10 @@ against before the best demo is known, so the loop is learned from every demo fi
    low-passed to 12 harmonics and centred on its bounding box.
 4. **Guide or learned.** A task with a built-in guide keeps its guide when some demo's own
    loop lies within 4 % (RMS, of its RMS radius) of a similarity of the guide and the
-   consensus within 12 %: the demos follow it (an expert-like demo of a guide set is 0.1-3 %
-   off over 40 sets; a consensus of 3-4 noisy demos 1-11 %; the foreign wiping oval's closest
-   demo 9 %, its consensus 13 %), and today's guide-based results stay as they were.
+   consensus within 12 %: the demos follow it, and today's guide-based results stay as they
+   were (every guide set of ``bench_clean_human.py`` keeps the guide, and
+   ``tests/test_clean_loops.py`` checks it; the foreign wiping oval, whose closest demo lies
+   9 % off, does not).
    Otherwise the learned loop is used.
 5. **Frame.** A learned loop's θ = 0, ρ = 1 is the set's: each demo's similarity to the
    consensus is read off its alignment, and the loop is turned and scaled so that these have
@@ -62,10 +63,10 @@ from bt_pipeline.exceptions import DemoError
 
 GUIDE_FOLLOWED = 0.04
 """The guide is used when some demo's own loop lies within this share of its RMS radius of a
-similarity of the guide (an expert-like demo of a guide set: 0.1-3 %; the closest demo of the
-foreign wiping oval: 9 %)"""
+similarity of the guide"""
 GUIDE_MISFIT = 0.12
-"""and the learned consensus within this share (3-4 noisy demos: 1-11 % on guide sets)."""
+"""and the learned consensus within this share (a consensus of a few noisy demos is itself
+several % off the shape they meant)."""
 _HARMONICS = 12  # Harmonics of a learned loop.
 _MAX_PAIRWISE = 40  # Loops compared pairwise for the medoid.
 _OUTLIER = 3.0  # Loops farther than this many median distances from the medoid are left out,

@@ -41,8 +41,8 @@ MISFIT_FLOOR = 0.001
 """plus this share of the guide's size."""
 LEARNED_MISFIT_FACTOR = 3.0
 """The factor against a loop learned from the demos: a consensus of a few noisy demos is itself
-a few % off, and at 1.5 x the gate left the expert-like demo out in 6 of 48 sets of random
-loops (`bench_clean_human.py --shapes random`), at 3 x in none."""
+a few % off, and at 1.5 x the gate left the expert-like demo out of random-loop sets that 3 x
+selects (`bench_clean_human.py --shapes random`: best = expert in every set at 3 x)."""
 _GUIDE_POINTS = 2048  # Dense guide for the distances (< 0.3 mm spacing at ρ = 1).
 
 
