@@ -39,7 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bt_pipeline.clean.loop_learn import GUIDE_MISFIT, align, loop_signature
+from bt_pipeline.clean.loop_align import align, loop_signature
+from bt_pipeline.clean.loop_learn import GUIDE_MISFIT
 from bt_pipeline.clean.recurrence import own_loop
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.plane import TaskPlane

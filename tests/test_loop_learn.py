@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from bt_pipeline.clean.loop_learn import align, learn_task_loop, loop_signature
+from bt_pipeline.clean.loop_align import align, loop_signature
+from bt_pipeline.clean.loop_learn import learn_task_loop
 from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.loop_shape import LoopShape
