@@ -12,6 +12,9 @@ The fit is a trimmed iterative-closest-point similarity fit:
    along the guide's normals (point-to-tangent, so points slide along the loop and the fit
    converges in a few steps), clipped to the allowed ranges (default θ ∈ [−45°, 45°],
    ρ ∈ [0.5, 2]).
+   With θ and ρ both known only the translation is free, and eight more starts lie around the
+   points' median, 25 % of the loop's size off (a part of a loop between an approach and a
+   retreat has its median off the loop's centre, and one start settled on the retreat).
 3. The start with the smallest trimmed residual wins. Within the range the near-symmetric
    shapes' twins (wiping and weaving look the same turned by 180°) are outside the range, so
    the smallest rotation is the one kept.
@@ -56,6 +59,7 @@ _BULGE = 0.06  # The smallest mode wins when its ρ is this share below the medi
 _CENTRED_REACH = 0.15  # Centred fits alone count when the fit's centre is this share of the
 _CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this factor as well;
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
+_SHIFT_STARTS = 0.25  # With θ and ρ known, translations this share of the size off start too.
 _CENTRED_OFF = 0.05  # A close fit this share of its size off the origin is checked (see reach).
 
 
@@ -170,6 +174,14 @@ def fit_guide(
         starts = list(np.linspace(-span, span, max(3, int(2 * span // 22.5) + 1)))
     keep = max(3, int(trim * points.shape[0]))
     candidates = [(float(start), float(rho0), centre0.copy()) for start in starts]
+    if theta_deg is not None and rho is not None:
+        # Only the translation is free: start from around the points' median too (a part of a
+        # loop between an approach and a retreat has its median off the loop's centre).
+        reach = _SHIFT_STARTS * rho * float(np.max(np.ptp(guide, axis=0)))
+        candidates += [
+            (float(theta_deg), float(rho), centre0 + reach * np.array([math.cos(a), math.sin(a)]))
+            for a in np.arange(8) * math.pi / 4.0
+        ]
     if initial is not None:
         candidates = [(initial.theta_deg, initial.rho, np.array(initial.translation))]
     elif hint is not None:

@@ -129,3 +129,19 @@ __all__ = [
     "majority_turn",
     "symmetry_order",
 ]
+
+
+def stated_distance(reference: np.ndarray, other: np.ndarray) -> float:
+    """RMS distance of `other` from `reference` over start shifts and directions alone (no
+    rotation or scale: `other` is already in the frame its demo states), over the RMS of
+    `reference` (both centred complex loops of P points, as :func:`align` takes)."""
+    zz = float(np.vdot(reference, reference).real)
+    if zz <= 0.0:
+        return math.inf
+    fz = np.fft.fft(reference)
+    low = math.inf
+    for w in (other, other[::-1]):
+        corr = np.fft.ifft(fz * np.conj(np.fft.fft(w)))
+        residual = zz + float(np.vdot(w, w).real) - 2.0 * np.real(corr)
+        low = min(low, float(np.min(residual)))
+    return math.sqrt(max(low, 0.0) / zz)

@@ -20,7 +20,8 @@ against before the best demo is known, so the loop is learned from every demo fi
    and the point-wise median is taken; then once more against that median. The consensus is
    low-passed to 12 harmonics and centred on its bounding box.
 4. **Guide or learned.** A task with a built-in guide keeps its guide when some demo's own
-   loop lies within 4 % (RMS, of its RMS radius) of a similarity of the guide and the
+   loop lies within 4 % (RMS, of its RMS radius) of a similarity of the guide (of the guide
+   turned and scaled by its stated θ/ρ, when it states them) and the
    consensus within 12 %: the demos follow it, and today's guide-based results stay as they
    were (every guide set of ``bench_clean_human.py`` keeps the guide, and
    ``tests/test_clean_loops.py`` checks it; the foreign wiping oval, whose closest demo lies
@@ -38,14 +39,18 @@ against before the best demo is known, so the loop is learned from every demo fi
    smallest.
 6. **The best demo's loop.** Selection then picks the best demo against that loop; its own
    loop, with its stated θ/ρ removed (the paper's x^g) or, when hidden, turned and scaled onto
-   the consensus, replaces the consensus when that demo's path holds 2 loops or more, or is
-   the loop alone (at most 1.1 loops of path: no approach); a single loop with an approach
-   closes at one point, where the approach may join it. The demos are then segmented and
-   scored again against it (:func:`best_demo_loop`), as the paper takes the canonical shape
-   from the best demo. The consensus of a set whose demos draw one loop each leans to its
-   lopsided demos (a loop drawn bigger on one side still closes; a drifting or incomplete one
-   does not): in a 20-demo single-loop wiping set of an oval (seed 0, θ/ρ given) its scale was
-   15 % off, the expert's own loop 0.4 %.
+   the consensus, replaces the consensus, and the demos are segmented and scored again against
+   it (:func:`best_demo_loop`), as the paper takes the canonical shape from the best demo. Its
+   loop is read between its returns when its path holds 2 loops or more or is the loop alone
+   (at most 1.1 loops of path: no approach); otherwise off its kept span, in the phase of its
+   fit (:mod:`bt_pipeline.clean.span_loop`: a single loop with an approach closes at one point,
+   where the approach may join it). A guide is replaced the same way when the best demo closes
+   a loop of its own of which less than 0.9 was found on the guide (an arch whose return runs
+   5 mm from the guide's, θ/ρ given: half the expert's loop was cut, 99.6 x its raw error). The
+   consensus of a set whose demos draw one loop each leans to its lopsided demos (a loop drawn
+   bigger on one side still closes; a drifting or incomplete one does not): in a 20-demo
+   single-loop wiping set of an oval (seed 0, θ/ρ given) its scale was 15 % off, the expert's
+   own loop 0.4 %.
 """
 
 from __future__ import annotations
@@ -67,9 +72,12 @@ from bt_pipeline.clean.loop_align import (
     circular_mean,
     loop_signature,
     majority_turn,
+    stated_distance,
     symmetry_order,
 )
 from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
+from bt_pipeline.clean.segment import Segment
+from bt_pipeline.clean.span_loop import span_loop
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.tasks import has_guide
@@ -87,6 +95,9 @@ _OUTLIER = 3.0  # Loops farther than this many median distances from the medoid 
 _OUTLIER_FLOOR = 0.05  # and never those within this share of the size.
 _REPEATS = 2.0  # The best demo's own loop replaces the consensus when it holds this many loops,
 _ALONE = 1.1  # or at most this many (its path is the loop alone: no approach to join it).
+_GUIDE_SHORT = (
+    0.9  # A guide is replaced when less than this share of the best demo's loop is on it.
+)
 _TIE = 0.03  # Alignments this close to the best are ties: the one that turns least wins.
 
 LoopSource = Literal["guide", "learned"]
@@ -212,10 +223,21 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
         guide = LoopShape.guide(task)
         drawn = loop_signature(guide.points(1024))
         misfit = align(centred_complex(learned.points(LOOP_POINTS)), drawn)[3]
-        closest = min(align(loop, drawn)[3] for loop in loops)
+        # A demo that states θ/ρ follows the guide only in that frame (a guide turned or
+        # scaled to fit it would read its stated preference against another shape).
+        closest = min(
+            _guide_distance(loop, guide, drawn, demos[i])
+            for loop, i in zip(loops, used, strict=True)
+        )
         if closest <= GUIDE_FOLLOWED and misfit <= GUIDE_MISFIT:
             return TaskLoop(
-                guide, "guide", misfit, _labels(demos, kept), f"the {task} guide's frame"
+                guide,
+                "guide",
+                misfit,
+                _labels(demos, kept),
+                f"the {task} guide's frame",
+                own=own,
+                repeats=repeats,
             )
         notes.append(
             f"the {task} demos do not follow the task's guide (the closest is "
@@ -237,22 +259,36 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
     )
 
 
-def best_demo_loop(task_loop: TaskLoop, demo: Demo) -> TaskLoop | None:
+def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoop | None:
     """The learned loop replaced by the best demo's own loop, in the same frame (step 6).
 
     The consensus of noisy demos is a rough shape; the paper's canonical shape is the best
     demo's (Sec. III-B). Once selection has picked it, its own loop, low-passed to 12
     harmonics and turned and scaled onto the consensus (so the frame stays), is the template
-    the demos are measured against again. None for a guide, or when the best demo closes no loop
-    or holds between 1.1 and 2 loops of path (a single loop with an approach closes at one
-    point, where the approach may join it).
+    the demos are measured against again: read between its returns when its path holds 2
+    loops or more, or is the loop alone (at most 1.1 loops of path: no approach), and otherwise
+    off its kept span (:func:`~bt_pipeline.clean.span_loop.span_loop`: a single loop with an
+    approach closes at one point, where the approach may join it). A guide is replaced the same
+    way when the best demo closes a loop of its own but less than 90 % of it was found on the
+    guide (a loop close to the guide, but not it: an arch of another return depth). None
+    otherwise, or when no loop of the best demo can be read.
     """
-    if task_loop.source != "learned":
-        return None
     loop = task_loop.own.get(demo.label)
     repeats = task_loop.repeats.get(demo.label, 0.0)
-    if loop is None or _ALONE < repeats < _REPEATS:
-        return None  # A single loop with an approach closes where the approach may join it.
+    notes = task_loop.notes
+    if task_loop.source == "guide":
+        if loop is None or segment.cycles >= _GUIDE_SHORT:
+            return None
+        notes += (
+            f"{demo.label}, the best demo, closes a loop of its own but only {segment.cycles:.2f} "
+            f"of it lies on the {demo.task} guide: its own loop is used instead",
+        )
+    elif loop is None or _ALONE < repeats < _REPEATS:
+        # A single loop with an approach closes where the approach may join it: read it off
+        # the kept span instead, in the phase of its fit.
+        loop = span_loop(*demo.raw_samples(), segment, LOOP_POINTS)
+        if loop is None:
+            return None
     shape = LoopShape.from_points(loop, _HARMONICS)
     current = centred_complex(task_loop.loop.points(LOOP_POINTS))
     a, _, flipped, _ = align(current, centred_complex(shape.points(LOOP_POINTS)), _TIE)
@@ -265,7 +301,19 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo) -> TaskLoop | None:
     shape = shape.transformed(translation=-shape.centre)
     label = f"{demo.task} loop of its best demo, {demo.label}"
     framed = LoopShape(shape.coefficients, label)
-    return dataclasses.replace(task_loop, loop=framed, best=demo.label)
+    return dataclasses.replace(
+        task_loop, loop=framed, source="learned", best=demo.label, notes=notes
+    )
+
+
+def _guide_distance(loop: np.ndarray, guide: LoopShape, drawn: np.ndarray, demo: Demo) -> float:
+    """How far a demo's own loop (centred complex) lies from the guide (step 4): from its
+    best similarity of the guide (`drawn`, its signature), or from the guide turned and scaled
+    by the demo's stated θ/ρ when it states them."""
+    if demo.theta_deg is None or demo.rho is None:
+        return align(loop, drawn)[3]
+    stated = loop_signature(guide.transformed(demo.theta_deg, demo.rho).points(1024))
+    return stated_distance(loop, stated)
 
 
 def _labels(demos: Sequence[Demo], kept: Sequence[int]) -> tuple[str, ...]:

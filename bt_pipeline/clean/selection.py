@@ -112,7 +112,8 @@ def select_demos(
     task_loop = learn_task_loop(demos)
     learned = time.perf_counter() - start
     selection = _select(demos, task_loop, config, allowed, executor, chunk_size)
-    best_loop = best_demo_loop(task_loop, demos[selection.scores.best_index])
+    best = selection.scores.best_index
+    best_loop = best_demo_loop(task_loop, demos[best], selection.segments[best])
     if best_loop is not None:  # Once more against the best demo's own loop (loop_learn step 6).
         # The gate keeps the first pass's misfits: against the best demo's own loop, that demo
         # would always follow it most closely.
