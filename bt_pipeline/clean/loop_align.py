@@ -38,15 +38,10 @@ def align(
         and the RMS residual over the RMS of z.
     """
     zz = float(np.vdot(reference, reference).real)
-    fz = np.fft.fft(reference)
     found = []
-    for flipped in (False, True):
-        w = other[::-1] if flipped else other
-        ww = float(np.vdot(w, w).real)
+    for flipped, ww, corr in _correlations(reference, other):
         if ww <= 0.0 or zz <= 0.0:
             continue
-        # corr[s] = Σ_j z_{j+s} conj(w_j) for every shift s: z ≈ a roll(w, s).
-        corr = np.fft.ifft(fz * np.conj(np.fft.fft(w)))
         distance = np.sqrt(np.maximum(zz - np.abs(corr) ** 2 / ww, 0.0) / zz)
         found.append((corr / ww, distance, flipped))
     if not found:
@@ -138,10 +133,20 @@ def stated_distance(reference: np.ndarray, other: np.ndarray) -> float:
     zz = float(np.vdot(reference, reference).real)
     if zz <= 0.0:
         return math.inf
-    fz = np.fft.fft(reference)
-    low = math.inf
-    for w in (other, other[::-1]):
-        corr = np.fft.ifft(fz * np.conj(np.fft.fft(w)))
-        residual = zz + float(np.vdot(w, w).real) - 2.0 * np.real(corr)
-        low = min(low, float(np.min(residual)))
+    low = min(
+        float(np.min(zz + ww - 2.0 * np.real(corr)))
+        for _, ww, corr in _correlations(reference, other)
+    )
     return math.sqrt(max(low, 0.0) / zz)
+
+
+def _correlations(reference: np.ndarray, other: np.ndarray) -> list[tuple[bool, float, np.ndarray]]:
+    """For `other` as given and reversed: (reversed, |w|², corr) with corr[s] = Σ_j z_{j+s}
+    conj(w_j) for every start shift s at once (FFT), so z ≈ a roll(w, s)."""
+    fz = np.fft.fft(reference)
+    out = []
+    for flipped in (False, True):
+        w = other[::-1] if flipped else other
+        corr = np.fft.ifft(fz * np.conj(np.fft.fft(w)))
+        out.append((flipped, float(np.vdot(w, w).real), corr))
+    return out

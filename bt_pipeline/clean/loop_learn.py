@@ -95,9 +95,8 @@ _OUTLIER = 3.0  # Loops farther than this many median distances from the medoid 
 _OUTLIER_FLOOR = 0.05  # and never those within this share of the size.
 _REPEATS = 2.0  # The best demo's own loop replaces the consensus when it holds this many loops,
 _ALONE = 1.1  # or at most this many (its path is the loop alone: no approach to join it).
-_GUIDE_SHORT = (
-    0.9  # A guide is replaced when less than this share of the best demo's loop is on it.
-)
+# A guide is replaced when less than this share of the best demo's loop is found on it.
+_GUIDE_SHORT = 0.9
 _TIE = 0.03  # Alignments this close to the best are ties: the one that turns least wins.
 
 LoopSource = Literal["guide", "learned"]
