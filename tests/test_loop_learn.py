@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from bt_pipeline.clean.guide_fit import arc_length_resample
 from bt_pipeline.clean.loop_align import align, loop_signature, stated_distance
 from bt_pipeline.clean.loop_learn import learn_task_loop
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
@@ -26,6 +27,7 @@ from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.data.synth_truth import truth_ratios
 from bt_pipeline.data.tasks import default_plane
 from bt_pipeline.exceptions import DemoError
+from bt_pipeline.score.losses import symmetry_loss
 
 
 def blob(seed: int, size_m: float = 0.2) -> LoopShape:
@@ -283,3 +285,28 @@ def test_a_best_demo_off_the_guide_replaces_it() -> None:
     shape, _ = truth_ratios(record, demos[expert].raw_samples(), result.on_raw_times(expert))
     assert shape <= 1.1
     assert selection.segments[expert].cycles >= 0.95
+
+
+@pytest.mark.parametrize("turn", [35.0, -60.0])
+def test_l1_mirrors_about_the_learned_loop_s_own_axis(turn: float) -> None:
+    """L1 (Eq. 4) assumes a symmetry axis: for a learned loop it is the loop's own, read off the
+    loop; a demo of a mirror-symmetric shape then reads a small L1 about it, and a shape
+    without mirror symmetry says so (loop_asymmetry)."""
+    arch = LoopShape.guide("pick_and_place").transformed(turn)  # Its axis lies `turn` off.
+    demos, thetas, _ = _set(arch, "stirring", True, 11)
+    learned = learn_task_loop(demos)
+    angle, asymmetry = learned.symmetry_axis
+    assert learned.source == "learned" and asymmetry < 0.02
+    assert abs((angle - turn + 90.0) % 180.0 - 90.0) < 3.0
+    assert learned.attrs()["loop_symmetry_axis_deg"] == pytest.approx(angle)
+    x = arc_length_resample(drawn(arch, 1.0, thetas[0], 1.0, 0.0, approach=False)[0], 400)
+    about_axis = symmetry_loss(x, float(thetas[0]) + angle)
+    assert about_axis < 0.2 * symmetry_loss(x, float(thetas[0]))
+    lopsided = learn_task_loop(_set(blob(21), "stirring", True, 11)[0])
+    assert lopsided.symmetry_axis[1] > 5 * asymmetry
+
+
+def test_a_guide_keeps_its_vertical_axis() -> None:
+    demos, _, _ = _set(LoopShape.guide("weaving"), "weaving", False, 2)
+    learned = learn_task_loop(demos)
+    assert learned.source == "guide" and learned.symmetry_axis[0] == 0.0

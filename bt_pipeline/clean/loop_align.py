@@ -6,7 +6,7 @@ start shift s and both directions: for each, the best similarity a = ⟨z, w_s�
 shifts at once by FFT; the distance is the root of the smallest residual over |z|², a share of
 the loop's size. Used to learn a task's loop (:mod:`bt_pipeline.clean.loop_learn`) and by the
 app's take checks. Also: the turn that frames a set of demos (:func:`majority_turn`) and a
-loop's rotational symmetry (:func:`symmetry_order`).
+loop's rotational symmetry (:func:`symmetry_order`) and its mirror axis (:func:`mirror_axis`).
 """
 
 from __future__ import annotations
@@ -114,16 +114,22 @@ def symmetry_order(z: np.ndarray) -> int:
     return 1
 
 
-__all__ = [
-    "align",
-    "apply_alignment",
-    "arc_points",
-    "centred_complex",
-    "circular_mean",
-    "loop_signature",
-    "majority_turn",
-    "symmetry_order",
-]
+def mirror_axis(z: np.ndarray) -> tuple[float, float]:
+    """The loop's most nearly mirror-symmetric axis through its centroid (L1's axis, Eq. 4).
+
+    The loop mirrored about the vertical axis, w = −conj(z), is aligned to z over start shifts
+    and directions; the turn a ≈ e^{2iβ} that maps it back says the axis lies β from the
+    vertical. The best alignment wins (of an oval's two axes, either: L1 reads both alike).
+
+    Args:
+        z: One loop as complex points, shape (P,), centred (:func:`loop_signature`).
+
+    Returns:
+        (β [deg] counter-clockwise from the vertical, in (−90, 90]; the RMS distance of the
+        loop from its mirror image about that axis, over its RMS: 0 for a mirror-symmetric loop).
+    """
+    a, _, _, distance = align(z, -np.conj(z))
+    return math.degrees(float(np.angle(a))) / 2.0, distance
 
 
 def stated_distance(reference: np.ndarray, other: np.ndarray) -> float:
@@ -150,3 +156,17 @@ def _correlations(reference: np.ndarray, other: np.ndarray) -> list[tuple[bool, 
         corr = np.fft.ifft(fz * np.conj(np.fft.fft(w)))
         out.append((flipped, float(np.vdot(w, w).real), corr))
     return out
+
+
+__all__ = [
+    "align",
+    "apply_alignment",
+    "arc_points",
+    "centred_complex",
+    "circular_mean",
+    "loop_signature",
+    "majority_turn",
+    "mirror_axis",
+    "stated_distance",
+    "symmetry_order",
+]

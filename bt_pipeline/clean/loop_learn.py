@@ -56,6 +56,7 @@ against before the best demo is known, so the loop is learned from every demo fi
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -72,6 +73,7 @@ from bt_pipeline.clean.loop_align import (
     circular_mean,
     loop_signature,
     majority_turn,
+    mirror_axis,
     stated_distance,
     symmetry_order,
 )
@@ -126,6 +128,17 @@ class TaskLoop:
     repeats: dict[str, float] = dataclasses.field(default_factory=dict, repr=False)
     """Each such demo's path length in loops (:attr:`OwnLoop.loops`, approach included)."""
 
+    @functools.cached_property
+    def symmetry_axis(self) -> tuple[float, float]:
+        """L1's axis (Eq. 4) in this loop's frame: (its angle from the vertical [deg],
+        counter-clockwise; how far the loop lies from its mirror image about it, a share of its
+        RMS radius). A guide is drawn about the vertical axis; a learned loop's is its most
+        nearly mirror-symmetric axis (:func:`~bt_pipeline.clean.loop_align.mirror_axis`), so
+        a demo de-rotated by −(θ_i + angle) is mirrored about the axis of the shape it draws."""
+        points = self.loop.points(1024)
+        angle, asymmetry = mirror_axis(loop_signature(points))
+        return (0.0 if self.source == "guide" else angle), asymmetry
+
     def attrs(self) -> dict[str, str | float | int]:
         """The cleaned file's ``/data`` attrs naming the loop the demos were measured against
         and how well the guide fitted them (docs/recording-format.md)."""
@@ -134,6 +147,8 @@ class TaskLoop:
             "loop_guide_misfit": self.guide_misfit,
             "loop_frame": self.frame,
             "loop_demos": len(self.used),
+            "loop_symmetry_axis_deg": self.symmetry_axis[0],
+            "loop_asymmetry": self.symmetry_axis[1],
         }
 
     def hints(self) -> dict[str, GuideFit]:

@@ -352,18 +352,28 @@ def path_symmetry(demo: Demo, loops: float, theta_deg: float | None) -> float:
 
 
 def ranking_metrics(
-    demo: Demo, loops: float, plain: RawMetrics, alphas: Sequence[float], derotate: bool
+    demo: Demo,
+    loops: float,
+    plain: RawMetrics,
+    alphas: Sequence[float],
+    derotate: bool,
+    axis_deg: float = 0.0,
 ) -> RawMetrics:
     """The metrics the cleaner ranks a demo by: `plain` (:func:`raw_metrics` on its N samples,
     MI kept) with L1 read along the path, L3 per loop and L1-L3 at ρ = 1 (docs/refinement.md).
+    L1 mirrors about the task loop's axis, `axis_deg` from the vertical of the loop's frame.
 
     ρ is the demonstrator's preference, not a quality: L1 and L2 [m] grow as ρ and L3 as ρ², so
     a loop drawn small would otherwise rank as the cleaner one.
     """
     rho = demo.rho if demo.rho is not None and demo.rho > 0.0 else 1.0
+    theta = demo.theta_deg
     return dataclasses.replace(
         plain,
-        symmetry=path_symmetry(demo, loops, demo.theta_deg if derotate else None) / rho,
+        symmetry=path_symmetry(
+            demo, loops, theta + axis_deg if derotate and theta is not None else None
+        )
+        / rho,
         closure=plain.closure / rho,
         smoothness=loop_smoothness(demo, loops, alphas) / rho**2,
     )

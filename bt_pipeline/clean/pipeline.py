@@ -280,6 +280,7 @@ def clean_demos(
         aligned=aligned,
         shape_losses=np.mean(np.linalg.norm(aligned - positions, axis=2), axis=1),
         estimated=np.array([p.estimated for p in preferences]),
+        symmetry_axis_deg=selection.loop.symmetry_axis[0],
     )
     seconds["stage1"] = time.perf_counter() - start
 
@@ -307,7 +308,7 @@ def clean_demos(
     metrics = per_demo(
         metrics_step,
         [
-            (positions[i], refined.refined[i], stage1.aligned[i], float(stage1.thetas[i]))
+            (positions[i], refined.refined[i], stage1.aligned[i], float(stage1.l1_thetas()[i]))
             for i in range(len(demos))
         ],
         (options.score.k, options.score.alphas),

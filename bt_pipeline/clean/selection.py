@@ -167,8 +167,9 @@ def _select(
             notes.append(f"{demo.label}: only {segment.cycles:.2f} of a loop was found")
 
     start = time.perf_counter()
+    axis = task_loop.symmetry_axis[0]
     parts = [
-        _ranking_inputs(d, s, p, config)
+        _ranking_inputs(d, s, p, config, axis)
         for d, s, p in zip(spans, segments, preferences, strict=True)
     ]
     plain = tuple(p for p, _ in parts)
@@ -237,12 +238,18 @@ def rank_takes(
 
 
 def _ranking_inputs(
-    span: Demo, segment: Segment, preference: PreferenceEstimate, config: ScoreConfig
+    span: Demo,
+    segment: Segment,
+    preference: PreferenceEstimate,
+    config: ScoreConfig,
+    axis_deg: float = 0.0,
 ) -> tuple[RawMetrics, TakeScore]:
     """A span demo's Eqs. (3)-(6) on its N samples (Stage 2's normaliser reads them), and its
-    ranking metrics and misfit."""
-    plain = raw_metrics(span.positions, span.actions, span.theta_deg, config)
-    ranked = ranking_metrics(span, segment.cycles, plain, config.alphas, config.derotate)
+    ranking metrics and misfit; L1 mirrors about the task loop's axis, `axis_deg` from the
+    vertical of its frame (:attr:`~bt_pipeline.clean.loop_learn.TaskLoop.symmetry_axis`)."""
+    theta = None if span.theta_deg is None else span.theta_deg + axis_deg
+    plain = raw_metrics(span.positions, span.actions, theta, config)
+    ranked = ranking_metrics(span, segment.cycles, plain, config.alphas, config.derotate, axis_deg)
     return plain, TakeScore(ranked, guide_misfit(span, segment, preference))
 
 

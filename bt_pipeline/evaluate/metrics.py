@@ -122,7 +122,7 @@ def rollout_metrics(
         values = np.array(
             [
                 mutual_information(rollout, actions),
-                symmetry_loss(rollout, float(stage1.thetas[j])),
+                symmetry_loss(rollout, float(stage1.l1_thetas()[j])),
                 closure_loss(rollout),
                 smoothness_loss(rollout),
                 l4,

@@ -127,6 +127,14 @@ class Stage1Result:
     """V_E, in the best demo's frame, frozen."""
     dmp: PeriodicDmp
     """The DMP fitted to the best demo."""
+    symmetry_axis_deg: float = 0.0
+    """L1's axis (Eq. 4) from the vertical of the task loop's frame [deg]: demo i is mirrored
+    about the line at θ_i + this (:attr:`~bt_pipeline.clean.loop_learn.TaskLoop.symmetry_axis`;
+    0 for a guide)."""
+
+    def l1_thetas(self) -> FloatArray:
+        """The turns L1 de-rotates each demo by, θ_i + the axis [deg], shape (M,)."""
+        return self.thetas + self.symmetry_axis_deg
 
     def __post_init__(self) -> None:
         for name in _RESULT_ARRAYS:

@@ -84,6 +84,9 @@ class BestFrameRewards:
     """θ_i of the chunk's demos, shape (k,), in [deg]."""
     rhos: FloatArray
     """ρ_i of the chunk's demos, shape (k,)."""
+    l1_thetas: FloatArray
+    """The turns L1 de-rotates the chunk's demos by, shape (k,), in [deg]
+    (:meth:`Stage1Result.l1_thetas`)."""
 
     @classmethod
     def of(cls, stage1: Stage1Result, start: int, stop: int) -> BestFrameRewards:
@@ -96,6 +99,7 @@ class BestFrameRewards:
             stage1.rhos[b],
             stage1.thetas[start:stop],
             stage1.rhos[start:stop],
+            stage1.l1_thetas()[start:stop],
         )
 
     def __call__(self, positions: FloatArray) -> FloatArray:
@@ -143,7 +147,7 @@ def refine_chunk(
     return refine_demos(
         job.positions,
         job.references,
-        thetas_deg=job.rewards.thetas,
+        thetas_deg=job.rewards.l1_thetas,
         best_index=job.best_index,
         reward_fn=job.rewards,
         normaliser=job.normaliser,
