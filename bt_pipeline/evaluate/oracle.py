@@ -171,13 +171,18 @@ def competence(
     init_noise: float = 0.02,
     steps: int | None = None,
     paper: bool = False,
+    conditioned: bool = False,
 ) -> CompetenceRow:
     """Train `learner` on perfect demos of `teachers` and measure its rollouts (module doc).
 
     `steps` overrides the learner's optimiser steps (tiny test runs only); `paper` trains the
-    learner as the paper wrote it (2-D position state, no corrective data).
+    learner as the paper wrote it (2-D position state, no corrective data); `conditioned` gives
+    it each demo's demonstrator preference (θ, ρ) as an input and rolls each rollout out with
+    the preference of the demonstrator it starts from.
     """
     data = perfect_demos(task, teachers, per_teacher, seed=seed)
+    by_name = {t.name: (t.theta_deg, t.rho) for t in teachers}
+    preferences = np.array([by_name[name] for name in data.demonstrators])
     overrides: dict[str, object] = {"seed": seed}
     if steps:
         overrides["steps"] = steps
@@ -188,12 +193,14 @@ def competence(
         data.positions,
         list(data.demonstrators),
         learner_config(learner, quick, **overrides),
+        preferences if conditioned else None,
     )
     size = float(np.ptp(data.positions.reshape(-1, 2), axis=0).max())
     x0, demo = perturbed_starts(data.positions, rollouts, init_noise * size, seed)
     # two demo periods; the second is measured, so the start's transient is not the shape error
     n = data.positions.shape[1]
-    states = trained.policy.rollout(x0, 2 * n - 1)[:, n - 1 :]
+    wanted = preferences[demo] if conditioned else None
+    states = trained.policy.rollout(x0, 2 * n - 1, preferences=wanted)[:, n - 1 :]
     own_truths = [data.truths[data.demonstrators[d]] for d in demo]
     mean_loop = similarity_transform(
         canonical_loop(task, TRUTH_SAMPLES),
@@ -209,7 +216,7 @@ def competence(
     return CompetenceRow(
         task=task,
         learner=learner,
-        check="one" if len(teachers) == 1 else "four",
+        check=("one" if len(teachers) == 1 else "four") + ("_conditioned" if conditioned else ""),
         coverage=float(np.mean([coverage(r, t) for r, t in zip(states, own_truths, strict=True)])),
         shape_error_m=float(
             np.mean([chamfer_distance(r, t) for r, t in zip(states, own_truths, strict=True)])
@@ -224,15 +231,20 @@ def competence(
         ),
         nearest_own=float(np.mean(nearest_own)),
         mean_loop_error_m=float(np.mean([chamfer_distance(r, mean_loop) for r in states])),
-        **_convergence(trained.policy, data, rollouts, seed),
+        **_convergence(trained.policy, data, rollouts, seed, by_name if conditioned else None),
     )
 
 
 def _convergence(
-    policy: LearnedPolicy, data: PerfectSet, count: int, seed: int
+    policy: LearnedPolicy,
+    data: PerfectSet,
+    count: int,
+    seed: int,
+    preferences: dict[str, tuple[float, float]] | None = None,
 ) -> dict[str, float]:
     """Roll out one period from `count` points 1-3 cm off the true loops (along the normal, either
-    side) and measure the final distance to the own loop."""
+    side) and measure the final distance to the own loop (a conditioned policy rolled out with
+    that loop's demonstrator's `preferences`)."""
     rng = np.random.default_rng(seed + 7)
     names = list(data.truths)
     who = rng.integers(0, len(names), size=count)
@@ -244,7 +256,8 @@ def _convergence(
         tangent = loop[(k + 1) % loop.shape[0]] - loop[k - 1]
         normal = np.array([-tangent[1], tangent[0]]) / max(float(np.linalg.norm(tangent)), 1e-12)
         starts.append(loop[k] + normal * rng.choice([-1.0, 1.0]) * rng.uniform(0.01, 0.03))
-    ends = policy.rollout(np.stack(starts), data.positions.shape[1])[:, -1]
+    wanted = None if preferences is None else np.array([preferences[names[w]] for w in who])
+    ends = policy.rollout(np.stack(starts), data.positions.shape[1], preferences=wanted)[:, -1]
     for end, w in zip(ends, who, strict=True):
         gap, _ = KDTree(data.truths[names[w]]).query(end)
         finals.append(float(gap))
@@ -263,10 +276,21 @@ def competence_check(
     rollouts: int = 20,
     steps: int | None = None,
     paper: bool = False,
+    conditioned: bool = False,
 ) -> CompetenceRow:
     """The one-demonstrator (``"one"``: 4 perfect demos of teacher_a) or four-demonstrator
-    (``"four"``: one perfect demo of each D1 demonstrator) check (module doc)."""
+    (``"four"``: one perfect demo of each D1 demonstrator) check (module doc); `conditioned`
+    gives the learner each demonstrator's preference as an input."""
     teachers, per_teacher = (DEMONSTRATORS[:1], 4) if check == "one" else (DEMONSTRATORS, 1)
     return competence(
-        task, learner, teachers, per_teacher, rollouts, quick, seed, steps=steps, paper=paper
+        task,
+        learner,
+        teachers,
+        per_teacher,
+        rollouts,
+        quick,
+        seed,
+        steps=steps,
+        paper=paper,
+        conditioned=conditioned,
     )

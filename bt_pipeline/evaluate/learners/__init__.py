@@ -87,6 +87,7 @@ def train_learner(
     demos: ArrayLike,
     demonstrators: Sequence[str] | None = None,
     config: TrainConfig | None = None,
+    preferences: ArrayLike | None = None,
 ) -> TrainedLearner:
     """Train one learner on demos (M, N, 2) [m], uniform on t ∈ [0, 1] (Δt = 1 / (N - 1)).
 
@@ -96,6 +97,9 @@ def train_learner(
         demonstrators: Who recorded each demo (M names); only ILEED uses them (one expertise
             embedding per distinct name, docs/algorithms.md §7 row 21). None: one per demo.
         config: That learner's settings (:func:`learner_config`); default the full preset.
+        preferences: Each demo's demonstrator preference (θ [deg], ρ), shape (M, 2): an input
+            of every learner, so one policy draws each demonstrator's own loop (roll it out
+            with ``preferences=``); None: unconditioned (the paper's learners).
 
     Returns:
         The trained learner: its policy (``velocity``, ``rollout``), loss history and wall time,
@@ -113,13 +117,13 @@ def train_learner(
             f"got a {type(config).__name__}"
         )
     if isinstance(config, BCConfig):
-        return train_bc(demos, config)
+        return train_bc(demos, config, preferences)
     if isinstance(config, TrajBCConfig):
-        return train_traj_bc(demos, config)
+        return train_traj_bc(demos, config, preferences)
     if isinstance(config, ILEEDConfig):
-        return train_ileed(demos, demonstrators, config)
+        return train_ileed(demos, demonstrators, config, preferences)
     assert isinstance(config, NODEConfig)
-    return train_node(demos, config)
+    return train_node(demos, config, preferences)
 
 
 __all__ = [

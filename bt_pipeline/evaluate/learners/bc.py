@@ -44,12 +44,16 @@ class BCConfig(TrainConfig):
         return replace(cls(steps=200, lr=5e-3, batch_size=256), **overrides)
 
 
-def train_bc(demos: ArrayLike, config: BCConfig | None = None) -> TrainedLearner:
+def train_bc(
+    demos: ArrayLike, config: BCConfig | None = None, preferences: ArrayLike | None = None
+) -> TrainedLearner:
     """Train a BC policy on demos (M, N, 2) [m], uniform on t ∈ [0, 1].
 
     Args:
         demos: Task-coordinate positions, shape (M, N, 2), in [m]; never modified.
         config: Settings; default :class:`BCConfig` ().
+        preferences: Each demo's demonstrator preference (θ [deg], ρ), shape (M, 2): an input
+            of the policy (a conditioned learner); None: unconditioned.
 
     Returns:
         The trained learner (Euler policy, loss history, wall time).
@@ -58,7 +62,7 @@ def train_bc(demos: ArrayLike, config: BCConfig | None = None) -> TrainedLearner
         DemoError: The demos have the wrong shape, too few samples, or are not finite.
     """
     config = config or BCConfig()
-    data = prepare_demos(demos, config)
+    data = prepare_demos(demos, config, preferences=preferences)
     pairs = data.rows_with(1)  # x_k paired with a_k, k = 1..N-1
     with torch_session(config.seed, config.threads) as generator:
         net = make_mlp(data.n_features, 2, config.hidden, config.depth)
@@ -66,7 +70,9 @@ def train_bc(demos: ArrayLike, config: BCConfig | None = None) -> TrainedLearner
         def loss_fn(_: int) -> torch.Tensor:
             rows = sample_rows(generator, pairs, config.batch_size)
             z, _delta, labels = data.perturbed(rows, generator)
-            return torch.mean((net(data.features(z, data.phase[rows])) - labels) ** 2)
+            return torch.mean(
+                (net(data.features(z, data.phase[rows], data.cond[rows])) - labels) ** 2
+            )
 
         result = fit([{"params": list(net.parameters())}], loss_fn, config)
     return TrainedLearner(

@@ -222,11 +222,17 @@ class DemoData:
     anchors: FloatArray
     """Training positions [m], shape (A, 2), and (column 2) their phases [rad]: where a
     rollout's initial phase is looked up; shape (A, 3)."""
+    cond: torch.Tensor
+    """Standardised condition of every row (its demo's), shape (R, C); C = 0 unconditioned."""
+    conditions: Conditioning | None = None
+    """How a raw condition is standardised (None: unconditioned)."""
+    anchor_cond: FloatArray | None = None
+    """The anchors' standardised conditions, shape (A, C) (None: unconditioned)."""
 
     @property
     def n_features(self) -> int:
-        """Inputs of the policy: 4 for (z, cos φ, sin φ), 2 for z."""
-        return 4 if self.state == "phase" else 2
+        """Inputs of the policy: 4 for (z, cos φ, sin φ), 2 for z, plus C condition inputs."""
+        return (4 if self.state == "phase" else 2) + int(self.cond.shape[1])
 
     @property
     def velocity_ratio(self) -> torch.Tensor:
@@ -238,9 +244,12 @@ class DemoData:
         """μ_v / s_x, shape (2,): the constant part of dz/dt."""
         return torch.as_tensor(self.velocities.mean / self.positions.scale, dtype=torch.float32)
 
-    def features(self, z: torch.Tensor, phase: torch.Tensor) -> torch.Tensor:
-        """Network inputs, shape (B, n_features), of positions z (B, 2) and phases (B,)."""
-        return phase_features(z, phase, self.state)
+    def features(
+        self, z: torch.Tensor, phase: torch.Tensor, cond: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Network inputs, shape (B, n_features), of positions z (B, 2), phases (B,) and
+        standardised conditions (B, C) (the rows' own, :attr:`cond`; None when C = 0)."""
+        return phase_features(z, phase, self.state, cond)
 
     def rows_with(self, span: int) -> torch.Tensor:
         """Rows followed by at least `span` rows of the same demo, shape (n,)."""
@@ -266,20 +275,74 @@ class DemoData:
         return self.z[rows] + delta_z, delta_z, labels
 
 
-def phase_features(z: torch.Tensor, phase: torch.Tensor, state: StateRep) -> torch.Tensor:
-    """(z, cos φ, sin φ) for the phase state, z for the position state; shape (B, 4) or (B, 2)."""
-    if state == "position":
-        return z
-    return torch.cat([z, torch.cos(phase)[:, None], torch.sin(phase)[:, None]], dim=1)
+def phase_features(
+    z: torch.Tensor, phase: torch.Tensor, state: StateRep, cond: torch.Tensor | None = None
+) -> torch.Tensor:
+    """(z, cos φ, sin φ) for the phase state, z for the position state; shape (B, 4) or (B, 2);
+    followed by the standardised condition (B, C) when one is given."""
+    parts = (
+        [z] if state == "position" else [z, torch.cos(phase)[:, None], torch.sin(phase)[:, None]]
+    )
+    if cond is not None and cond.shape[1] > 0:
+        parts.append(cond)
+    return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
+
+
+@dataclass(frozen=True)
+class Conditioning:
+    """What a conditioned learner sees of a demonstrator: c = ((θ, log ρ) − mean) / scale.
+
+    A demonstrator's preference (θ [deg], ρ) is an input of every conditioned learner, so one
+    policy draws each demonstrator's own loop (docs/evaluation.md). Standardised over the
+    training demos; an input that does not vary gets scale 1 (it then carries no information,
+    and a rollout asked for another value sees how far it lies from the training one).
+    """
+
+    mean: FloatArray
+    """Mean of (θ [deg], log ρ) over the training demos, shape (2,)."""
+    scale: FloatArray
+    """Standard deviation of each (1 where it does not vary), shape (2,)."""
+
+    @classmethod
+    def fit(cls, preferences: ArrayLike) -> Conditioning:
+        """The standardisation of the training demos' preferences (M, 2): (θ [deg], ρ).
+
+        Raises:
+            ConfigError: Wrong shape, non-finite values or ρ ≤ 0.
+        """
+        raw = cls.raw(preferences)
+        std = raw.std(axis=0)
+        return cls(mean=raw.mean(axis=0), scale=np.where(std > 1e-9, std, 1.0))
+
+    @staticmethod
+    def raw(preferences: ArrayLike) -> FloatArray:
+        """(θ [deg], log ρ) of preferences (B, 2) given as (θ [deg], ρ)."""
+        p = np.atleast_2d(np.asarray(preferences, dtype=np.float64))
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise ConfigError(f"preferences must have shape (M, 2): (θ [deg], ρ); got {p.shape}")
+        if not (np.all(np.isfinite(p)) and np.all(p[:, 1] > 0.0)):
+            raise ConfigError("preferences must be finite, with ρ > 0")
+        return np.column_stack([p[:, 0], np.log(p[:, 1])])
+
+    def __call__(self, preferences: ArrayLike) -> FloatArray:
+        """Standardised conditions (B, 2) of preferences (B, 2): (θ [deg], ρ)."""
+        return (self.raw(preferences) - self.mean) / self.scale
 
 
 def prepare_demos(
-    demos: ArrayLike, config: TrainConfig, min_samples: int = MIN_SAMPLES
+    demos: ArrayLike,
+    config: TrainConfig,
+    min_samples: int = MIN_SAMPLES,
+    preferences: ArrayLike | None = None,
 ) -> DemoData:
     """Validate demos (M, N, 2) [m] (uniform on t ∈ [0, 1]), estimate phases and standardise.
 
+    With `preferences` (M, 2): (θ [deg], ρ) of each demo's demonstrator, every row also carries
+    its demo's standardised preference (:class:`Conditioning`), an input of the policy.
+
     Raises:
         DemoError: Wrong shape, fewer than `min_samples` samples, non-finite or motionless demos.
+        ConfigError: `preferences` not one finite (θ, ρ > 0) per demo.
     """
     x = np.array(demos, dtype=np.float64)  # a copy: the caller's array is never touched
     if x.ndim != 3 or x.shape[0] < 1 or x.shape[2] != 2:
@@ -314,6 +377,15 @@ def prepare_demos(
     v = np.where(remaining[:, None] > 0, (velocities - vel_std.mean) / vel_std.scale, 0.0)
     pad = config.box_padding * size
     step = max(1, len(rows) // 4000)
+    conditioning, cond = None, np.zeros((len(rows), 0))
+    if preferences is not None:
+        if np.shape(preferences)[:1] != (x.shape[0],):
+            raise ConfigError(
+                f"preferences must hold one (θ, ρ) per demo ({x.shape[0]}); got "
+                f"{np.shape(preferences)}"
+            )
+        conditioning = Conditioning.fit(preferences)
+        cond = np.repeat(conditioning(preferences), [len(q) for q in sequences], axis=0)
     return DemoData(
         z=torch.as_tensor(z, dtype=torch.float32),
         phase=torch.as_tensor(rows[:, 2], dtype=torch.float32),
@@ -329,6 +401,9 @@ def prepare_demos(
         noise_m=config.dart_noise * size,
         fraction=config.dart_fraction,
         anchors=rows[::step].copy(),
+        cond=torch.as_tensor(cond, dtype=torch.float32),
+        conditions=conditioning,
+        anchor_cond=None if conditioning is None else cond[::step].copy(),
     )
 
 

@@ -182,6 +182,7 @@ def train_ileed(
     demos: ArrayLike,
     demonstrators: Sequence[str] | None = None,
     config: ILEEDConfig | None = None,
+    preferences: ArrayLike | None = None,
 ) -> TrainedLearner:
     """Train ILEED on demos (M, N, 2) [m] (uniform on t ∈ [0, 1]) with their demonstrators.
 
@@ -190,6 +191,8 @@ def train_ileed(
         demonstrators: Who recorded each demo (M names; equal names share one ω). None: every
             demo is its own demonstrator, named "0", "1", ...
         config: Settings; default :class:`ILEEDConfig` ().
+        preferences: Each demo's demonstrator preference (θ [deg], ρ), shape (M, 2): an input
+            of the policy (a conditioned learner); None: unconditioned.
 
     Returns:
         The trained learner: the policy mean rolled out by Euler, and `expertise` (mean σ_i(s)
@@ -200,7 +203,7 @@ def train_ileed(
         ConfigError: `demonstrators` does not have one name per demo.
     """
     config = config or ILEEDConfig()
-    data = prepare_demos(demos, config)
+    data = prepare_demos(demos, config, preferences=preferences)
     names, demo_who = demonstrator_ids(demonstrators, len(np.asarray(demos)))
     # every row's demonstrator: rows are the demos' samples in order, each demo ending with
     # remaining == 0
@@ -214,7 +217,7 @@ def train_ileed(
         def loss_fn(_: int) -> torch.Tensor:
             rows = sample_rows(generator, pairs, config.batch_size)
             z, _delta, labels = data.perturbed(rows, generator)
-            features = data.features(z, data.phase[rows])
+            features = data.features(z, data.phase[rows], data.cond[rows])
             log_random = _log_random_density(labels, config.random_model)
             return -model.log_likelihood(features, labels, who[rows], log_random).mean()
 
@@ -224,7 +227,7 @@ def train_ileed(
             groups[0]["params"] = [*networks, model.log_std]
         result = fit(groups, loss_fn, config)
         with torch.no_grad():
-            features = data.features(data.z[pairs], data.phase[pairs])
+            features = data.features(data.z[pairs], data.phase[pairs], data.cond[pairs])
             competence = torch.sigmoid(model.competence_logit(features, who[pairs]))
         expertise = {
             name: float(competence[who[pairs] == i].mean()) for i, name in enumerate(names)

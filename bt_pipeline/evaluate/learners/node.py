@@ -114,6 +114,7 @@ class _Field(nn.Module):
         self.data = data
         self.register_buffer("ratio", data.velocity_ratio)
         self.register_buffer("offset", data.velocity_offset)
+        self.cond: torch.Tensor | None = None  # The batch's standardised conditions (B, C).
 
     def forward(self, t: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         del t  # time enters through φ
@@ -126,7 +127,8 @@ class _Field(nn.Module):
         passes through φ, and autograd need not carry the cos/sin branch back (the parameter
         gradients are bit for bit the same; tests/test_learners.py).
         """
-        rate = self.net(self.data.features(y[:, :2], y[:, 2].detach())) * self.ratio + self.offset
+        features = self.data.features(y[:, :2], y[:, 2].detach(), self.cond)
+        rate = self.net(features) * self.ratio + self.offset
         return torch.cat([rate, torch.full_like(y[:, 2:], self.data.omega)], dim=1)
 
 
@@ -155,12 +157,16 @@ def rk4_grid(
     return solution
 
 
-def train_node(demos: ArrayLike, config: NODEConfig | None = None) -> TrainedLearner:
+def train_node(
+    demos: ArrayLike, config: NODEConfig | None = None, preferences: ArrayLike | None = None
+) -> TrainedLearner:
     """Train a Neural ODE on demos (M, N, 2) [m], uniform on t ∈ [0, 1].
 
     Args:
         demos: Task-coordinate positions, shape (M, N, 2), in [m]; never modified.
         config: Settings; default :class:`NODEConfig` ().
+        preferences: Each demo's demonstrator preference (θ [deg], ρ), shape (M, 2): an input
+            of the policy (a conditioned learner); None: unconditioned.
 
     Returns:
         The trained learner (RK4 policy, loss history, wall time).
@@ -169,7 +175,7 @@ def train_node(demos: ArrayLike, config: NODEConfig | None = None) -> TrainedLea
         DemoError: The demos have the wrong shape, too few samples, or are not finite.
     """
     config = config or NODEConfig()
-    data = prepare_demos(demos, config, min_samples=config.stride + 2)
+    data = prepare_demos(demos, config, config.stride + 2, preferences)
     n_intervals = int(data.remaining.max())  # the longest training sequence
     with torch_session(config.seed, config.threads) as generator:
         net = make_mlp(data.n_features, 2, config.hidden, config.depth)
@@ -190,6 +196,7 @@ def train_node(demos: ArrayLike, config: NODEConfig | None = None) -> TrainedLea
             decay = torch.exp(-data.gain * times[1:])[None, :, None]
             targets = data.z[rows[:, None] + offsets] + delta_z[:, None] * decay  # (B, L, 2)
             y0 = torch.cat([z0, data.phase[rows, None]], dim=1)
+            field.cond = data.cond[rows]
             if config.solver == "rk4":
                 states = rk4_grid(field.rate, y0, times)
             else:

@@ -65,12 +65,16 @@ class TrajBCConfig(TrainConfig):
         return replace(cls(steps=400, lr=5e-3, batch_size=256), **overrides)
 
 
-def train_traj_bc(demos: ArrayLike, config: TrajBCConfig | None = None) -> TrainedLearner:
+def train_traj_bc(
+    demos: ArrayLike, config: TrajBCConfig | None = None, preferences: ArrayLike | None = None
+) -> TrainedLearner:
     """Train a Traj-BC policy on demos (M, N, 2) [m], uniform on t ∈ [0, 1].
 
     Args:
         demos: Task-coordinate positions, shape (M, N, 2), in [m]; never modified.
         config: Settings; default :class:`TrajBCConfig` ().
+        preferences: Each demo's demonstrator preference (θ [deg], ρ), shape (M, 2): an input
+            of the policy (a conditioned learner); None: unconditioned.
 
     Returns:
         The trained learner (chunk policy, loss history, wall time).
@@ -79,7 +83,7 @@ def train_traj_bc(demos: ArrayLike, config: TrajBCConfig | None = None) -> Train
         DemoError: Wrong shape, not finite, or N <= `config.horizon` + 1.
     """
     config = config or TrajBCConfig()
-    data = prepare_demos(demos, config, min_samples=config.horizon + 2)
+    data = prepare_demos(demos, config, config.horizon + 2, preferences)
     h = config.horizon
     windows = data.rows_with(h)
     offsets = torch.arange(1, h + 1)
@@ -96,7 +100,7 @@ def train_traj_bc(demos: ArrayLike, config: TrajBCConfig | None = None) -> Train
             # standardised mean velocity over j steps, as the net predicts it
             mean_v = (targets - z[:, None]) / times[None, :, None]
             labels = (mean_v - data.velocity_offset) / ratio
-            out = net(data.features(z, data.phase[rows])).reshape(-1, h, 2)
+            out = net(data.features(z, data.phase[rows], data.cond[rows])).reshape(-1, h, 2)
             return torch.mean((out - labels) ** 2)
 
         result = fit([{"params": list(net.parameters())}], loss_fn, config)
