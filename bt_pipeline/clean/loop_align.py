@@ -115,11 +115,13 @@ def symmetry_order(z: np.ndarray) -> int:
 
 
 def mirror_axis(z: np.ndarray) -> tuple[float, float]:
-    """The loop's most nearly mirror-symmetric axis through its centroid (L1's axis, Eq. 4).
+    """The loop's mirror axis through its centroid nearest the vertical (L1's axis, Eq. 4).
 
     The loop mirrored about the vertical axis, w = −conj(z), is aligned to z over start shifts
     and directions; the turn a ≈ e^{2iβ} that maps it back says the axis lies β from the
-    vertical. The best alignment wins (of an oval's two axes, either: L1 reads both alike).
+    vertical. Of the alignments that are local minima over the start shift and lie within 0.03
+    of the best (an oval has two axes, at right angles), the axis nearest the vertical wins, as
+    on the guides: L1 about it still sees a side drawn bigger than the other.
 
     Args:
         z: One loop as complex points, shape (P,), centred (:func:`loop_signature`).
@@ -128,7 +130,19 @@ def mirror_axis(z: np.ndarray) -> tuple[float, float]:
         (β [deg] counter-clockwise from the vertical, in (−90, 90]; the RMS distance of the
         loop from its mirror image about that axis, over its RMS: 0 for a mirror-symmetric loop).
     """
-    a, _, _, distance = align(z, -np.conj(z))
+    zz = float(np.vdot(z, z).real)
+    candidates: list[tuple[float, complex]] = []
+    for _, ww, corr in _correlations(z, -np.conj(z)):
+        if ww <= 0.0 or zz <= 0.0:
+            continue
+        d = np.sqrt(np.maximum(zz - np.abs(corr) ** 2 / ww, 0.0) / zz)
+        minima = (d <= np.roll(d, 1)) & (d <= np.roll(d, -1))
+        candidates += [(float(d[s]), complex(corr[s] / ww)) for s in np.flatnonzero(minima)]
+    if not candidates:
+        return 0.0, math.inf
+    low = min(d for d, _ in candidates)
+    near = [(abs(float(np.angle(a))), d, a) for d, a in candidates if d <= low + _SYMMETRY]
+    _, distance, a = min(near, key=lambda c: c[0])
     return math.degrees(float(np.angle(a))) / 2.0, distance
 
 
