@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json as jsonlib
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import tyro
 
@@ -101,6 +101,8 @@ def synth(
     style: Literal["single", "human"] = "single",
     shape: LoopKind = "guide",
     shape_seed: int | None = None,
+    crowd: Literal["independent", "shared"] = "independent",
+    experts: Annotated[int | None, tyro.conf.arg(help_behavior_hint="(default: 1)")] = None,
 ) -> None:
     """Write a synthetic mixed-skill demo set (one expert-like demo, the rest naive) in format v1.
 
@@ -115,6 +117,11 @@ def synth(
     file's env_kwargs (shape, shape_coefficients, shape_kind, shape_seed) and the truth is that
     loop.
 
+    ``--crowd shared`` (single style) makes the naive demos share their biases instead of drawing
+    defects independently: the same corner cut, the same undershot stretch, a pause at the same
+    place, one demonstrator drawing backwards (bt_pipeline.data.synth_crowd); ``--experts`` sets
+    how many demos are expert-like.
+
     Args:
         out: Output file (.hdf5).
         task: wiping, weaving or pick_and_place (the tasks with a built-in guide shape); with a
@@ -127,17 +134,34 @@ def synth(
             would vary it), "random" (a loop of a random family) or a family: oval,
             rounded_polygon, d_shape, figure_eight, arch, stroke, asymmetric.
         shape_seed: Seed the loop is drawn from (default: --seed).
+        crowd: "independent" (each naive demo its own defects) or "shared" (the naive demos share
+            biases; single style only).
+        experts: Expert-like demos in a --crowd shared set, 0..--demos.
     """
     from bt_pipeline.data.random_loops import draw_set_loop
     from bt_pipeline.data.recording import write_recording
     from bt_pipeline.data.synth import make_demo_set
+    from bt_pipeline.data.synth_crowd import make_crowd_set
     from bt_pipeline.data.synth_human import make_human_set
+    from bt_pipeline.exceptions import ConfigError
 
+    if crowd == "shared" and style == "human":
+        raise ConfigError(
+            "--crowd shared is not supported with --style human yet; use --style single"
+        )
+    if experts is not None and crowd != "shared":
+        raise ConfigError("--experts needs --crowd shared (the independent sets have one expert)")
     loop_seed = seed if shape_seed is None else shape_seed
     loop = None if shape == "guide" else draw_set_loop(shape, loop_seed, task)
     if style == "human":
         human = make_human_set(task, n_demos=demos, seed=seed, shape=loop)
         recording, expert = human.recording, human.demos[human.expert_index].name
+    elif crowd == "shared":
+        shared = make_crowd_set(
+            task, demos, seed, experts=1 if experts is None else experts, shape=loop
+        )
+        names = [d.name for d in shared.demos if d.is_expert]
+        recording, expert = shared.recording, ", ".join(names) or "none"
     else:
         single = make_demo_set(task, n_demos=demos, seed=seed, shape=loop)
         recording, expert = single.recording, single.expert_name

@@ -131,11 +131,18 @@ class SynthSet:
     demos: tuple[SynthDemo, ...]
     """The demos with their ground truth, in the order of k."""
     expert_index: int
-    """Index into `demos` of the expert-like demo."""
+    """Index into `demos` of the (first) expert-like demo; -1 for a crowd set without one
+    (:func:`bt_pipeline.data.synth_crowd.make_crowd_set` with ``experts=0``)."""
 
     @property
     def expert_name(self) -> str:
-        """Name of the expert-like demo (``demo_<k>``)."""
+        """Name of the (first) expert-like demo (``demo_<k>``).
+
+        Raises:
+            ConfigError: The set has no expert-like demo.
+        """
+        if not 0 <= self.expert_index < len(self.demos):
+            raise ConfigError("this set has no expert-like demo")
         return self.demos[self.expert_index].name
 
     @property
