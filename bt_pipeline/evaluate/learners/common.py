@@ -40,6 +40,7 @@ from torch import nn
 from torch.nn import functional
 
 from bt_pipeline.data.records import MIN_SAMPLES, FloatArray
+from bt_pipeline.evaluate.learners.conditioning import Conditioning
 from bt_pipeline.evaluate.learners.phase import estimate_phases, phase_resample
 from bt_pipeline.exceptions import ConfigError, DemoError
 
@@ -286,47 +287,6 @@ def phase_features(
     if cond is not None and cond.shape[1] > 0:
         parts.append(cond)
     return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
-
-
-@dataclass(frozen=True)
-class Conditioning:
-    """What a conditioned learner sees of a demonstrator: c = ((θ, log ρ) − mean) / scale.
-
-    A demonstrator's preference (θ [deg], ρ) is an input of every conditioned learner, so one
-    policy draws each demonstrator's own loop (docs/evaluation.md). Standardised over the
-    training demos; an input that does not vary gets scale 1 (it then carries no information,
-    and a rollout asked for another value sees how far it lies from the training one).
-    """
-
-    mean: FloatArray
-    """Mean of (θ [deg], log ρ) over the training demos, shape (2,)."""
-    scale: FloatArray
-    """Standard deviation of each (1 where it does not vary), shape (2,)."""
-
-    @classmethod
-    def fit(cls, preferences: ArrayLike) -> Conditioning:
-        """The standardisation of the training demos' preferences (M, 2): (θ [deg], ρ).
-
-        Raises:
-            ConfigError: Wrong shape, non-finite values or ρ ≤ 0.
-        """
-        raw = cls.raw(preferences)
-        std = raw.std(axis=0)
-        return cls(mean=raw.mean(axis=0), scale=np.where(std > 1e-9, std, 1.0))
-
-    @staticmethod
-    def raw(preferences: ArrayLike) -> FloatArray:
-        """(θ [deg], log ρ) of preferences (B, 2) given as (θ [deg], ρ)."""
-        p = np.atleast_2d(np.asarray(preferences, dtype=np.float64))
-        if p.ndim != 2 or p.shape[1] != 2:
-            raise ConfigError(f"preferences must have shape (M, 2): (θ [deg], ρ); got {p.shape}")
-        if not (np.all(np.isfinite(p)) and np.all(p[:, 1] > 0.0)):
-            raise ConfigError("preferences must be finite, with ρ > 0")
-        return np.column_stack([p[:, 0], np.log(p[:, 1])])
-
-    def __call__(self, preferences: ArrayLike) -> FloatArray:
-        """Standardised conditions (B, 2) of preferences (B, 2): (θ [deg], ρ)."""
-        return (self.raw(preferences) - self.mean) / self.scale
 
 
 def prepare_demos(

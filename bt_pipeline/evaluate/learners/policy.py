@@ -31,7 +31,6 @@ from torch import nn
 
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.evaluate.learners.common import (
-    Conditioning,
     DemoData,
     Standardiser,
     StateRep,
@@ -39,6 +38,7 @@ from bt_pipeline.evaluate.learners.common import (
     phase_features,
     torch_threads,
 )
+from bt_pipeline.evaluate.learners.conditioning import Conditioning
 from bt_pipeline.evaluate.learners.phase import nearest_phase
 from bt_pipeline.exceptions import ConfigError
 
