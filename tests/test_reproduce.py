@@ -14,6 +14,7 @@ from bt_pipeline.cli import main
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth import make_d1
 from bt_pipeline.data.tasks import TASKS
+from bt_pipeline.evaluate.crowd_jobs import CrowdSettings
 from bt_pipeline.evaluate.protocol import evaluate_demos
 from bt_pipeline.evaluate.reproduce import reproduce
 from bt_pipeline.evaluate.reproduce_jobs import (
@@ -44,15 +45,42 @@ TINY = ReproduceConfig(
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("reproduce")
-    reproduce(TINY, out, progress=False)
+    reproduce(TINY, out, progress=False, conditioned=CrowdSettings(seeds=2, per_demonstrator=2))
     return out
 
 
+OUTPUTS = {"rewards.png", "D1.wiping.rollouts.png", "results.json", "report.md", "success_tau.png"}
+
+
 def test_tiny_run_writes_every_output(tiny_run) -> None:
-    names = {p.name for p in tiny_run.iterdir()}
-    assert names == {"rewards.png", "D1.wiping.rollouts.png", "results.json", "report.md"}
-    for png in ("rewards.png", "D1.wiping.rollouts.png"):
+    assert {p.name for p in tiny_run.iterdir()} == OUTPUTS
+    for png in ("rewards.png", "D1.wiping.rollouts.png", "success_tau.png"):
         assert matplotlib.image.imread(tiny_run / png).shape[0] > 300
+
+
+def test_the_report_leads_with_the_conditioned_protocol(tiny_run) -> None:
+    report = (tiny_run / "report.md").read_text()
+    conditioned = report.index("## Does cleaning help a learner that keeps each demonstrator")
+    assert conditioned < report.index("## The paper's protocol") < report.index("## Cleaning")
+    # One row per (crowd, learner), each with a gate over its two seeds.
+    for crowd in ("independent", "shared"):
+        for learner in ("BC", "ILEED"):
+            assert f"| D1 | wiping | {crowd} | {learner} |" in report
+    assert "the truth gate passes in" in report and "![success against τ]" in report
+    document = json.loads((tiny_run / "results.json").read_text())["conditioned"]
+    keys = {(r["seed"], r["crowd"], r["learner"], r["dataset"]) for r in document["rows"]}
+    datasets = ("noisy", "cleaned", "truth_shape", "truth_timing")
+    assert keys == {
+        (s, c, lr, d)
+        for s in (0, 1)
+        for c in ("independent", "shared")
+        for lr in ("bc", "ileed")
+        for d in datasets
+    }
+    assert all(0.0 <= r["success"]["10.0"] <= 1.0 and r["shape_mm"] > 0 for r in document["rows"])
+    assert len(document["cells"]) == 4 and all(c["verdict_success"] for c in document["cells"])
+    for job in document["cleaning_mm"]:
+        assert job["noisy"] > 0.0 and job["cleaned"] > 0.0
 
 
 def test_results_json_has_every_row_of_every_seed(tiny_run) -> None:
@@ -198,10 +226,23 @@ def test_bt_reproduce_command_line_runs_in_worker_processes(tmp_path, capsys, mo
         return dataclasses.replace(TINY, **overrides)  # pyright: ignore[reportArgumentType]
 
     monkeypatch.setattr(ReproduceConfig, "preset", staticmethod(tiny_preset))
-    main(["reproduce", "--quick", "--workers", "2", "--seeds", "1", "--out", str(tmp_path)])
+    conditioned = ["--conditioned-seeds", "2", "--crowds", "shared"]
+    main(
+        [
+            "reproduce",
+            "--quick",
+            "--workers",
+            "2",
+            "--seeds",
+            "1",
+            *conditioned,
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert asked == [True]
     printed = {Path(p).name for p in capsys.readouterr().out.split()}
-    assert printed == {"report.md", "rewards.png", "results.json", "D1.wiping.rollouts.png"}
+    assert printed == OUTPUTS
     rows = json.loads((tmp_path / "results.json").read_text())["results"]
     assert {(r["seed"], r["learner"], r["dataset"]) for r in rows} == {
         (0, lr, d) for lr in ("bc", "ileed") for d in ("noisy", "cleaned")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json as jsonlib
 from pathlib import Path
+from typing import Literal
 
 from bt_pipeline.cli.args import Paths, log
 from bt_pipeline.exceptions import ConfigError
@@ -106,8 +107,16 @@ def reproduce(
     ray_address: str | None = None,
     oracle: bool = False,
     paper_learners: bool = False,
+    paper_only: bool = False,
+    conditioned_seeds: int | None = None,
+    crowds: tuple[Literal["independent", "shared"], ...] = ("independent", "shared"),
 ) -> None:
     """Reproduce the paper's Sec. IV on synthetic D1 and D2: generate, clean, evaluate, report.
+
+    The report leads with the conditioned protocol: learners given each demonstrator's (θ, ρ),
+    trained on noisy, cleaned and true demos of independent and shared-bias D1 crowds, scored
+    per demonstrator against its own true loop; a truth gate and paired verdicts over seeds
+    (docs/evaluation.md). The paper's protocol follows.
 
     Writes DIR/report.md (tables, the paper's numbers side by side, where cleaned beats noisy
     and where not), DIR/rewards.png (Fig. 11), DIR/<set>.<task>.rollouts.png (Figs. 8-10) and
@@ -123,7 +132,12 @@ def reproduce(
         ray_address: Ray cluster address (with --executor ray); unset starts a local Ray.
         oracle: Also train on the synthetic ground truth: the upper bound of any cleaning.
         paper_learners: The learners as the paper wrote them (2-D position, no corrective data).
+        paper_only: Only the paper's protocol (no conditioned learners).
+        conditioned_seeds: Seeds of the conditioned protocol (default: 10 for the full run,
+            3 with --quick; its verdicts are paired over them).
+        crowds: Crowds of the conditioned protocol: independent defects, shared biases.
     """
+    from bt_pipeline.evaluate.crowd_jobs import CrowdSettings
     from bt_pipeline.evaluate.reproduce import reproduce as run
     from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig
 
@@ -135,5 +149,12 @@ def reproduce(
     if seeds is not None:
         overrides["seeds"] = seeds
     config = ReproduceConfig.preset(quick, **overrides)
-    for path in run(config, out, executor=ExecutorConfig(executor, workers, ray_address)):
+    conditioned = None
+    if not paper_only:
+        default_seeds, per = (3, 6) if quick else (10, 12)
+        conditioned = CrowdSettings(
+            seeds=conditioned_seeds or default_seeds, crowds=crowds, per_demonstrator=per
+        )
+    pool = ExecutorConfig(executor, workers, ray_address)
+    for path in run(config, out, executor=pool, conditioned=conditioned):
         print(path)

@@ -1,7 +1,11 @@
 """``bt reproduce``: the paper's Sec. IV end to end on synthetic D1 and D2, for every task.
 
-Data flow, in two stages of jobs run in parallel with ``workers``
-(:mod:`~bt_pipeline.evaluate.reproduce_jobs`)::
+The report leads with the conditioned protocol (:mod:`~bt_pipeline.evaluate.crowd_jobs`,
+:mod:`~bt_pipeline.evaluate.crowd_report`): learners that take each demonstrator's (θ, ρ) as an
+input, trained on noisy, cleaned and true demos of independent and shared-bias crowds, and
+scored per demonstrator against its own true loop, with a truth gate and paired verdicts over
+seeds. The paper's protocol follows (``--paper-only`` runs it alone), in two stages of jobs run
+in parallel with ``workers`` (:mod:`~bt_pipeline.evaluate.reproduce_jobs`)::
 
     stage 1, one job per (seed, set, task):
     make_d1 / make_d2 (bt_pipeline.data.synth) ──demos_from_recording──▶ noisy demos
@@ -23,6 +27,13 @@ import json
 import logging
 from pathlib import Path
 
+from bt_pipeline.evaluate.crowd_jobs import CrowdRun, CrowdSettings, run_crowd
+from bt_pipeline.evaluate.crowd_report import (
+    crowd_cells,
+    crowd_json,
+    crowd_section,
+    plot_success_tau,
+)
 from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig, ReproduceRun, run_reproduce
 from bt_pipeline.evaluate.reproduce_report import cells, report_markdown, results_json, reward_bars
 from bt_pipeline.execute import ExecutorConfig
@@ -31,8 +42,11 @@ from bt_pipeline.viz.plots import plot_reward_bars, plot_rollouts
 log = logging.getLogger("bt")
 
 
-def write_outputs(run: ReproduceRun, out_dir: str | Path) -> list[Path]:
-    """Figures, results.json and report.md of `run` in `out_dir`; returns the written paths."""
+def write_outputs(
+    run: ReproduceRun, out_dir: str | Path, crowd: CrowdRun | None = None
+) -> list[Path]:
+    """Figures, results.json and report.md of `run` (and of the conditioned protocol's `crowd`
+    run, which leads the report) in `out_dir`; returns the written paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     what = "quick" if run.config.quick else "full"
@@ -53,8 +67,17 @@ def write_outputs(run: ReproduceRun, out_dir: str | Path) -> list[Path]:
                     "cleaned (bottom) demos",
                 )
             )
-    paths.append(_write_text(out / "results.json", json.dumps(results_json(run), indent=1)))
-    paths.append(_write_text(out / "report.md", report_markdown(run, cells(run))))
+    results = results_json(run)
+    title, *paper = report_markdown(run, cells(run)).split("\n")
+    lines = [title, ""]
+    if crowd is not None:
+        table = crowd_cells(crowd)
+        paths.append(plot_success_tau(crowd, out / "success_tau.png"))
+        results["conditioned"] = crowd_json(crowd, table)
+        lines += [*crowd_section(crowd, table), "## The paper's protocol (unconditioned learners)"]
+    lines += paper
+    paths.append(_write_text(out / "results.json", json.dumps(results, indent=1)))
+    paths.append(_write_text(out / "report.md", "\n".join(lines)))
     return paths
 
 
@@ -70,9 +93,27 @@ def reproduce(
     out_dir: str | Path,
     progress: bool = True,
     executor: ExecutorConfig | None = None,
+    conditioned: CrowdSettings | None = None,
 ) -> list[Path]:
-    """Run `config` (jobs on `executor`; default: ``config.workers`` processes) and write its
-    outputs into `out_dir` (see the module doc)."""
+    """Run `config` (jobs on `executor`; default: ``config.workers`` processes), and first the
+    conditioned protocol of `conditioned` when given, and write the outputs into `out_dir` (see
+    the module doc)."""
+    executor = executor or ExecutorConfig("processes", config.workers)
+    crowd = None
+    if conditioned is not None:
+        crowd = run_crowd(
+            conditioned,
+            tasks=config.tasks,
+            learners=config.learners,
+            quick=config.quick,
+            executor=executor,
+            steps=config.steps,
+            clean_epochs=config.clean_epochs,
+            progress=progress,
+        )
+        log.info(
+            "reproduce: conditioned protocol, %d rows in %.0f s", len(crowd.rows), crowd.seconds
+        )
     run = run_reproduce(config, progress, executor)
     log.info("reproduce: %d jobs in %.0f s", len(run.jobs), run.seconds)
-    return write_outputs(run, out_dir)
+    return write_outputs(run, out_dir, crowd)

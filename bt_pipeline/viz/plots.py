@@ -107,7 +107,7 @@ def plot_rollouts(
     axes[0, 0].legend(fontsize=7, loc="upper left")
     n = evaluation.results[0].rollouts.shape[0]
     fig.suptitle(title or f"{evaluation.task}: {n} rollouts per learner, noisy (top) vs cleaned")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_reward_bars(
@@ -180,10 +180,10 @@ def plot_reward_bars(
         ax.set_xlim(-0.6, len(slots) - 0.4)
         ax.legend(fontsize=8, loc="upper right", ncols=len(datasets) + 1)
     fig.suptitle(title or "Mean reward R̄ of the rollouts: noisy vs cleaned (± 1 std)")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
-def _save(fig: Figure, path: str | os.PathLike[str]) -> Path:
+def save_figure(fig: Figure, path: str | os.PathLike[str]) -> Path:
     """Write `fig` as a PNG atomically (temporary file beside `path`, then rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
