@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial import KDTree
 
+from bt_pipeline.data.shapes import canonical_loop
 from bt_pipeline.data.synth import DEMONSTRATORS
 from bt_pipeline.evaluate.conditioned import (
     TAUS_MM,
@@ -90,3 +91,14 @@ def test_a_conditioned_learner_draws_every_demonstrator_s_loop_the_paper_s_does_
     assert np.all(conditioned.scores.by_demonstrator(conditioned.scores.shape_mm) < 2.0)
     assert paper.scores.success_rate(5.0) <= 0.25
     assert np.mean(paper.scores.shape_mm) > 4 * np.mean(conditioned.scores.shape_mm)
+
+
+def test_a_figure_eight_traced_once_goes_around_once() -> None:
+    """Through the crossing a path keeps to its branch: progress 1, not the 0 a global
+    nearest-point projection gives when it jumps to the other branch."""
+    eight = canonical_loop("weaving", 600)
+    loops = [DemonstratorLoop("a", 0.0, 1.0, eight)]
+    path = np.concatenate([eight[::2], eight[:1]])
+    scores = score_rollouts(np.stack([path, path[::-1]]), [0, 0], loops)
+    assert scores.progress == pytest.approx([1.0, 1.0], abs=0.01)
+    assert scores.success[:, TAUS_MM.index(2.0)].all()

@@ -140,10 +140,7 @@ def score_rollouts(
         tail = path[int((1.0 - _RETURN) * len(path)) :]
         back = float(np.min(np.linalg.norm(tail - path[0], axis=1)))
         returns.append(back <= taus)
-        _, index = trees[int(d)].query(path)
-        k = loop.shape[0]
-        steps = (np.diff(index) + k // 2) % k - k // 2  # nearest-point moves, wrapped
-        progress.append(abs(float(np.sum(steps))) / k)
+        progress.append(_progress(path, loop, trees[int(d)]))
     return RolloutScores(
         who=w,
         shape_mm=np.array(shape),
@@ -234,6 +231,26 @@ def mean_scores(evals: Mapping[str, ConditionedEval], tau_mm: float) -> dict[str
         out[f"{name}_success"] = e.scores.success_rate(tau_mm)
         out[f"{name}_shape_mm"] = float(np.mean(e.scores.shape_mm))
     return out
+
+
+def _progress(path: FloatArray, loop: FloatArray, tree: KDTree) -> float:
+    """Loops travelled along `loop` (K, 2) by `path` (n, 2), either direction.
+
+    Each sample is placed on the loop near where the previous one was (within 1/8 of the loop
+    each way, the nearest point there), so a path through a crossing (a figure-eight) keeps to
+    its branch instead of jumping to the other one, as a global nearest point would.
+    """
+    k = loop.shape[0]
+    reach = max(2, k // 8)
+    window = np.arange(-reach, reach + 1)
+    index = int(tree.query(path[0])[1])
+    travelled = 0
+    for point in path[1:]:
+        near = (index + window) % k
+        best = int(np.argmin(np.sum((loop[near] - point) ** 2, axis=1)))
+        travelled += int(window[best])
+        index = int(near[best])
+    return abs(travelled) / k
 
 
 def _tau_index(tau_mm: float) -> int:
