@@ -69,7 +69,7 @@ def test_the_report_leads_with_the_conditioned_protocol(tiny_run) -> None:
     assert "the truth gate passes in" in report and "![success against τ]" in report
     document = json.loads((tiny_run / "results.json").read_text())["conditioned"]
     keys = {(r["seed"], r["crowd"], r["learner"], r["dataset"]) for r in document["rows"]}
-    datasets = ("noisy", "cleaned", "truth_shape", "truth_timing")
+    datasets = ("noisy", "cleaned", "best_aligned", "truth_shape", "truth_timing")
     assert keys == {
         (s, c, lr, d)
         for s in (0, 1)

@@ -4,7 +4,8 @@ Two stages of jobs, as the paper's protocol (:mod:`~bt_pipeline.evaluate.reprodu
 
     stage 1, one job per (seed, set, task, crowd):
         crowd "independent" (make_d1 / make_d2) or "shared" (make_crowd_set: shared biases)
-        ──clean_demos──▶ four datasets of the same demos: noisy, cleaned, truth_shape (each true
+        ──clean_demos──▶ five datasets of the same demos: noisy, cleaned, best_aligned (the best
+        demo's loop aligned to each demo: selection without refinement), truth_shape (each true
         loop at the canonical speed), truth_timing (the intended path at the demo's own timing)
         + each demo's preference (θ, ρ) + each demonstrator's true loop
     stage 2, one job per (prepared set, dataset, learner):
@@ -45,8 +46,17 @@ Crowd = Literal["independent", "shared"]
 """How the naive demos' defects are drawn: each its own (bt synth's default), or shared biases
 (:mod:`bt_pipeline.data.synth_crowd`)."""
 CROWDS: tuple[Crowd, ...] = ("independent", "shared")
-CrowdDataset = Literal["noisy", "cleaned", "truth_shape", "truth_timing"]
-CROWD_DATASETS: tuple[CrowdDataset, ...] = ("noisy", "cleaned", "truth_shape", "truth_timing")
+CrowdDataset = Literal["noisy", "cleaned", "best_aligned", "truth_shape", "truth_timing"]
+CROWD_DATASETS: tuple[CrowdDataset, ...] = (
+    "noisy",
+    "cleaned",
+    "best_aligned",
+    "truth_shape",
+    "truth_timing",
+)
+"""noisy, cleaned; best_aligned: the best demo's loop turned, scaled and timed to each demo
+(Stage 1's x_i^aligned: what selection buys without the refinement); the truth, shape-only and
+shape-plus-timing."""
 SIZES: dict[SetName, int] = {"D1": 4, "D2": 20}
 
 
@@ -62,6 +72,11 @@ class CrowdSettings:
     """Rollouts per demonstrator and trained learner."""
     experts: int = 1
     """Expert-like demos in a shared-bias crowd."""
+    quick_learners: bool = True
+    """Train the learners' quick presets in the full run too: conditioned on the four D1
+    demonstrators they draw each one's perfect loop within 0.8-1.1 mm (tests/test_oracle.py),
+    and the 960 trainings of 10 seeds x 2 crowds x 3 tasks x 4 datasets x 4 learners then take
+    minutes, not hours."""
 
     def __post_init__(self) -> None:
         if self.seeds < 1 or self.per_demonstrator < 1:
@@ -76,7 +91,7 @@ class CrowdSettings:
 
 @dataclass(frozen=True, eq=False)
 class PreparedCrowd:
-    """One (seed, set, task, crowd), generated and cleaned, with its four datasets."""
+    """One (seed, set, task, crowd), generated and cleaned, with its five datasets."""
 
     seed: int
     set_name: SetName
@@ -123,6 +138,7 @@ def prepare_crowd(job: PrepareJob) -> PreparedCrowd:
     datasets: dict[CrowdDataset, Sequence[Demo]] = {
         "noisy": demos,
         "cleaned": cleaned,
+        "best_aligned": [d.with_positions(result.stage1.aligned[i]) for i, d in enumerate(demos)],
         "truth_shape": truth_demos(demos, truths),
         "truth_timing": timed_truth(demos, records),
     }

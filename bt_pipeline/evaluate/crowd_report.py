@@ -31,8 +31,8 @@ from bt_pipeline.viz.plots import LEARNER_TITLES, save_figure
 
 TAU_MM = 10.0
 """τ of the headline success rate."""
-_COLORS = {"noisy": "#8c8c8c", "cleaned": "#2ca02c", "truth_shape": "#1f77b4"}
-_COLORS["truth_timing"] = "#9ecae1"
+_COLORS = {"noisy": "#8c8c8c", "cleaned": "#2ca02c", "best_aligned": "#ff7f0e"}
+_COLORS |= {"truth_shape": "#1f77b4", "truth_timing": "#9ecae1"}
 
 CellKey = tuple[str, str, str, str]
 """(set, task, crowd, learner)."""
@@ -91,17 +91,19 @@ def crowd_section(run: CrowdRun, cells: dict[CellKey, CrowdCell]) -> list[str]:
         f"{s.per_demonstrator} times per demonstrator from that demonstrator's true loop, its "
         "second period scored against that loop. **Success** at τ: the rollout passes within τ "
         "of ≥ 90 % of the loop, returns within τ of its start and goes ≥ 0.95 times around. "
-        "Datasets: noisy, cleaned, and the generator's truth, shape-only and shape-plus-timing. "
+        "Datasets: noisy, cleaned, best aligned (the best demo's loop aligned to each demo: what "
+        "selection buys without refinement), and the generator's truth, shape-only and "
+        "shape-plus-timing. "
         f"Wall time {run.seconds:.0f} s.",
         "",
-        "| set | task | crowd | learner | success@10 mm noisy / cleaned / truth shape / truth "
-        "timing | shape [mm] noisy / cleaned / truth shape | gate (truth vs noisy) | cleaned vs "
-        "noisy | share of the gap recovered |",
+        "| set | task | crowd | learner | success@10 mm noisy / cleaned / best aligned / truth "
+        "shape / truth timing | shape [mm] noisy / cleaned / best aligned / truth shape | gate "
+        "(truth vs noisy) | cleaned vs noisy | share of the gap recovered |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for (set_name, task, crowd, learner), cell in cells.items():
         rates = " / ".join(f"{cell.success[d].mean():.2f}" for d in CROWD_DATASETS)
-        shapes = " / ".join(f"{cell.shape_mm[d].mean():.1f}" for d in CROWD_DATASETS[:3])
+        shapes = " / ".join(f"{cell.shape_mm[d].mean():.1f}" for d in CROWD_DATASETS[:4])
         v = cell.on_success
         if v is None:
             gate, outcome, share = "one seed: no gate", "—", "—"

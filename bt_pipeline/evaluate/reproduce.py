@@ -105,7 +105,7 @@ def reproduce(
             conditioned,
             tasks=config.tasks,
             learners=config.learners,
-            quick=config.quick,
+            quick=config.quick or conditioned.quick_learners,
             executor=executor,
             steps=config.steps,
             clean_epochs=config.clean_epochs,
