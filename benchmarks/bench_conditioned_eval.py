@@ -3,9 +3,10 @@
 For each task, crowd kind (``independent``: every naive demo its own defects, bt synth's default;
 ``shared``: the naive demos share a corner cut, an undershot stretch, a pause place and a
 backwards minority, :mod:`bt_pipeline.data.synth_crowd`) and seed, it makes a D1 set, cleans it,
-and trains every learner, conditioned on each demo's (θ, ρ), on four datasets of the same set:
-the noisy demos, the cleaned ones, and the generator's truth, shape-only (each true loop at the
-canonical speed) and shape-plus-timing (the intended path at the demo's own timing). Each policy
+and trains every learner, conditioned on each demo's (θ, ρ), on five datasets of the same set
+(:func:`bt_pipeline.evaluate.crowd_jobs.prepare_crowd`, as ``bt reproduce`` does): the noisy
+demos, the cleaned ones, the best demo's loop aligned to each demo, and the generator's truth,
+shape-only and shape-plus-timing. Each policy
 is rolled out 12 times per demonstrator from its true loop (2 % noise) and scored over the second
 period against that demonstrator's own true loop (:mod:`bt_pipeline.evaluate.conditioned`).
 
@@ -27,67 +28,39 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
-from bt_pipeline.data.demo import Demo, demos_from_recording
-from bt_pipeline.data.synth import make_d1
-from bt_pipeline.data.synth_crowd import make_crowd_set
 from bt_pipeline.data.tasks import TASKS
-from bt_pipeline.evaluate.conditioned import evaluate_conditioned, loops_by_demonstrator
+from bt_pipeline.evaluate.conditioned import evaluate_conditioned
+from bt_pipeline.evaluate.crowd_jobs import CROWD_DATASETS, CrowdSettings, prepare_crowd
 from bt_pipeline.evaluate.learners import LearnerName
-from bt_pipeline.evaluate.reproduce_jobs import truth_demos
 from bt_pipeline.evaluate.stats import verdict
 
-DATASETS = ("noisy", "cleaned", "truth_shape", "truth_timing")
 TAU_MM = 10.0
 
 
-def timed_truth(demos: list[Demo], recording_demos: list) -> list[Demo]:
-    """Each demo's intended path at its own timing (the truth_uv attr), N samples."""
-    out = []
-    for demo, record in zip(demos, recording_demos, strict=True):
-        uv = np.asarray(record.attrs["truth_uv"], dtype=np.float64)
-        t = np.asarray(record.timestamps, dtype=np.float64)
-        s = np.linspace(t[0], t[-1], demo.n_samples)
-        out.append(demo.with_positions(np.stack([np.interp(s, t, uv[:, j]) for j in range(2)], 1)))
-    return out
-
-
 def run_unit(job: tuple[str, str, int, tuple[str, ...], bool, bool]) -> list[dict]:
-    """Every learner on every dataset of one (task, kind, seed)."""
-    task, kind, seed, learners, quick, unconditioned = job
-    synth = make_d1(task, seed) if kind == "independent" else make_crowd_set(task, 4, seed)
-    demos = demos_from_recording(synth.recording)
-    result = clean_demos(demos, CleanOptions(seed=seed, write_rrd=False, progress=False))
-    truths = [d.truth for d in synth.demos]
-    datasets = {
-        "noisy": demos,
-        "cleaned": [d.with_positions(result.positions[i]) for i, d in enumerate(demos)],
-        "truth_shape": truth_demos(demos, truths),
-        "truth_timing": timed_truth(demos, list(synth.recording.demos.values())),
-    }
-    prefs = np.array([[d.theta_deg, d.rho] for d in demos], dtype=np.float64)
-    names = [d.demonstrator for d in demos]
-    loops, _ = loops_by_demonstrator(names, prefs, truths)
+    """Every learner on every dataset of one (task, crowd, seed)."""
+    task, crowd, seed, learners, quick, unconditioned = job
+    prepared = prepare_crowd((seed, "D1", task, crowd, CrowdSettings(), None))  # type: ignore[arg-type]
     rows = []
     for learner in learners:
         for conditioned in (True, False) if unconditioned else (True,):
-            for name, ds in datasets.items():
+            for name in CROWD_DATASETS:
                 start = time.perf_counter()
                 e = evaluate_conditioned(
                     learner,  # type: ignore[arg-type]
                     name,
-                    np.stack([d.positions for d in ds]),
-                    prefs,
-                    loops,
+                    prepared.positions[name],
+                    prepared.preferences,
+                    prepared.loops,
                     seed=seed,
                     quick=quick,
-                    demonstrators=names,
+                    demonstrators=prepared.demonstrators,
                     conditioned=conditioned,
                 )
                 rows.append(
                     {
                         "task": task,
-                        "kind": kind,
+                        "kind": crowd,
                         "seed": seed,
                         "learner": learner if conditioned else f"{learner} (paper)",
                         "dataset": name,
@@ -126,8 +99,9 @@ def main() -> None:
     for row in rows:
         cells[(row["task"], row["kind"], row["learner"])][row["dataset"]][row["seed"]] = row
     print(
-        f"| task | crowd | learner | success@{TAU_MM:.0f} mm noisy / cleaned / truth (shape, "
-        "timing) | shape [mm] noisy / cleaned / truth | robust success noisy / cleaned | "
+        f"| task | crowd | learner | success@{TAU_MM:.0f} mm noisy / cleaned / best aligned / "
+        "truth (shape, timing) | shape [mm] noisy / cleaned / best aligned / truth (shape, timing) "
+        "| robust success noisy / cleaned | "
         "verdict on success | verdict on shape |"
     )
     print("|---|---|---|---|---|---|---|---|")
@@ -139,8 +113,8 @@ def main() -> None:
         ) -> np.ndarray:
             return np.array([by_dataset[dataset][s][key] for s in seeds])
 
-        success = {d: values(d, "success") for d in DATASETS}
-        shape = {d: values(d, "shape_mm") for d in DATASETS}
+        success = {d: values(d, "success") for d in CROWD_DATASETS}
+        shape = {d: values(d, "shape_mm") for d in CROWD_DATASETS}
         on_success = verdict(
             success["noisy"], success["cleaned"], success["truth_shape"], higher_is_better=True
         )
@@ -149,9 +123,9 @@ def main() -> None:
         )
         print(
             f"| {task} | {kind} | {learner} | "
-            + " / ".join(f"{success[d].mean():.2f}" for d in DATASETS)
+            + " / ".join(f"{success[d].mean():.2f}" for d in CROWD_DATASETS)
             + " | "
-            + " / ".join(f"{shape[d].mean():.1f}" for d in DATASETS)
+            + " / ".join(f"{shape[d].mean():.1f}" for d in CROWD_DATASETS)
             + f" | {values('noisy', 'robust').mean():.2f} / "
             + f"{values('cleaned', 'robust').mean():.2f}"
             + f" | {on_success.summary()} | {on_shape.summary()} |",
