@@ -109,7 +109,7 @@ def reproduce(
     paper_learners: bool = False,
     paper_only: bool = False,
     conditioned_seeds: int | None = None,
-    crowds: tuple[Literal["independent", "shared"], ...] = ("independent", "shared"),
+    crowds: tuple[Literal["independent", "shared"], ...] | None = None,
 ) -> None:
     """Reproduce the paper's Sec. IV on synthetic D1 and D2: generate, clean, evaluate, report.
 
@@ -135,7 +135,8 @@ def reproduce(
         paper_only: Only the paper's protocol (no conditioned learners).
         conditioned_seeds: Seeds of the conditioned protocol (default: 10 for the full run,
             3 with --quick; its verdicts are paired over them).
-        crowds: Crowds of the conditioned protocol: independent defects, shared biases.
+        crowds: Crowds of the conditioned protocol: independent defects, shared biases
+            (default: both; shared alone with --quick).
     """
     from bt_pipeline.evaluate.crowd_jobs import CrowdSettings
     from bt_pipeline.evaluate.reproduce import reproduce as run
@@ -152,8 +153,9 @@ def reproduce(
     conditioned = None
     if not paper_only:
         default_seeds, per = (3, 6) if quick else (10, 12)
+        kinds = crowds or (("shared",) if quick else ("independent", "shared"))
         conditioned = CrowdSettings(
-            seeds=conditioned_seeds or default_seeds, crowds=crowds, per_demonstrator=per
+            seeds=conditioned_seeds or default_seeds, crowds=kinds, per_demonstrator=per
         )
     pool = ExecutorConfig(executor, workers, ray_address)
     for path in run(config, out, executor=pool, conditioned=conditioned):
