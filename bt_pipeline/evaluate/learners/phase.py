@@ -101,9 +101,9 @@ def _loop_length(smooth: FloatArray, s: FloatArray, guess: float) -> float:
     if found:
         return float(np.median(found))
     # No return: the demo holds about one loop or less (a loop stopped short, or one whose end
-    # was moved off its start). Its whole length is then nearer one loop than the spectral guess,
-    # which is clipped to it and read a cleaned figure-eight 2.3 % short as 6.4 % short, so the
-    # phase 2π landed 95 mm from the start (docs/evaluation.md).
+    # was moved off its start). Its whole length is then nearer one loop than the spectral guess
+    # (clipped to it), which took a cleaned figure-eight 2.3 % short of a loop for 1.07 loops, so
+    # the phase 2π landed 95 mm from the start (docs/evaluation.md).
     return s[-1] if guess >= _ONE_LOOP * s[-1] else guess
 
 
