@@ -25,6 +25,7 @@ import numpy as np
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.evaluate.conditioned import evaluate_conditioned
 from bt_pipeline.evaluate.crowd_jobs import CrowdSettings, prepare_crowd
+from bt_pipeline.evaluate.learners import parse_learner
 from bt_pipeline.evaluate.stats import verdict
 
 DATASETS = ("noisy", "cleaned", "truth_shape")
@@ -33,7 +34,8 @@ TAU_MM = 10.0
 
 def run_unit(job: tuple[str, int, int, str, bool]) -> list[dict]:
     """One (task, experts, seed): seen scores per dataset, and held-out ones when asked."""
-    task, experts, seed, learner, held_out = job
+    task, experts, seed, name_of_learner, held_out = job
+    learner = parse_learner(name_of_learner)
     settings = CrowdSettings(experts=experts)
     prepared = prepare_crowd((seed, "D1", task, "shared", settings, None))  # type: ignore[arg-type]
     rows = []
@@ -46,7 +48,7 @@ def run_unit(job: tuple[str, int, int, str, bool]) -> list[dict]:
             prefs,
             prepared.loops,
             seed=seed,
-            quick=True,  # type: ignore[arg-type]
+            quick=True,
         )
         row = {"task": task, "experts": experts, "seed": seed, "dataset": name}
         row["success"] = e.scores.success_rate(TAU_MM)
@@ -55,7 +57,7 @@ def run_unit(job: tuple[str, int, int, str, bool]) -> list[dict]:
             for loop in prepared.loops:
                 keep = np.array([n != loop.name for n in prepared.demonstrators])
                 h = evaluate_conditioned(
-                    learner,  # type: ignore[arg-type]
+                    learner,
                     name,
                     x[keep],
                     prefs[keep],
