@@ -52,6 +52,7 @@ from bt_pipeline.data.recording import DEFAULT_ENV_TYPE
 from bt_pipeline.data.records import DemoRecord, FloatArray, Recording, forward_difference_actions
 from bt_pipeline.data.shapes import canonical_loop, similarity_transform
 from bt_pipeline.data.synth_loop import loop_positions, lopsided, resolve_task, shape_kwargs
+from bt_pipeline.data.synth_truth import truth_attrs
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError
 
@@ -187,23 +188,30 @@ def make_demo_set(
         for k in range(n_demos)
     )
     preset = {4: "D1", 20: "D2"}.get(n_demos, "custom")
-    recording = Recording(
+    env_kwargs = {"task": task, "seed": seed, "preset": preset, "n_demos": n_demos}
+    recording = synthetic_recording(task, plane, [d.record for d in demos], env_kwargs, shape)
+    return SynthSet(task=task, recording=recording, demos=demos, expert_index=expert_index)
+
+
+def synthetic_recording(
+    task: Task,
+    plane: TaskPlane,
+    records: list[DemoRecord],
+    env_kwargs: dict[str, Any],
+    shape: LoopShape | None,
+) -> Recording:
+    """A generated set as a format-v1 recording: demo_<k> records, ``env_args`` naming the
+    generator, its settings `env_kwargs` and the set's loop (every generator's)."""
+    return Recording(
         task=task,
         plane=plane,
-        demos={d.name: d.record for d in demos},
+        demos={f"demo_{k}": record for k, record in enumerate(records)},
         env_args={
             "env_name": ENV_NAME,
             "type": DEFAULT_ENV_TYPE,
-            "env_kwargs": {
-                "task": task,
-                "seed": seed,
-                "preset": preset,
-                "n_demos": n_demos,
-                **shape_kwargs(shape),
-            },
+            "env_kwargs": {**env_kwargs, **shape_kwargs(shape)},
         },
     )
-    return SynthSet(task=task, recording=recording, demos=demos, expert_index=expert_index)
 
 
 def check_set_args(n_demos: object, seed: object) -> tuple[int, int]:
@@ -350,13 +358,8 @@ def _make_demo(
         source="synthetic",
         actions=forward_difference_actions(ee_pos, t),
         created=(_CREATED_EPOCH + timedelta(hours=seed % 8760, minutes=k)).isoformat(),
-        attrs={  # Ground truth, as in the human style (bt_pipeline.data.synth_human).
-            "truth_uv": intended.astype(np.float32),
-            "truth_on_loop": np.ones(t.size, dtype=np.uint8),
-            "truth_theta_deg": teacher.theta_deg,
-            "truth_rho": teacher.rho,
-            "truth_cycles": fraction,
-        },
+        # Ground truth, as in the human style (bt_pipeline.data.synth_human).
+        attrs=truth_attrs(intended, np.ones(t.size), teacher.theta_deg, teacher.rho, fraction),
         ep_meta={
             "synthetic": {
                 "is_expert": is_expert,

@@ -50,12 +50,10 @@ import numpy as np
 
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.plane import TaskPlane
-from bt_pipeline.data.recording import DEFAULT_ENV_TYPE
-from bt_pipeline.data.records import DemoRecord, FloatArray, Recording, forward_difference_actions
+from bt_pipeline.data.records import DemoRecord, FloatArray, forward_difference_actions
 from bt_pipeline.data.shapes import similarity_transform
 from bt_pipeline.data.synth import (
     DEMONSTRATORS,
-    ENV_NAME,
     SAMPLE_RATE_HZ,
     TRUTH_SAMPLES,
     Defect,
@@ -63,8 +61,10 @@ from bt_pipeline.data.synth import (
     SynthSet,
     add_noise_and_outliers,
     check_set_args,
+    synthetic_recording,
 )
-from bt_pipeline.data.synth_loop import loop_positions, resolve_task, shape_kwargs
+from bt_pipeline.data.synth_loop import loop_positions, resolve_task
+from bt_pipeline.data.synth_truth import truth_attrs
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError
 
@@ -151,24 +151,9 @@ def make_crowd_set(
         _make_demo(k, k in expert_ks, biases, (seed, task_index), plane, loop, centre)
         for k in range(n_demos)
     )
-    recording = Recording(
-        task=task,
-        plane=plane,
-        demos={d.name: d.record for d in demos},
-        env_args={
-            "env_name": ENV_NAME,
-            "type": DEFAULT_ENV_TYPE,
-            "env_kwargs": {
-                "task": task,
-                "seed": seed,
-                "preset": "crowd",
-                "n_demos": n_demos,
-                "crowd": "shared",
-                "experts": experts,
-                **shape_kwargs(shape),
-            },
-        },
-    )
+    env_kwargs = {"task": task, "seed": seed, "preset": "crowd", "n_demos": n_demos}
+    env_kwargs |= {"crowd": "shared", "experts": experts}
+    recording = synthetic_recording(task, plane, [d.record for d in demos], env_kwargs, shape)
     expert_index = min(expert_ks) if expert_ks else -1
     return SynthSet(task=task, recording=recording, demos=demos, expert_index=expert_index)
 
@@ -338,13 +323,8 @@ def _make_demo(
         source="synthetic",
         actions=forward_difference_actions(ee_pos, t),
         created=(_CREATED_EPOCH + timedelta(hours=set_key[0] % 8760, minutes=k)).isoformat(),
-        attrs={  # Ground truth, as in the default style (bt_pipeline.data.synth).
-            "truth_uv": intended.astype(np.float32),
-            "truth_on_loop": np.ones(t.size, dtype=np.uint8),
-            "truth_theta_deg": teacher.theta_deg,
-            "truth_rho": teacher.rho,
-            "truth_cycles": 1.0,
-        },
+        # Ground truth, as in the default style (bt_pipeline.data.synth).
+        attrs=truth_attrs(intended, np.ones(t.size), teacher.theta_deg, teacher.rho, 1.0),
         ep_meta={
             "synthetic": {
                 "is_expert": is_expert,

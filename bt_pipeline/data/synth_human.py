@@ -51,18 +51,18 @@ import numpy as np
 
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.plane import TaskPlane
-from bt_pipeline.data.recording import DEFAULT_ENV_TYPE
 from bt_pipeline.data.records import DemoRecord, FloatArray, Recording, forward_difference_actions
 from bt_pipeline.data.shapes import similarity_transform
 from bt_pipeline.data.synth import (
-    ENV_NAME,
     Defect,
     Demonstrator,
     add_noise_and_outliers,
     check_set_args,
     draw_defects,
+    synthetic_recording,
 )
-from bt_pipeline.data.synth_loop import loop_positions, lopsided, resolve_task, shape_kwargs
+from bt_pipeline.data.synth_loop import loop_positions, lopsided, resolve_task
+from bt_pipeline.data.synth_truth import truth_attrs
 from bt_pipeline.data.tasks import Task
 
 TRUTH_ATTRS = ("truth_uv", "truth_on_loop", "truth_theta_deg", "truth_rho", "truth_cycles")
@@ -160,22 +160,8 @@ def make_human_set(
         )
         for k in range(n_demos)
     )
-    recording = Recording(
-        task=task,
-        plane=plane,
-        demos={d.name: d.record for d in demos},
-        env_args={
-            "env_name": ENV_NAME,
-            "type": DEFAULT_ENV_TYPE,
-            "env_kwargs": {
-                "task": task,
-                "seed": int(seed),
-                "style": "human",
-                "n_demos": n_demos,
-                **shape_kwargs(shape),
-            },
-        },
-    )
+    env_kwargs = {"task": task, "seed": int(seed), "style": "human", "n_demos": n_demos}
+    recording = synthetic_recording(task, plane, [d.record for d in demos], env_kwargs, shape)
     return HumanSet(task, recording, demos, expert_index, hidden)
 
 
@@ -323,13 +309,7 @@ def _make_demo(
     ee_pos = plane.to_world(noisy) + wobble[:, None] * plane.normal
     t0 = float(np.round(rng.uniform(0.0, 50.0), 3))
     timestamps = t0 + t
-    attrs = {
-        "truth_uv": truth.astype(np.float32),
-        "truth_on_loop": mask.astype(np.uint8),
-        "truth_theta_deg": teacher.theta_deg,
-        "truth_rho": teacher.rho,
-        "truth_cycles": cycles,
-    }
+    attrs = truth_attrs(truth, mask, teacher.theta_deg, teacher.rho, cycles)
     record = DemoRecord(
         ee_pos=ee_pos,
         timestamps=timestamps,

@@ -23,6 +23,21 @@ from bt_pipeline.data.records import DemoRecord, FloatArray
 _SPACING_M = 0.0001  # Densified paths: one point per 0.1 mm of arc length (module doc).
 
 
+def truth_attrs(
+    intended: ArrayLike, on_loop: ArrayLike, theta_deg: float, rho: float, cycles: float
+) -> dict[str, object]:
+    """The ground-truth demo attrs every generator stores (:data:`~bt_pipeline.data.synth_human.
+    TRUTH_ATTRS`): the intended path (T, 2) [m] at the demo's own timing, which samples are on
+    the loops (T,), the demonstrator's θ [deg] and ρ, and the loops drawn."""
+    return {
+        "truth_uv": np.asarray(intended).astype(np.float32),
+        "truth_on_loop": np.asarray(on_loop).astype(np.uint8),
+        "truth_theta_deg": theta_deg,
+        "truth_rho": rho,
+        "truth_cycles": cycles,
+    }
+
+
 def truth_of(record: DemoRecord) -> tuple[FloatArray, np.ndarray] | None:
     """The stored truth of a synthetic demo: (truth_uv (T, 2) [m], on_loop (T,) bool), or None."""
     if "truth_uv" not in record.attrs or "truth_on_loop" not in record.attrs:
