@@ -305,10 +305,11 @@ def clean_demos(
     seconds["stage2"] = time.perf_counter() - start
 
     start = time.perf_counter()
+    l1_thetas = stage1.l1_thetas()
     metrics = per_demo(
         metrics_step,
         [
-            (positions[i], refined.refined[i], stage1.aligned[i], float(stage1.l1_thetas()[i]))
+            (positions[i], refined.refined[i], stage1.aligned[i], float(l1_thetas[i]))
             for i in range(len(demos))
         ],
         (options.score.k, options.score.alphas),
