@@ -102,3 +102,55 @@ def test_a_figure_eight_traced_once_goes_around_once() -> None:
     scores = score_rollouts(np.stack([path, path[::-1]]), [0, 0], loops)
     assert scores.progress == pytest.approx([1.0, 1.0], abs=0.01)
     assert scores.success[:, TAUS_MM.index(2.0)].all()
+
+
+def test_l4_reads_the_timing_the_shape_distance_does_not() -> None:
+    """On the loop at its own even pace L4 is ~0; the same points rushed through half the loop
+    and crawling through the other half keep the shape distance ~0 but not L4 (Eq. 9)."""
+    loop = circle(0.1, 600)
+    s = np.linspace(0.0, 1.0, 301)
+    even = 0.1 * np.stack([np.cos(2 * np.pi * s), np.sin(2 * np.pi * s)], axis=1)
+    warp = s + 0.12 * np.sin(2 * np.pi * s)
+    uneven = 0.1 * np.stack([np.cos(2 * np.pi * warp), np.sin(2 * np.pi * warp)], axis=1)
+    scores = score_rollouts(np.stack([even, uneven]), [0, 0], [DemonstratorLoop("a", 0, 1, loop)])
+    assert scores.shape_mm == pytest.approx([0.0, 0.0], abs=1.0)
+    assert scores.l4_mm[0] < 0.5 and scores.l4_mm[1] > 20 * max(scores.l4_mm[0], 0.1)
+
+
+def _perfect_four() -> tuple[np.ndarray, np.ndarray, list[DemonstratorLoop], list[str]]:
+    data = perfect_demos("wiping", DEMONSTRATORS, per_teacher=1, n_samples=200, seed=2)
+    prefs = np.array([[t.theta_deg, t.rho] for t in DEMONSTRATORS])
+    truths = [data.truths[name] for name in data.demonstrators]
+    loops, _ = loops_by_demonstrator(data.demonstrators, prefs, truths)
+    return data.positions, prefs, loops, list(data.demonstrators)
+
+
+def test_held_out_rolls_out_only_the_demonstrator_left_out_of_training() -> None:
+    x, prefs, loops, names = _perfect_four()
+    e = evaluate_conditioned(
+        "bc", "truth", x, prefs, loops, seed=0, quick=True, per_demonstrator=3,
+        demonstrators=names, approach="held_out", held_out=2,
+    )  # fmt: skip
+    assert set(e.scores.who.tolist()) == {2} and e.scores.who.size == 3
+    assert np.isfinite(e.examples[2]).all() and np.isnan(e.examples[[0, 1, 3]]).all()
+    seen = evaluate_conditioned(
+        "bc", "truth", x, prefs, loops, seed=0, quick=True, per_demonstrator=3,
+        demonstrators=names,
+    )  # fmt: skip
+    # The same starts: the demonstrator's rollouts begin where the seen policy's do.
+    assert seen.scores.who.size == 12
+    with pytest.raises(ConfigError, match="demonstrator"):
+        evaluate_conditioned("bc", "t", x, prefs, loops, seed=0, approach="held_out")
+
+
+def test_a_per_demonstrator_learner_draws_its_own_demonstrator_s_loop() -> None:
+    """Trained on one demonstrator's perfect demo alone, each unconditioned policy draws that
+    demonstrator's loop (the pooled unconditioned one does not: the test above)."""
+    x, prefs, loops, names = _perfect_four()
+    e = evaluate_conditioned(
+        "bc", "truth", x, prefs, loops, seed=0, quick=True, per_demonstrator=4,
+        demonstrators=names, approach="per_demonstrator",
+    )  # fmt: skip
+    assert sorted(set(e.scores.who.tolist())) == [0, 1, 2, 3]
+    assert np.all(e.scores.by_demonstrator(e.scores.shape_mm) < 2.0)
+    assert e.scores.success_rate(5.0) >= 0.9

@@ -10,8 +10,14 @@ preference, from starts on that demonstrator's true loop, and scored against tha
     dataset (M, N, 2) + each demo's (θ, ρ) ──train (conditioned)──▶ policy
     per demonstrator d: starts on its true loop + N(0, (2 % of its size)²)   (or 1-3 cm off)
         ──rollout with (θ_d, ρ_d), two periods──▶ the second period is scored against d's loop:
-        shape distance (Chamfer, mm), coverage within τ, progress (loops per period),
-        success(τ) = coverage(τ) ≥ 0.9 and it returns within τ of its start and progress ≥ 0.95
+        shape distance (Chamfer, mm), L4 (Eq. 9, mm), coverage within τ, progress (loops per
+        period), success(τ) = coverage(τ) ≥ 0.9, it returns within τ of its start and
+        progress ≥ 0.95
+
+Two other ways to train, on the same data and starts: ``held_out`` trains without one
+demonstrator's demos and rolls out for that demonstrator only (does the policy generalise to a
+preference it never saw?), and ``per_demonstrator`` trains one unconditioned policy per
+demonstrator on its demos alone.
 
 The rollouts of one trained model describe that model; comparisons between datasets are made
 over seeds (:mod:`bt_pipeline.evaluate.stats`).
@@ -21,11 +27,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import KDTree
 
+from bt_pipeline.clean.stage1.alignment import shape_loss
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.evaluate.distance import chamfer_distance
 from bt_pipeline.evaluate.learners import LearnerName, learner_config, train_learner
@@ -38,6 +46,11 @@ COVER = 0.9
 PROGRESS = 0.95
 """and goes around it at least this many times per period."""
 _RETURN = 0.2  # It returns within τ of its start in the last 20 % of the period.
+Approach = Literal["conditioned", "held_out", "per_demonstrator"]
+"""How a learner is trained and rolled out (module doc)."""
+APPROACHES: tuple[Approach, ...] = ("conditioned", "held_out", "per_demonstrator")
+OFFSETS: tuple[tuple[float, float] | None, ...] = (None, (0.01, 0.03))
+"""Starts on the true loops (plus noise), and the robustness row's 1-3 cm off them [m]."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +79,9 @@ class RolloutScores:
     """Index of the demonstrator each rollout draws, shape (R,)."""
     shape_mm: FloatArray
     """Chamfer distance of the scored period to the demonstrator's true loop [mm], (R,)."""
+    l4_mm: FloatArray
+    """L4 (Eq. 9: best circular shift and direction) of the scored period against the
+    demonstrator's true loop [mm], (R,): unlike the shape distance, it reads the timing too."""
     coverage: FloatArray
     """Share of the true loop within τ of the scored period, shape (R, len(TAUS_MM))."""
     returns: np.ndarray
@@ -85,7 +101,12 @@ class RolloutScores:
     def by_demonstrator(self, values: ArrayLike) -> FloatArray:
         """The mean of per-rollout `values` (R,) over each demonstrator's rollouts, (D,)."""
         v = np.asarray(values, dtype=np.float64)
-        return np.array([v[self.who == d].mean() for d in range(int(self.who.max()) + 1)])
+        return np.array(
+            [
+                v[self.who == d].mean() if np.any(self.who == d) else np.nan
+                for d in range(int(self.who.max()) + 1)
+            ]
+        )
 
 
 def starts_on_loops(
@@ -130,11 +151,12 @@ def score_rollouts(
     if x.ndim != 3 or x.shape[2] != 2 or w.shape != (x.shape[0],):
         raise ConfigError(f"periods must be (R, n, 2) with one demonstrator each; got {x.shape}")
     taus = np.array(TAUS_MM) / 1000.0
-    shape, coverage, returns, progress = [], [], [], []
+    shape, l4, coverage, returns, progress = [], [], [], [], []
     trees = [KDTree(d.loop) for d in loops]
     for path, d in zip(x, w, strict=True):
         loop = loops[int(d)].loop
         shape.append(1000.0 * chamfer_distance(path, loop))
+        l4.append(1000.0 * shape_loss(path, _resampled(loop, len(path))))  # Eq. (9)
         gaps, _ = KDTree(path).query(loop)
         coverage.append(np.mean(gaps[:, None] <= taus[None, :], axis=0))
         tail = path[int((1.0 - _RETURN) * len(path)) :]
@@ -144,6 +166,7 @@ def score_rollouts(
     return RolloutScores(
         who=w,
         shape_mm=np.array(shape),
+        l4_mm=np.array(l4),
         coverage=np.array(coverage),
         returns=np.array(returns),
         progress=np.array(progress),
@@ -152,7 +175,8 @@ def score_rollouts(
 
 @dataclass(frozen=True, eq=False)
 class ConditionedEval:
-    """One learner trained (conditioned) on one dataset, rolled out for every demonstrator."""
+    """One learner trained on one dataset, rolled out for every demonstrator (or, held out, for
+    one)."""
 
     learner: LearnerName
     dataset: str
@@ -161,6 +185,9 @@ class ConditionedEval:
     robust: RolloutScores
     """From starts 1-3 cm off the true loops."""
     train_seconds: float
+    examples: FloatArray
+    """The first on-loop rollout's scored period of each demonstrator, (D, n, 2) [m]; NaN for
+    a demonstrator not rolled out (held out: all but one)."""
 
 
 def evaluate_conditioned(
@@ -176,36 +203,69 @@ def evaluate_conditioned(
     steps: int | None = None,
     demonstrators: Sequence[str] | None = None,
     conditioned: bool = True,
+    approach: Approach = "conditioned",
+    held_out: int = 0,
 ) -> ConditionedEval:
     """Train `learner` on `positions` (M, N, 2) [m] with each demo's (θ [deg], ρ) (M, 2) and
     score it for every demonstrator of `loops` (module doc).
 
     `conditioned=False` trains the paper's unconditioned learner on the same data and rolls it
-    out from the same starts (it cannot be told whose loop to draw). `demonstrators` (M names)
-    group ILEED's expertise.
+    out from the same starts (it cannot be told whose loop to draw). `demonstrators` (M names,
+    matching the loops' names) group ILEED's expertise; the ``held_out`` (``loops[held_out]``'s
+    demos left out) and ``per_demonstrator`` approaches need them. Every approach rolls a
+    demonstrator out from the same starts.
     """
     x = np.asarray(positions, dtype=np.float64)
     prefs = np.asarray(preferences, dtype=np.float64)
+    names = np.array(demonstrators if demonstrators is not None else [""] * x.shape[0])
+    if approach != "conditioned" and demonstrators is None:
+        raise ConfigError(f"the {approach} approach needs each demo's demonstrator")
+    everyone = np.ones(x.shape[0], dtype=bool)
+    units: list[tuple[np.ndarray, list[int], bool]]  # (demos trained on, rolled out for, cond)
+    if approach == "conditioned":
+        units = [(everyone, list(range(len(loops))), conditioned)]
+    elif approach == "held_out":
+        units = [(names != loops[held_out].name, [held_out], True)]
+    else:
+        units = [(names == d.name, [i], False) for i, d in enumerate(loops)]
     overrides: dict[str, object] = {"seed": seed}
     if steps is not None:
         overrides["steps"] = steps
-    trained = train_learner(
-        learner,
-        x,
-        demonstrators,
-        learner_config(learner, quick=quick, **overrides),
-        prefs if conditioned else None,
-    )
+    config = learner_config(learner, quick=quick, **overrides)
     n = x.shape[1]
     wanted = np.array([[d.theta_deg, d.rho] for d in loops])
-    results = []
-    for off in (None, (0.01, 0.03)):
-        x0, who = starts_on_loops(loops, per_demonstrator, seed + 1, off_m=off)
-        states = trained.policy.rollout(
-            x0, 2 * n - 1, preferences=wanted[who] if conditioned else None
+    starts = [starts_on_loops(loops, per_demonstrator, seed + 1, off_m=off) for off in OFFSETS]
+    periods: list[list[FloatArray]] = [[] for _ in OFFSETS]
+    whos: list[list[np.ndarray]] = [[] for _ in OFFSETS]
+    seconds = 0.0
+    for mask, targets, cond in units:
+        if not mask.any():
+            raise ConfigError(f"no demos to train the {approach} learner on")
+        trained = train_learner(
+            learner,
+            x[mask],
+            list(names[mask]) if demonstrators is not None else None,
+            config,
+            prefs[mask] if cond else None,
         )
-        results.append(score_rollouts(states[:, n - 1 :], who, loops))
-    return ConditionedEval(learner, dataset, results[0], results[1], trained.seconds)
+        seconds += trained.seconds
+        for k, (x0, who) in enumerate(starts):
+            pick = np.isin(who, targets)
+            states = trained.policy.rollout(
+                x0[pick], 2 * n - 1, preferences=wanted[who[pick]] if cond else None
+            )
+            periods[k].append(states[:, n - 1 :])
+            whos[k].append(who[pick])
+    scored = [
+        score_rollouts(np.concatenate(p), np.concatenate(w), loops)
+        for p, w in zip(periods, whos, strict=True)
+    ]
+    examples = np.full((len(loops), n, 2), np.nan)
+    on_loop, who = np.concatenate(periods[0]), np.concatenate(whos[0])
+    for d in range(len(loops)):
+        if np.any(who == d):
+            examples[d] = on_loop[int(np.flatnonzero(who == d)[0])]
+    return ConditionedEval(learner, dataset, scored[0], scored[1], seconds, examples)
 
 
 def loops_by_demonstrator(
@@ -258,3 +318,12 @@ def _tau_index(tau_mm: float) -> int:
         if abs(tau - tau_mm) < 1e-9:
             return i
     raise ConfigError(f"τ must be one of {TAUS_MM} mm; got {tau_mm}")
+
+
+def _resampled(loop: FloatArray, n: int) -> FloatArray:
+    """The open loop (K, 2) at n − 1 even steps of its own parameter, closed: shape (n, 2), the
+    last sample the first (Eq. 9's reference: one period of a rollout of n samples)."""
+    k = loop.shape[0]
+    closed = np.concatenate([loop, loop[:1]])
+    s = np.linspace(0.0, k, n)
+    return np.stack([np.interp(s, np.arange(k + 1), closed[:, j]) for j in range(2)], axis=1)
