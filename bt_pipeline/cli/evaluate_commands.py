@@ -29,13 +29,16 @@ def evaluate(
     workers: int = 1,
     executor: ExecutorName = "processes",
     ray_address: str | None = None,
+    conditioned: bool = True,
 ) -> None:
     """Train imitation learners on noisy and on cleaned demos and compare their rollouts (Sec. IV).
 
     Per task: BC, Traj-BC, ILEED and Neural ODE are trained on each set and rolled out from
     perturbed initial states; each rollout gets the mean value-map reward R̄ (Eq. 11), the shape
     loss L4 (Eq. 9) and Ũ (Eq. 8), all measured against the noisy set's best demo
-    (docs/evaluation.md).
+    (docs/evaluation.md). Then, per task, the same learners conditioned on each demo's θ/ρ (stated,
+    else the cleaner's estimate), rolled out per demonstrator and scored against its true loop
+    when the files carry the generator's truth, else against the best raw demo turned to it.
 
     Args:
         noisy: Raw recordings (files, directories or glob patterns).
@@ -58,14 +61,12 @@ def evaluate(
             limit); results do not change.
         executor: Where tasks run: "local", "processes" or "ray" (docs/scale.md).
         ray_address: Ray cluster address (with --executor ray); unset starts a local Ray.
+        conditioned: Also train the conditioned learners (a second table; ``conditioned`` in
+            each JSON row); --no-conditioned skips them. A task whose demos have no θ/ρ, no
+            cleaner's estimate and no demonstrator keeps the unconditioned learners only.
     """
-    from bt_pipeline.evaluate.driver import (
-        eval_json,
-        evaluate_paths,
-        parse_learners,
-        print_eval_table,
-        write_outputs,
-    )
+    from bt_pipeline.evaluate.driver import eval_json, evaluate_files, parse_learners, write_outputs
+    from bt_pipeline.evaluate.eval_table import print_eval_table
     from bt_pipeline.evaluate.protocol import EvalConfig
 
     if rrd is not None and rrd.suffix != ".rrd":
@@ -80,22 +81,29 @@ def evaluate(
         state="position" if paper_learners else "phase",
         corrective=not paper_learners,
     )
-    evaluations = evaluate_paths(
+    evaluations, by_demonstrator = evaluate_files(
         noisy,
         cleaned,
         config,
         n_samples=samples,
         executor=ExecutorConfig(executor, workers, ray_address),
+        conditioned=conditioned,
     )
     written = write_outputs(
-        evaluations, plots=plots, rrd=rrd, rollouts_out=rollouts_out, json_out=json_out, seed=seed
+        evaluations,
+        plots=plots,
+        rrd=rrd,
+        rollouts_out=rollouts_out,
+        json_out=json_out,
+        seed=seed,
+        conditioned=by_demonstrator,
     )
     for path in written:
         log.info("wrote %s", path)
     if json:
-        print(jsonlib.dumps(eval_json(evaluations), indent=2))
+        print(jsonlib.dumps(eval_json(evaluations, by_demonstrator), indent=2))
     else:
-        print_eval_table(evaluations)
+        print_eval_table(evaluations, conditioned=by_demonstrator)
 
 
 def reproduce(
@@ -110,6 +118,7 @@ def reproduce(
     paper_only: bool = False,
     conditioned_seeds: int | None = None,
     crowds: tuple[Literal["independent", "shared"], ...] | None = None,
+    sweeps: bool | None = None,
 ) -> None:
     """Reproduce the paper's Sec. IV on synthetic D1 and D2: generate, clean, evaluate, report.
 
@@ -137,8 +146,11 @@ def reproduce(
             3 with --quick; its verdicts are paired over them).
         crowds: Crowds of the conditioned protocol: independent defects, shared biases
             (default: both; shared alone with --quick).
+        sweeps: Also the conditioned protocol's sweeps: 0 and 3 expert-like demos, every
+            demonstrator at θ = 0, ρ = 1, and random loops (default: on for the full run, off
+            with --quick).
     """
-    from bt_pipeline.evaluate.crowd_jobs import CrowdSettings
+    from bt_pipeline.evaluate.crowd_sets import SWEEPS, CrowdSettings
     from bt_pipeline.evaluate.reproduce import reproduce as run
     from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig
 
@@ -155,7 +167,10 @@ def reproduce(
         default_seeds, per = (3, 6) if quick else (10, 12)
         kinds = crowds or (("shared",) if quick else ("independent", "shared"))
         conditioned = CrowdSettings(
-            seeds=conditioned_seeds or default_seeds, crowds=kinds, per_demonstrator=per
+            seeds=conditioned_seeds or default_seeds,
+            crowds=kinds,
+            per_demonstrator=per,
+            sweeps=SWEEPS if (not quick if sweeps is None else sweeps) else (),
         )
     pool = ExecutorConfig(executor, workers, ray_address)
     for path in run(config, out, executor=pool, conditioned=conditioned):

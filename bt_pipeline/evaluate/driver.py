@@ -10,6 +10,9 @@ Data flow (I/O at the edges of :mod:`bt_pipeline.evaluate.protocol`)::
         ──▶ --rrd FILE: rollouts, references and the table in one Rerun recording
         ──▶ --rollouts-out DIR: <task>.<learner>.<dataset>.rollouts.hdf5, format v1, replayable
         ──▶ --json-out FILE: the JSON document of --json
+    (unless --no-conditioned) per task: conditioned learners, per demonstrator
+        (:mod:`~bt_pipeline.evaluate.files_conditioned`) ──▶ a second table, ``conditioned`` in
+        every JSON row
 
 Outputs are written only after every task has been evaluated, and published as one set across
 their folders (:func:`write_outputs`, :class:`~bt_pipeline.data.output_set.OutputSet`): all of
@@ -25,15 +28,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rich.console import Console
-from rich.table import Table
 from tqdm import tqdm
 
-from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo, group_by_task, load_demos
+from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo, group_by_task
 from bt_pipeline.data.output_set import OutputSet
 from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_actions
 from bt_pipeline.data.tasks import Task
+from bt_pipeline.evaluate.file_facts import read_annotated
+from bt_pipeline.evaluate.files_conditioned import ConditionedTask, prepare_task, run_conditioned
 from bt_pipeline.evaluate.learners import LearnerName, parse_learner
 from bt_pipeline.evaluate.protocol import (
     DATASETS,
@@ -44,7 +47,7 @@ from bt_pipeline.evaluate.protocol import (
 )
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.execute import ExecutorConfig, run_jobs
-from bt_pipeline.viz.plots import LEARNER_TITLES, RewardBar, plot_reward_bars, plot_rollouts
+from bt_pipeline.viz.plots import RewardBar, plot_reward_bars, plot_rollouts
 
 """Rerun application id of evaluation recordings."""
 ROLLOUT_ENV_NAME = "bt_rollouts"
@@ -152,60 +155,62 @@ def evaluate_paths(
         RecordingError: A path matches no recording or a file is not format v1.
         ConfigError: A task in one set only.
     """
-    pairs = pair_by_task(load_demos(noisy, n_samples), load_demos(cleaned, n_samples))
-    return evaluate_pairs(pairs, config, progress, executor=executor)
+    return evaluate_files(noisy, cleaned, config, n_samples, progress, executor, False)[0]
 
 
-def eval_json(evaluations: Sequence[TaskEvaluation]) -> dict[str, Any]:
-    """The ``bt evaluate --json`` document: one row per (task, learner, dataset)."""
+def evaluate_files(
+    noisy: Sequence[str | Path],
+    cleaned: Sequence[str | Path],
+    config: EvalConfig,
+    n_samples: int = DEFAULT_SAMPLES,
+    progress: bool = True,
+    executor: ExecutorConfig | None = None,
+    conditioned: bool = True,
+) -> tuple[list[TaskEvaluation], list[ConditionedTask]]:
+    """:func:`evaluate_paths`, and with `conditioned` the conditioned learners of every task
+    (:mod:`~bt_pipeline.evaluate.files_conditioned`; empty list without).
+
+    The conditioned inputs are checked before any training, so a bad preference fails fast.
+
+    Raises:
+        RecordingError: A path matches no recording or a file is not format v1.
+        ConfigError: A task in one set only.
+        DemoError: Mixed N, or a stated preference that is infinite or has ρ ≤ 0.
+    """
+    noisy_demos, facts = read_annotated(noisy, n_samples)
+    cleaned_demos, cleaned_facts = read_annotated(cleaned, n_samples)
+    pairs = pair_by_task(noisy_demos, cleaned_demos)
+    facts.update(cleaned_facts)
+    prepared = [prepare_task(n, c, facts) for n, c in pairs.values()] if conditioned else []
+    evaluations = evaluate_pairs(pairs, config, progress, executor=executor)
+    tasks = run_conditioned(
+        prepared,
+        config.learners,
+        seed=config.seed,
+        rollouts=config.rollouts,
+        steps=config.steps,
+        executor=executor,
+        progress=progress,
+    )
+    return evaluations, tasks
+
+
+def eval_json(
+    evaluations: Sequence[TaskEvaluation], conditioned: Sequence[ConditionedTask] | None = None
+) -> dict[str, Any]:
+    """The ``bt evaluate --json`` document: one row per (task, learner, dataset); with
+    `conditioned`, each row's ``conditioned`` entry (:meth:`ConditionedTask.json_of`)."""
+    by_task = {t.task: t for t in conditioned or ()}
     rows = []
     for evaluation in evaluations:
         for result in evaluation.results:
-            rows.append({**result.to_json(), "reward_ceiling": evaluation.yardstick.ceiling})
-    return {"results": rows}
-
-
-def print_eval_table(evaluations: Sequence[TaskEvaluation], console: Console | None = None) -> None:
-    """One table: task × learner × dataset with R̄, L4, Ũ, training time; Δ on cleaned rows."""
-    console = console or Console(width=max(Console().width, 130))
-    table = Table(
-        title="Learners trained on noisy vs cleaned demos (mean ± std over rollouts)",
-        title_justify="left",
-    )
-    for column in ("task", "learner", "dataset"):
-        table.add_column(column)
-    for column in ("R̄", "Δ R̄", "R̄ paper", "cover", "L4 [mm]", "shape [mm]", "Ũ", "train [s]"):
-        table.add_column(column, justify="right")
-    for evaluation in evaluations:
-        for learner in evaluation.learners:
-            noisy_mean = float(np.mean(evaluation.result(learner, "noisy").rewards))
-            for dataset in evaluation.datasets:
-                r = evaluation.result(learner, dataset)
-                m = r.metrics
-                delta = float(np.mean(m.rewards)) - noisy_mean
-                style = "" if dataset == "noisy" else ("green" if delta > 0 else "red")
-                table.add_row(
-                    evaluation.task,
-                    LEARNER_TITLES.get(learner, learner),
-                    dataset + ("" if r.finite else " (non-finite!)"),
-                    f"{np.mean(m.rewards):.3f} ± {np.std(m.rewards):.3f}",
-                    "" if dataset == "noisy" else f"[{style}]{delta:+.3f}[/]",
-                    f"{np.mean(m.rewards_direct):.3f}",
-                    f"{np.mean(m.coverage):.2f}",
-                    f"{1e3 * np.mean(m.shape_losses):.1f} ± {1e3 * np.std(m.shape_losses):.1f}",
-                    f"{1e3 * np.mean(m.shape_distances):.1f}",
-                    f"{np.mean(m.utilities):.3f}",
-                    f"{r.train_seconds:.1f}",
+            row = {**result.to_json(), "reward_ceiling": evaluation.yardstick.ceiling}
+            if evaluation.task in by_task:
+                row["conditioned"] = by_task[evaluation.task].json_of(
+                    result.learner, result.dataset
                 )
-        table.add_section()
-    console.print(table)
-    console.print(
-        "R̄: mean V_E reward (Eq. 11 / N) in the nearest demonstrator's frame; R̄ paper: V_E read "
-        "directly (best demonstrator's frame); ceiling (best raw demo): "
-        + ", ".join(f"{e.task} {e.yardstick.ceiling:.3f}" for e in evaluations)
-        + ". cover: share of that demonstrator's reference loop the rollout passes within V_E's "
-        "bandwidth. L4: Eq. 9 to the nearest aligned reference; shape: phase-free distance to it."
-    )
+            rows.append(row)
+    return {"results": rows}
 
 
 def reward_bars(evaluations: Sequence[TaskEvaluation], group: str = "") -> list[RewardBar]:
@@ -300,24 +305,6 @@ def write_rollouts(
     ]
 
 
-def markdown_table(evaluations: Sequence[TaskEvaluation]) -> str:
-    """The evaluation table as Markdown (for Rerun's text view)."""
-    lines = [
-        "| task | learner | dataset | R̄ | R̄ paper | L4 [mm] | Ũ | train [s] |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for e in evaluations:
-        for r in e.results:
-            m = r.metrics
-            lines.append(
-                f"| {e.task} | {LEARNER_TITLES.get(r.learner, r.learner)} | {r.dataset} | "
-                f"{np.mean(m.rewards):.3f} ± {np.std(m.rewards):.3f} | "
-                f"{np.mean(m.rewards_direct):.3f} | {1e3 * np.mean(m.shape_losses):.1f} | "
-                f"{np.mean(m.utilities):.3f} | {r.train_seconds:.1f} |"
-            )
-    return "\n".join(lines)
-
-
 def write_outputs(
     evaluations: Sequence[TaskEvaluation],
     *,
@@ -326,6 +313,7 @@ def write_outputs(
     rollouts_out: Path | None = None,
     json_out: Path | None = None,
     seed: int = 0,
+    conditioned: Sequence[ConditionedTask] | None = None,
 ) -> list[Path]:
     """Write the chosen outputs of ``bt evaluate`` as one set: all of them or none.
 
@@ -340,6 +328,7 @@ def write_outputs(
         rollouts_out: Folder of the rollout recordings (:func:`write_rollouts`).
         json_out: File of the JSON document (:func:`eval_json`).
         seed: Seed recorded in the rollout files.
+        conditioned: The conditioned learners, in the JSON document's rows.
 
     Returns:
         The files published (manifests not included); empty when no output was asked for.
@@ -358,6 +347,6 @@ def write_outputs(
         if rollouts_out is not None:
             write_rollouts(evaluations, outputs.staging_of(rollouts_out), seed=seed)
         if json_out is not None:
-            text = json.dumps(eval_json(evaluations), indent=2) + "\n"
+            text = json.dumps(eval_json(evaluations, conditioned), indent=2) + "\n"
             outputs.path(json_out.name, json_out.parent).write_text(text, encoding="utf-8")
         return outputs.commit()

@@ -11,7 +11,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from bt_pipeline.evaluate.driver import markdown_table
+from bt_pipeline.evaluate.eval_table import markdown_table
 from bt_pipeline.evaluate.protocol import (
     DATASETS,
     TaskEvaluation,
