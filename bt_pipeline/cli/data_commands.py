@@ -103,6 +103,7 @@ def synth(
     shape_seed: int | None = None,
     crowd: Literal["independent", "shared"] = "independent",
     experts: Annotated[int | None, tyro.conf.arg(help_behavior_hint="(default: 1)")] = None,
+    same_preference: bool = False,
 ) -> None:
     """Write a synthetic mixed-skill demo set (one expert-like demo, the rest naive) in format v1.
 
@@ -119,8 +120,10 @@ def synth(
 
     ``--crowd shared`` (single style) makes the naive demos share their biases instead of drawing
     defects independently: the same corner cut, the same undershot stretch, a pause at the same
-    place, one demonstrator drawing backwards (bt_pipeline.data.synth_crowd); ``--experts`` sets
-    how many demos are expert-like.
+    place, one demonstrator drawing backwards, the same bulged side, a drift the same way, the
+    same wrong lobe of a loop that crosses itself, the same part left out
+    (bt_pipeline.data.synth_crowd); ``--experts`` sets how many demos are expert-like and
+    ``--same-preference`` has every demonstrator draw at θ = 0, ρ = 1.
 
     Args:
         out: Output file (.hdf5).
@@ -137,6 +140,8 @@ def synth(
         crowd: "independent" (each naive demo its own defects) or "shared" (the naive demos share
             biases; single style only).
         experts: Expert-like demos in a --crowd shared set, 0..--demos.
+        same_preference: In a --crowd shared set, every demonstrator draws at θ = 0, ρ = 1 (an
+            ablation: the crowd shares one preference).
     """
     from bt_pipeline.data.random_loops import draw_set_loop
     from bt_pipeline.data.recording import write_recording
@@ -151,6 +156,10 @@ def synth(
         )
     if experts is not None and crowd != "shared":
         raise ConfigError("--experts needs --crowd shared (the independent sets have one expert)")
+    if same_preference and crowd != "shared":
+        raise ConfigError(
+            "--same-preference needs --crowd shared (the independent sets keep the paper's θ/ρ)"
+        )
     loop_seed = seed if shape_seed is None else shape_seed
     loop = None if shape == "guide" else draw_set_loop(shape, loop_seed, task)
     if style == "human":
@@ -158,7 +167,12 @@ def synth(
         recording, expert = human.recording, human.demos[human.expert_index].name
     elif crowd == "shared":
         shared = make_crowd_set(
-            task, demos, seed, experts=1 if experts is None else experts, shape=loop
+            task,
+            demos,
+            seed,
+            experts=1 if experts is None else experts,
+            shape=loop,
+            same_preference=same_preference,
         )
         names = [d.name for d in shared.demos if d.is_expert]
         recording, expert = shared.recording, ", ".join(names) or "none"

@@ -5,7 +5,8 @@ every defect independently per demo, so a learner that pools the demos averages 
 crowds share their mistakes: people cut the same corner, pause at the same tricky spot. This
 generator draws each bias **once per set** from the seed and applies it to every naive demo,
 with small per-demo variation (interval edges and pause phase ±1 % of the loop, magnitudes
-±15 %, pause length ±20 %); the expert-like demos get none of them:
+±15 %, pause length ±20 %, drift direction ±10°); the expert-like demos get none of them.
+Phases are fractions of the loop; the size is the larger side of the loop's bounding box:
 
 =============  =============================================================================
 bias           what every naive demo does (set-level magnitudes drawn from the seed)
@@ -13,41 +14,75 @@ bias           what every naive demo does (set-level magnitudes drawn from the s
 corner_cut     over one phase interval of 10-20 % of the loop the path is a blend of the loop
                and its chord, weight 0.6-1.0 on the chord (1 is the straight chord); the
                interval is drawn among those whose chord cuts deepest (a real corner)
-undershoot     over another phase interval of 15-25 % of the loop (not overlapping the cut)
-               the hand falls short: the path is pulled toward the loop's centre (the centre
-               of its bounding box) by 15-30 % at the interval's middle, tapering smoothly
-               (sin²) to nothing at its ends, as a hand that does not reach all the way out
-hesitation     a pause of 0.3-1.0 s at one shared phase (a flat-topped slow-down to 3 % speed)
+undershoot     over another phase interval of 15-25 % of the loop the hand falls short: the
+               path is pulled toward the loop's centre (the centre of its bounding box) by
+               15-30 % at the interval's middle, tapering smoothly (sin²) to nothing at its
+               ends, as a hand that does not reach all the way out
+hesitation     a pause of 0.3-1.0 s at one shared phase (a flat-topped slow-down to 3 % speed),
+               20-80 % of the way along the part the demos draw
 backwards      one demonstrator (of those with naive demos, when at least three have some)
                draws the loop in the reverse direction: a minority, e.g. 1 of 4
+bulge          over another phase interval of 15-25 % of the loop the path swings out along
+               the loop's normal by 8-15 % of its size at the interval's middle, tapering
+               (sin²) to nothing at its ends; always to the same side of the loop (the side
+               outward at the interval's middle), whichever way the demo travels
+drift          a translation growing linearly with the part of the loop drawn, from nothing
+               at the start to 3-8 % of the loop's size where the hand stops, in one
+               direction drawn per set (uniform over 360°)
+wrong_lobe     only on a loop that crosses itself (weaving's figure-eight; some random
+               loops), found numerically (the crossing splitting the loop most evenly, both
+               lobes at least 20 % of it): arriving at the crossing, the hand turns back into
+               the lobe it came from instead of crossing over, so it goes round that lobe
+               twice and never into the other (drawn per set); the turn is a "kiss": over
+               ±2-3 % of the loop about each pass the path blends (smootherstep) from the
+               branch it came on to the one it leaves on, touching the crossing point.
+               Absent (not in ``biases``) on a loop without a crossing
+missing_part   an interval of 8-15 % of the loop is left out: every naive demo starts right
+               after it (right before it, backwards) and stops short before it, easing to a
+               stop over ±2 % of the loop, then rests there for the time the rest of the
+               loop would have taken: an incomplete loop, open at the same place
 =============  =============================================================================
 
-Every naive demo also has its own high-frequency noise as in the default style (white jitter
-2-6 mm, a 6-10 Hz tremor 3-8 mm, or both; :func:`~bt_pipeline.data.synth.add_noise_and_outliers`).
-``experts`` of the demos (drawn from the seed; default 1, 0 for none) are expert-like: 0.3 mm
-noise, no bias, the canonical direction.
+The cut, undershoot, bulge and left-out intervals do not overlap: the three follow the cut round
+the loop in a random order with at least 3 % of the loop between any two. The wrong lobe remaps
+the phase before the cut, undershoot and bulge shape the loop, so they fall where the hand is
+(:mod:`bt_pipeline.data.crowd_biases` gives the order). Every naive demo also has its own
+high-frequency noise as in the default style (white jitter 2-6 mm, a 6-10 Hz tremor 3-8 mm, or
+both; :func:`~bt_pipeline.data.synth.add_noise_and_outliers`). ``experts`` of the demos (drawn
+from the seed; default 1, 0 for none) are expert-like: 0.3 mm noise, no bias, the canonical
+direction, a random start.
 
 Each demo is one loop of 5-8 s of motion (plus its pause) at 50 Hz with a mild speed swell, by
-demonstrator k mod 4 (:data:`~bt_pipeline.data.synth.DEMONSTRATORS`, known θ/ρ), in the task's
-default plane. The ground truth is stored as the default style stores it: ``SynthDemo.truth``
-(the set's loop under the demo's θ/ρ, 600 points) and the ``truth_*`` attrs (the intended path at
-the demo's own timing and direction, pause included, biases and noise not). ``ep_meta
-["synthetic"]`` holds ``is_expert``, ``defects`` (noise and hesitation, in
-:data:`~bt_pipeline.data.synth.DEFECTS` terms), ``biases`` (the shared ones it carries),
-``direction`` (±1), ``params`` (the set's :class:`CrowdBiases`) and ``demo_params`` (its own).
+demonstrator k mod 4 (:data:`~bt_pipeline.data.synth.DEMONSTRATORS`, known θ/ρ; with
+``same_preference`` every demonstrator draws at θ = 0, ρ = 1), in the task's default plane. The
+ground truth is stored as the default style stores it: ``SynthDemo.truth`` (the set's loop under
+the demo's θ/ρ, 600 points) and the ``truth_*`` attrs (the intended full loop at the demo's own
+timing and direction, pause included, biases and noise not). ``ep_meta["synthetic"]`` holds
+``is_expert``, ``defects`` (noise and hesitation, in :data:`~bt_pipeline.data.synth.DEFECTS`
+terms), ``biases`` (the shared ones it carries), ``direction`` (±1), ``params`` (the set's
+:class:`~bt_pipeline.data.crowd_biases.CrowdBiases`) and ``demo_params`` (its own).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any, Literal, get_args
+from typing import Any
 
 import numpy as np
 
+from bt_pipeline.data.crowd_biases import (
+    CROWD_BIASES,
+    CrowdBias,
+    CrowdBiases,
+    Loop,
+    apply_biases,
+    draw_biases,
+    drift_offsets,
+    stop_short,
+    varied_biases,
+)
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import DemoRecord, FloatArray, forward_difference_actions
@@ -68,39 +103,11 @@ from bt_pipeline.data.synth_truth import truth_attrs
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError
 
-CrowdBias = Literal["corner_cut", "undershoot", "hesitation", "backwards"]
-"""A bias the naive demos of a crowd set share."""
-CROWD_BIASES: tuple[CrowdBias, ...] = get_args(CrowdBias)
 _CROWD_KEY = 36  # Seeds the crowd's streams apart from make_demo_set's (issue 36).
-_CUT_CANDIDATES = 64  # Interval starts the corner cut is chosen among.
 _PAUSE_SPEED = 0.03  # Relative speed at the bottom of a pause.
 _BUMP_AREA = 2.0 * math.gamma(1.25)  # ∫ exp(-x⁴) dx over the real line.
 _NOISE_CHOICES: tuple[tuple[Defect, ...], ...] = (("jitter",), ("tremor",), ("jitter", "tremor"))
 _CREATED_EPOCH = datetime(2026, 1, 1, tzinfo=UTC)  # As the default style's: reproducible files.
-
-
-@dataclass(frozen=True)
-class CrowdBiases:
-    """The biases of one crowd set (or one demo's variation of them); phases as loop fractions."""
-
-    cut_start: float
-    """Start of the corner-cut interval, fraction of the loop's phase in [0, 1)."""
-    cut_width: float
-    """Length of the corner-cut interval, fraction of the loop (0.10-0.20)."""
-    cut_blend: float
-    """Weight of the chord in the cut interval (0.6-1.0; 1: the straight chord)."""
-    undershoot_start: float
-    """Start of the undershoot interval, fraction of the loop's phase in [0, 1)."""
-    undershoot_width: float
-    """Length of the undershoot interval, fraction of the loop (0.15-0.25)."""
-    undershoot_depth: float
-    """Pull toward the loop's centre at the interval's middle, fraction (0.15-0.30)."""
-    pause_phase: float
-    """Where everyone pauses, fraction of the loop's phase in [0, 1)."""
-    pause_s: float
-    """Length of the pause [s] (0.3-1.0)."""
-    backwards_teacher: str | None
-    """Name of the demonstrator who draws backwards, or None (fewer than 3 naive ones)."""
 
 
 def make_crowd_set(
@@ -110,6 +117,7 @@ def make_crowd_set(
     *,
     experts: int = 1,
     shape: LoopShape | None = None,
+    same_preference: bool = False,
 ) -> SynthSet:
     """Generate a crowd set of `n_demos` demos whose naive demos share biases (module doc).
 
@@ -121,6 +129,9 @@ def make_crowd_set(
         seed: Seed of the random generator, an integer >= 0; the same seed gives the same set.
         experts: How many demos are expert-like (0.3 mm noise, no bias), 0..n_demos.
         shape: The loop every demo draws, in task coordinates [m]; None: the task's guide.
+        same_preference: Every demonstrator draws at θ = 0, ρ = 1 (their stored θ/ρ and truth
+            too): an ablation where the crowd shares one preference. The file's env_kwargs then
+            hold ``same_preference: true``.
 
     Returns:
         The set. Its ``expert_index`` is the first expert-like demo's index, or -1 when
@@ -148,93 +159,18 @@ def make_crowd_set(
     centre = np.zeros(2) if shape is None else shape.centre
     biases = draw_biases(loop, naive_teachers, rng)
     demos = tuple(
-        _make_demo(k, k in expert_ks, biases, (seed, task_index), plane, loop, centre)
+        _make_demo(
+            k, k in expert_ks, biases, (seed, task_index), plane, loop, centre, same_preference
+        )
         for k in range(n_demos)
     )
     env_kwargs = {"task": task, "seed": seed, "preset": "crowd", "n_demos": n_demos}
     env_kwargs |= {"crowd": "shared", "experts": experts}
+    if same_preference:
+        env_kwargs["same_preference"] = True
     recording = synthetic_recording(task, plane, [d.record for d in demos], env_kwargs, shape)
     expert_index = min(expert_ks) if expert_ks else -1
     return SynthSet(task=task, recording=recording, demos=demos, expert_index=expert_index)
-
-
-def draw_biases(
-    loop: Callable[[FloatArray], FloatArray], naive_teachers: list[int], rng: np.random.Generator
-) -> CrowdBiases:
-    """The set-level biases: a cut on a real corner, an undershoot elsewhere, a pause, who reverses.
-
-    Args:
-        loop: The set's loop in its canonical frame, phase [rad] (n,) to positions (n, 2) [m].
-        naive_teachers: Indices into DEMONSTRATORS of the demonstrators with naive demos.
-        rng: The set's random generator.
-    """
-    cut_width = float(rng.uniform(0.10, 0.20))
-    starts = np.arange(_CUT_CANDIDATES) / _CUT_CANDIDATES
-    sags = np.array([_chord_sag(loop, float(s), cut_width) for s in starts])
-    deep = np.flatnonzero(sags >= 0.6 * sags.max())
-    cut_start = float(starts[rng.choice(deep)] + rng.uniform(0.0, 1.0 / _CUT_CANDIDATES)) % 1.0
-    undershoot_width = float(rng.uniform(0.15, 0.25))
-    gap = 1.0 - cut_width - undershoot_width - 0.1  # 0.05 clear of the cut on either side
-    undershoot_start = (cut_start + cut_width + 0.05 + float(rng.uniform(0.0, gap))) % 1.0
-    backwards = None
-    if len(naive_teachers) >= 3:
-        backwards = DEMONSTRATORS[int(rng.choice(naive_teachers))].name
-    return CrowdBiases(
-        cut_start=cut_start,
-        cut_width=cut_width,
-        cut_blend=float(rng.uniform(0.6, 1.0)),
-        undershoot_start=undershoot_start,
-        undershoot_width=undershoot_width,
-        undershoot_depth=float(rng.uniform(0.15, 0.30)),
-        pause_phase=float(rng.uniform(0.0, 1.0)),
-        pause_s=float(rng.uniform(0.3, 1.0)),
-        backwards_teacher=backwards,
-    )
-
-
-def _chord_sag(loop: Callable[[FloatArray], FloatArray], start: float, width: float) -> float:
-    """Largest distance [m] of the loop over [start, start + width] from its chord."""
-    points = loop(2.0 * np.pi * (start + width * np.linspace(0.0, 1.0, 33)))
-    a, b = points[0], points[-1]
-    ab = b - a
-    x = np.clip((points - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-    return float(np.max(np.linalg.norm(points - a - x[:, None] * ab, axis=1)))
-
-
-def _varied(biases: CrowdBiases, rng: np.random.Generator) -> CrowdBiases:
-    """One demo's take on the set's biases: edges ±1 % of the loop, magnitudes ±15 %."""
-    return dataclasses.replace(
-        biases,
-        cut_start=(biases.cut_start + rng.uniform(-0.01, 0.01)) % 1.0,
-        cut_blend=min(1.0, biases.cut_blend * rng.uniform(0.85, 1.15)),
-        undershoot_start=(biases.undershoot_start + rng.uniform(-0.01, 0.01)) % 1.0,
-        undershoot_depth=biases.undershoot_depth * rng.uniform(0.85, 1.15),
-        pause_phase=(biases.pause_phase + rng.uniform(-0.01, 0.01)) % 1.0,
-        pause_s=biases.pause_s * rng.uniform(0.8, 1.2),
-    )
-
-
-def apply_biases(
-    loop: Callable[[FloatArray], FloatArray],
-    phase: FloatArray,
-    biases: CrowdBiases,
-    centre: FloatArray,
-) -> FloatArray:
-    """The loop at `phase` [rad] (T,) with the corner cut and the undershoot, shape (T, 2) [m].
-
-    Both depend on the phase only, so they fall on the same part of the loop in either
-    direction of travel. `centre` (2,) [m] is where the undershoot pulls toward.
-    """
-    out = loop(phase)
-    u = (phase / (2.0 * np.pi)) % 1.0
-    x = ((u - biases.cut_start) % 1.0) / biases.cut_width
-    cut = x < 1.0
-    ends = loop(2.0 * np.pi * (biases.cut_start + np.array([0.0, biases.cut_width])))
-    chord = ends[0] + x[cut, None] * (ends[1] - ends[0])
-    out[cut] = (1.0 - biases.cut_blend) * out[cut] + biases.cut_blend * chord
-    x = ((u - biases.undershoot_start) % 1.0) / biases.undershoot_width
-    pull = biases.undershoot_depth * np.where(x < 1.0, np.sin(np.pi * x) ** 2, 0.0)
-    return centre + (1.0 - pull)[:, None] * (out - centre)
 
 
 def _timing(
@@ -273,17 +209,19 @@ def _make_demo(
     set_biases: CrowdBiases,
     set_key: tuple[int, int],
     plane: TaskPlane,
-    loop: Callable[[FloatArray], FloatArray],
+    loop: Loop,
     centre: FloatArray,
+    same_preference: bool,
 ) -> SynthDemo:
     """Demo k of a crowd set: one loop by demonstrator k mod 4, expert-like or biased.
 
     `set_key` is (seed, task key); `loop` maps phase [rad] to the set's loop [m], `centre` (2,)
-    [m] is where an undershoot pulls toward.
+    [m] is where an undershoot pulls toward; `same_preference`: θ = 0, ρ = 1 for everyone.
     """
     teacher = DEMONSTRATORS[k % len(DEMONSTRATORS)]
+    theta_deg, rho = (0.0, 1.0) if same_preference else (teacher.theta_deg, teacher.rho)
     rng = np.random.default_rng([*set_key, _CROWD_KEY, k])
-    biases = _varied(set_biases, rng)
+    biases = varied_biases(set_biases, rng)
     defects: tuple[Defect, ...] = ()
     applied: tuple[CrowdBias, ...] = ()
     direction = 1.0
@@ -293,24 +231,31 @@ def _make_demo(
     else:
         defects = (*_NOISE_CHOICES[int(rng.choice(3, p=[0.4, 0.3, 0.3]))], "hesitation")
         backwards = teacher.name == biases.backwards_teacher
-        applied = tuple(b for b in CROWD_BIASES if backwards or b != "backwards")
+        applied = tuple(
+            b
+            for b in CROWD_BIASES
+            if (backwards or b != "backwards")
+            and (biases.lobe_start is not None or b != "wrong_lobe")
+        )
         direction = -1.0 if backwards else 1.0
-        # Start 20-80 % of a loop before the pause, so it falls inside the recording.
-        pause_at = float(rng.uniform(0.2, 0.8))
-        start = (biases.pause_phase - direction * pause_at) % 1.0
+        # Start right after the left-out interval (right before it, backwards) and pause where
+        # the set pauses, 20-80 % of the way along the drawn part.
+        missing_end = biases.missing_start + biases.missing_width
+        start = (biases.missing_start if backwards else missing_end) % 1.0
+        pause_at = float((direction * (biases.pause_phase - start)) % 1.0)
         t, progress = _timing(rng, biases.pause_s, pause_at)
     phase = 2.0 * np.pi * (start + direction * progress)
     demo_params: dict[str, Any] = {"duration_s": float(t[-1])}
-    intended = similarity_transform(loop(phase), teacher.theta_deg, teacher.rho)
+    intended = similarity_transform(loop(phase), theta_deg, rho)
     if is_expert:
         uv = intended
     else:
         demo_params |= {
             n: v for n, v in dataclasses.asdict(biases).items() if n != "backwards_teacher"
         }
-        uv = similarity_transform(
-            apply_biases(loop, phase, biases, centre), teacher.theta_deg, teacher.rho
-        )
+        drawn = stop_short(progress, biases)
+        shaped = apply_biases(loop, 2.0 * np.pi * (start + direction * drawn), biases, centre)
+        uv = similarity_transform(shaped + drift_offsets(drawn, biases), theta_deg, rho)
     uv = add_noise_and_outliers(uv, t, defects, rng, demo_params)
 
     ee_pos = plane.to_world(uv)
@@ -318,13 +263,13 @@ def _make_demo(
         ee_pos=ee_pos,
         timestamps=t,
         demonstrator=teacher.name,
-        theta_deg=teacher.theta_deg,
-        rho=teacher.rho,
+        theta_deg=theta_deg,
+        rho=rho,
         source="synthetic",
         actions=forward_difference_actions(ee_pos, t),
         created=(_CREATED_EPOCH + timedelta(hours=set_key[0] % 8760, minutes=k)).isoformat(),
         # Ground truth, as in the default style (bt_pipeline.data.synth).
-        attrs=truth_attrs(intended, np.ones(t.size), teacher.theta_deg, teacher.rho, 1.0),
+        attrs=truth_attrs(intended, np.ones(t.size), theta_deg, rho, 1.0),
         ep_meta={
             "synthetic": {
                 "is_expert": is_expert,
@@ -341,17 +286,10 @@ def _make_demo(
     return SynthDemo(
         name=f"demo_{k}",
         record=record,
-        truth=similarity_transform(truth, teacher.theta_deg, teacher.rho),
+        truth=similarity_transform(truth, theta_deg, rho),
         is_expert=is_expert,
         defects=defects,
     )
 
 
-__all__ = [
-    "CROWD_BIASES",
-    "CrowdBias",
-    "CrowdBiases",
-    "apply_biases",
-    "draw_biases",
-    "make_crowd_set",
-]
+__all__ = ["make_crowd_set"]
