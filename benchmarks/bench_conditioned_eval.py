@@ -4,7 +4,7 @@ For each task, crowd kind (``independent``: every naive demo its own defects, bt
 ``shared``: the naive demos share a corner cut, an undershot stretch, a pause place and a
 backwards minority, :mod:`bt_pipeline.data.synth_crowd`) and seed, it makes a D1 set, cleans it,
 and trains every learner, conditioned on each demo's (θ, ρ), on five datasets of the same set
-(:func:`bt_pipeline.evaluate.crowd_jobs.prepare_crowd`, as ``bt reproduce`` does): the noisy
+(:func:`bt_pipeline.evaluate.crowd_sets.prepare_crowd`, as ``bt reproduce`` does): the noisy
 demos, the cleaned ones, the best demo's loop aligned to each demo, and the generator's truth,
 shape-only and shape-plus-timing. Each policy
 is rolled out 12 times per demonstrator from its true loop (2 % noise) and scored over the second
@@ -30,7 +30,7 @@ import numpy as np
 
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.evaluate.conditioned import evaluate_conditioned
-from bt_pipeline.evaluate.crowd_jobs import CROWD_DATASETS, CrowdSettings, prepare_crowd
+from bt_pipeline.evaluate.crowd_sets import CROWD_DATASETS, CrowdSettings, prepare_crowd
 from bt_pipeline.evaluate.learners import LearnerName
 from bt_pipeline.evaluate.stats import verdict
 

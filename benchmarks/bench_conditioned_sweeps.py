@@ -24,7 +24,7 @@ import numpy as np
 
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.evaluate.conditioned import evaluate_conditioned
-from bt_pipeline.evaluate.crowd_jobs import CrowdSettings, prepare_crowd
+from bt_pipeline.evaluate.crowd_sets import CrowdSettings, prepare_crowd
 from bt_pipeline.evaluate.learners import parse_learner
 from bt_pipeline.evaluate.stats import verdict
 

@@ -13,12 +13,16 @@ median of 3) is timed before and after and every run is also given in baseline u
     python benchmarks/bench_reproduce.py --runs quick --estimate-full --workers 2
     python benchmarks/bench_reproduce.py --runs quick --repeats 3 --workers 2   # median of 3
 
+Processes against Ray, and the whole ``bt reproduce --quick`` command (conditioned protocol
+included): benchmarks/bench_reproduce_executors.py.
+
 ``--estimate-full`` projects the full run (``bt reproduce --oracle``: 3 seeds, 50 rollouts, the
 truth rows) from per-job CPU costs instead of running it: for seed 0 of every (set, task) the
 preparation job (generate, clean, yardstick) and its 12 learner jobs (4 learners × noisy, cleaned,
-truth), and one competence check per learner, are run in this process and timed by CPU time.
-Seeds 1 and 2 are taken to cost what seed 0 costs, and every competence check of a learner what
-its one measured check costs. On a busy machine ``--estimate-tasks weaving
+truth), and one competence check per learner (plus one conditioned four-demonstrator check,
+quick presets), are run in this process and timed by CPU time. Seeds 1 and 2 are taken to cost
+what seed 0 costs, and every competence check of a learner what its measured check of that kind
+costs. On a busy machine ``--estimate-tasks weaving
 --estimate-noisy-only`` measures less (one task per set, the noisy dataset only) and projects the
 rest from it: a learner job's cost is set by the learner's steps and batch, not by the data.
 The projected wall time schedules those costs on the workers exactly
@@ -37,6 +41,7 @@ import resource
 import statistics
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -172,17 +177,34 @@ def estimate_full(workers: int, tasks: tuple[str, ...], all_datasets: bool) -> d
                     demos = 4 if set_name == "D1" else 20
                     stage2.append((job_cost(learner, config, demos), statistics.mean(same)))
     competence: dict[str, float] = {}
+    conditioned: dict[str, float] = {}  # the four_conditioned check: quick presets
     for learner in config.learners:
         cpu0 = cpu_seconds()
         run_competence(("one", "weaving", learner, config))
         competence[learner] = cpu_seconds() - cpu0
-        print(f"  competence check weaving {learner}: {competence[learner]:.0f} s CPU", flush=True)
+        cpu0 = cpu_seconds()
+        run_competence(("four_conditioned", "weaving", learner, config))
+        conditioned[learner] = cpu_seconds() - cpu0
+        print(
+            f"  competence checks weaving {learner}: {competence[learner]:.0f} s CPU, "
+            f"conditioned {conditioned[learner]:.0f} s CPU",
+            flush=True,
+        )
     stage2 = stage2 * config.seeds
+    quick = replace(config, quick=True)
     stage2 += [
         (job_cost(learner, config) * COMPETENCE_COST, competence[learner])
         for _ in range(2 * len(config.tasks))
         for learner in config.learners
     ]
+    stage2 += [
+        (job_cost(learner, quick) * COMPETENCE_COST, conditioned[learner])
+        for _ in config.tasks
+        for learner in config.learners
+    ]
+    checks_cpu = sum(competence.values()) * 2 * len(config.tasks) + sum(conditioned.values()) * len(
+        config.tasks
+    )
     stage2.sort(key=lambda pair: -pair[0])  # the order run_reproduce submits them in
     startup = startup_seconds()
     cpu_prepare = sum(prepare) * config.seeds
@@ -194,8 +216,8 @@ def estimate_full(workers: int, tasks: tuple[str, ...], all_datasets: bool) -> d
     )
     return {
         "prepare": cpu_prepare,
-        "learners": cpu_stage2 - sum(competence.values()) * 2 * len(config.tasks),
-        "competence": sum(competence.values()) * 2 * len(config.tasks),
+        "learners": cpu_stage2 - checks_cpu,
+        "competence": checks_cpu,
         "cpu": cpu_prepare + cpu_stage2,
         "startup": startup,
         "wall": wall,

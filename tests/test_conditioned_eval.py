@@ -49,7 +49,8 @@ def test_a_rollout_on_its_own_loop_succeeds_and_one_on_another_fails() -> None:
     # Drawn for demonstrator b, the same circle lies 3 cm off b's loop.
     other = score_rollouts(path[None], [1], LOOPS)
     assert not other.success[0, TAUS_MM.index(20.0)] and other.shape_mm[0] > 25
-    assert scores.by_demonstrator(scores.shape_mm).shape == (1,)
+    assert scores.by_demonstrator(scores.shape_mm).shape == (2,)
+    assert np.isnan(scores.by_demonstrator(scores.shape_mm)[1])
 
 
 def test_starts_lie_on_or_off_each_demonstrator_s_loop() -> None:

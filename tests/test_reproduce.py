@@ -9,12 +9,13 @@ from pathlib import Path
 import matplotlib.image
 import numpy as np
 import pytest
+import scipy.stats
 
 from bt_pipeline.cli import main
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth import make_d1
 from bt_pipeline.data.tasks import TASKS
-from bt_pipeline.evaluate.crowd_jobs import CrowdSettings
+from bt_pipeline.evaluate.crowd_sets import GATED_DATASETS, CrowdSettings
 from bt_pipeline.evaluate.protocol import evaluate_demos
 from bt_pipeline.evaluate.reproduce import reproduce
 from bt_pipeline.evaluate.reproduce_jobs import (
@@ -25,7 +26,13 @@ from bt_pipeline.evaluate.reproduce_jobs import (
     run_reproduce,
     truth_demos,
 )
-from bt_pipeline.evaluate.reproduce_report import Cell, results_json, verdict, verdict_test
+from bt_pipeline.evaluate.reproduce_report import (
+    Cell,
+    results_json,
+    verdict,
+    verdict_cell,
+    verdict_test,
+)
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.execute import ExecutorConfig
 
@@ -45,16 +52,18 @@ TINY = ReproduceConfig(
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("reproduce")
-    reproduce(TINY, out, progress=False, conditioned=CrowdSettings(seeds=2, per_demonstrator=2))
+    crowd = CrowdSettings(seeds=2, per_demonstrator=2, sweeps=("no_expert",))
+    reproduce(TINY, out, progress=False, conditioned=crowd)
     return out
 
 
 OUTPUTS = {"rewards.png", "D1.wiping.rollouts.png", "results.json", "report.md", "success_tau.png"}
+OUTPUTS |= {"rollouts.wiping.png"}
 
 
 def test_tiny_run_writes_every_output(tiny_run) -> None:
     assert {p.name for p in tiny_run.iterdir()} == OUTPUTS
-    for png in ("rewards.png", "D1.wiping.rollouts.png", "success_tau.png"):
+    for png in ("rewards.png", "D1.wiping.rollouts.png", "success_tau.png", "rollouts.wiping.png"):
         assert matplotlib.image.imread(tiny_run / png).shape[0] > 300
 
 
@@ -68,17 +77,35 @@ def test_the_report_leads_with_the_conditioned_protocol(tiny_run) -> None:
             assert f"| D1 | wiping | {crowd} | {learner} |" in report
     assert "the truth gate passes in" in report and "![success against τ]" in report
     document = json.loads((tiny_run / "results.json").read_text())["conditioned"]
-    keys = {(r["seed"], r["crowd"], r["learner"], r["dataset"]) for r in document["rows"]}
+    keys = {
+        (r["seed"], r["crowd"], r["learner"], r["dataset"], r["approach"]) for r in document["rows"]
+    }
     datasets = ("noisy", "cleaned", "best_aligned", "truth_shape", "truth_timing")
-    assert keys == {
-        (s, c, lr, d)
+    main = {
+        (s, c, lr, d, "conditioned")
         for s in (0, 1)
         for c in ("independent", "shared")
         for lr in ("bc", "ileed")
         for d in datasets
     }
+    extra = {
+        (s, "shared", lr, d, "held_out")
+        for s in (0, 1)
+        for lr in ("bc", "ileed")
+        for d in GATED_DATASETS
+    }
+    extra |= {(s, "shared", "bc", d, "per_demonstrator") for s in (0, 1) for d in GATED_DATASETS}
+    extra |= {
+        (s, "no_expert", lr, d, "conditioned")
+        for s in (0, 1)
+        for lr in ("bc", "ileed")
+        for d in GATED_DATASETS
+    }
+    assert keys == main | extra
     assert all(0.0 <= r["success"]["10.0"] <= 1.0 and r["shape_mm"] > 0 for r in document["rows"])
-    assert len(document["cells"]) == 4 and all(c["verdict_success"] for c in document["cells"])
+    assert len(document["cells"]) == 4 + 2 + 1 + 2
+    assert all(c["verdict_success"] for c in document["cells"])
+    assert "### A preference never seen" in report and "### Sweeps" in report
     for job in document["cleaning_mm"]:
         assert job["noisy"] > 0.0 and job["cleaned"] > 0.0
 
@@ -112,19 +139,40 @@ def test_report_has_tables_the_paper_side_by_side_and_a_verdict(tiny_run) -> Non
     assert "mm from the mean-preference loop" in report
     assert "*Every learner stays below the best demonstrator.*" in report
     assert "R̄ truth" in report and "with the truth" in report
-    assert "Welch t, seeds" in report  # two seeds: the test runs over per-seed means
+    # Two seeds: paired over them, behind the truth gate (which two seeds can hardly pass).
+    assert "*How the verdicts are made.* The samples are the seeds" in report
+    assert "the gate needs t > 63.7" in report  # t_{0.995, 1}: the protocol says it cannot tell
+    assert "cannot tell: truth" in report or "paired t, 2 seeds" in report
+    assert "Welch" not in report
     assert "## Oracle rows" in report and "mean-preference loop" in report
+    assert "Four demonstrators, conditioned" in report
+    assert "own loop, worst demonstrator [mm]" in report
     assert "| wiping | +0.880 |" in report and "min-max" in report
     assert "![Fig. 11-style rewards](rewards.png)" in report
 
 
 def test_results_json_has_the_oracle_rows(tiny_run) -> None:
-    rows = json.loads((tiny_run / "results.json").read_text())["competence"]
+    document = json.loads((tiny_run / "results.json").read_text())
+    rows = document["competence"]
+    checks = ("one", "four", "four_conditioned")
     assert {(r["check"], r["learner"]) for r in rows} == {
-        (c, lr) for c in ("one", "four") for lr in ("bc", "ileed")
+        (c, lr) for c in checks for lr in ("bc", "ileed")
     }
     for row in rows:
         assert 0.0 <= row["coverage"] <= 1.0 and row["shape_error"] > 0.0
+        # the mean over rollouts is a weighted mean of the per-demonstrator means
+        assert row["worst_own_error"] >= row["shape_error"] - 1e-12
+    for row in rows:
+        if row["check"] == "four_conditioned":
+            assert row["passed"] == (row["worst_own_error"] <= 0.002)
+    verdicts = document["verdicts"]
+    assert [(v["set"], v["task"], v["learner"]) for v in verdicts] == [
+        ("D1", "wiping", "bc"),
+        ("D1", "wiping", "ileed"),
+    ]
+    for v in verdicts:  # two seeds and truth rows: a paired test and a truth gate each
+        assert v["seeds"] == 2 and v["gate_passed"] is not None and v["p_t"] is not None
+        assert v["verdict"] in ("cleaned", "noisy", "tie", "cannot tell")
 
 
 def _rows(run) -> list[dict]:
@@ -165,39 +213,106 @@ def test_results_do_not_depend_on_the_job_split_or_their_order() -> None:
     assert _rows(split) == expected
 
 
-def _cell(mean: float, std: float, count: int = 50, seeds: tuple[float, ...] = ()) -> Cell:
-    rng = np.random.default_rng(int(mean * 1000) + count)
-    rewards = rng.normal(mean, std, count)
-    rewards += mean - rewards.mean()  # exactly the given mean
+def _cell(seed_means: tuple[float, ...], spread: float = 0.01, per_seed: int = 50) -> Cell:
+    """A cell whose seed s has `per_seed` rollouts of mean exactly ``seed_means[s]``."""
+    rng = np.random.default_rng(len(seed_means) + int(1000 * sum(seed_means)))
+    per = []
+    for m in seed_means:
+        r = rng.normal(m, spread, per_seed)
+        per.append(r + m - r.mean())
+    rewards = np.concatenate(per)
     return Cell(
-        mean=mean,
-        std=std,
-        seed_std=float(np.std(seeds)) if seeds else 0.0,
-        nearest=mean,
+        mean=float(np.mean(rewards)),
+        std=float(np.std(rewards)),
+        seed_std=float(np.std(seed_means)),
+        nearest=float(np.mean(rewards)),
         minmax=0.5,
-        seed_means=seeds or (mean,),
+        seed_means=seed_means,
         rewards=rewards,
         shape_loss=0.01,
         shape_distance=0.01,
         coverage=1.0,
         utility=0.5,
-        count=count,
+        count=int(rewards.size),
         train_seconds=1.0,
         finite=True,
     )
 
 
-def test_verdict_is_welchs_t_test_over_rollouts_or_seeds() -> None:
-    assert verdict(_cell(0.50, 0.05), _cell(0.53, 0.05)) == "cleaned"  # t ≈ 3, p ≈ 0.003
-    assert verdict(_cell(0.50, 0.05), _cell(0.51, 0.05)) == "tie"
-    assert verdict(_cell(0.50, 0.05), _cell(0.47, 0.05)) == "noisy"
-    assert verdict(_cell(0.50, 0.20, 4), _cell(0.60, 0.20, 4)) == "tie"  # few, spread rollouts
-    # With seeds the per-seed means decide: consistent over seeds wins, scattered ties.
-    n = _cell(0.50, 0.01, seeds=(0.49, 0.50, 0.51))
-    assert verdict(n, _cell(0.60, 0.01, seeds=(0.59, 0.60, 0.61))) == "cleaned"
-    assert verdict(n, _cell(0.55, 0.01, seeds=(0.35, 0.60, 0.70))) == "tie"
-    _word, test, p = verdict_test(n, _cell(0.60, 0.01, seeds=(0.59, 0.60, 0.61)))
-    assert test == "Welch t, seeds" and p < 0.01
+def _table(noisy: Cell, cleaned: Cell, truth: Cell | None = None) -> dict:
+    table = {("D1", "wiping", "bc", "noisy"): noisy, ("D1", "wiping", "bc", "cleaned"): cleaned}
+    if truth is not None:
+        table[("D1", "wiping", "bc", "truth")] = truth
+    return table
+
+
+SPREAD_SEEDS = (0.40, 0.50, 0.60, 0.70, 0.80)
+"""Per-seed mean R̄ of noisy that vary widely between seeds (training-seed variance)."""
+
+
+def _shifted(shift: float, jitter: float = 0.002) -> tuple[float, ...]:
+    """SPREAD_SEEDS plus `shift` in every seed, give or take `jitter`."""
+    wobble = np.array([1.0, -0.5, 0.3, -1.0, 0.2]) * jitter
+    return tuple(float(x) for x in np.array(SPREAD_SEEDS) + shift + wobble)
+
+
+def test_the_verdict_pairs_the_seeds_where_welch_would_not_see_the_gain() -> None:
+    """Cleaned is better by 0.02 in each of 5 seeds whose means spread over 0.4: paired over
+    seeds that is clear; Welch's test on the same per-seed means is not (the seed-to-seed spread
+    swamps it). The report's cell says cleaned, so it cannot be Welch's test."""
+    noisy, cleaned = _cell(SPREAD_SEEDS), _cell(_shifted(0.02))
+    welch = scipy.stats.ttest_ind(cleaned.seed_means, noisy.seed_means, equal_var=False)
+    assert welch.pvalue > 0.5  # pyright: ignore[reportAttributeAccessIssue]  # not in the stub
+    text = verdict_cell(_table(noisy, cleaned), "D1", "wiping", "bc")
+    assert text.startswith("cleaned (paired t, 5 seeds, better in 5/5, p < 0.001")
+    assert verdict(noisy, cleaned) == "cleaned"
+    assert verdict(cleaned, noisy) == "noisy"
+    assert verdict(noisy, _cell(_shifted(0.0, jitter=0.02))) == "tie"
+
+
+def test_rollouts_of_one_model_are_never_samples() -> None:
+    """One seed: however many rollouts and however far apart, no test and no verdict. Several
+    seeds: the per-seed means decide, not the pooled rollouts."""
+    one_noisy, one_cleaned = _cell((0.50,), spread=0.01), _cell((0.60,), spread=0.01)
+    welch = scipy.stats.ttest_ind(one_cleaned.rewards, one_noisy.rewards, equal_var=False)
+    assert welch.pvalue < 1e-10  # pyright: ignore[reportAttributeAccessIssue]  # not in the stub
+    assert verdict_cell(_table(one_noisy, one_cleaned), "D1", "wiping", "bc") == (
+        "one seed: no test"
+    )
+    v = verdict_test(one_noisy, one_cleaned, _cell((0.70,)))
+    assert v.word == "no test" and v.test is None and v.gate is None
+    # Three seeds of tight rollouts: cleaned wins one seed by far and loses two narrowly. Pooled
+    # rollouts as samples would call it; three pairs do not.
+    noisy, cleaned = _cell((0.50, 0.50, 0.50), 0.001), _cell((0.62, 0.49, 0.49), 0.001)
+    pooled = scipy.stats.ttest_ind(cleaned.rewards, noisy.rewards, equal_var=False)
+    assert pooled.pvalue < 0.01  # pyright: ignore[reportAttributeAccessIssue]  # not in the stub
+    v = verdict_test(noisy, cleaned)
+    assert v.word == "tie" and v.test is not None and v.test.n == 3
+    assert (v.test.wins, v.test.losses) == (1, 2)
+
+
+def test_the_truth_gate_comes_first() -> None:
+    """With truth rows a verdict needs truth to beat noisy (paired, p < 0.01), as in the
+    conditioned protocol; otherwise the cell says the protocol cannot tell."""
+    noisy, cleaned = _cell(SPREAD_SEEDS), _cell(_shifted(0.02))
+    clear = verdict_test(noisy, cleaned, _cell(_shifted(0.10, jitter=0.004)))
+    assert clear.word == "cleaned" and clear.gate is not None and clear.gate.passed
+    assert clear.text().endswith("; truth gate passed)")
+    assert clear.gap is not None and clear.gap.share == pytest.approx(0.2, abs=0.02)
+
+    flat = _cell(_shifted(0.0, jitter=0.05))  # truth no better than noisy
+    table = _table(noisy, cleaned, flat)
+    assert verdict(noisy, cleaned, flat) == "cannot tell"
+    text = verdict_cell(table, "D1", "wiping", "bc")
+    assert text.startswith("cannot tell: truth does not clearly beat noisy (paired t, 5 seeds")
+    worse = verdict_test(noisy, cleaned, _cell(_shifted(-0.10)))
+    assert worse.word == "cannot tell" and "truth is worse than noisy" in worse.reason
+
+
+def test_a_non_finite_seed_mean_gets_no_test() -> None:
+    bad = dataclasses.replace(_cell((0.5, 0.6)), seed_means=(0.5, float("nan")))
+    v = verdict_test(_cell((0.5, 0.5)), bad)
+    assert v.word == "no test" and "non-finite" in v.reason
 
 
 @pytest.mark.parametrize(
@@ -248,7 +363,9 @@ def test_bt_reproduce_command_line_runs_in_worker_processes(tmp_path, capsys, mo
         (0, lr, d) for lr in ("bc", "ileed") for d in ("noisy", "cleaned")
     }  # --oracle not given: no truth rows, whatever the preset says
     assert all(r["finite"] and 0.0 <= r["reward_mean"] <= 1.0 for r in rows)
-    assert "Of 2 (set, task, learner) cells" in (tmp_path / "report.md").read_text()
+    report = (tmp_path / "report.md").read_text()
+    assert "Of 2 (set, task, learner) cells, none is tested" in report
+    assert "| one seed: no test |" in report and "Welch" not in report
 
 
 def test_truth_demos_trace_the_true_loops_from_each_demos_start() -> None:

@@ -88,6 +88,8 @@ class RolloutScores:
     """Whether the period returns within τ of its start, shape (R, len(TAUS_MM)) (bool)."""
     progress: FloatArray
     """Loops travelled along the true loop in the period (either direction), shape (R,)."""
+    demonstrators: int
+    """D, the number of demonstrators' loops scored against (some may have no rollout)."""
 
     @property
     def success(self) -> np.ndarray:
@@ -99,12 +101,13 @@ class RolloutScores:
         return float(np.mean(self.success[:, _tau_index(tau_mm)]))
 
     def by_demonstrator(self, values: ArrayLike) -> FloatArray:
-        """The mean of per-rollout `values` (R,) over each demonstrator's rollouts, (D,)."""
+        """The mean of per-rollout `values` (R,) over each demonstrator's rollouts, (D,); NaN for
+        a demonstrator without rollouts."""
         v = np.asarray(values, dtype=np.float64)
         return np.array(
             [
                 v[self.who == d].mean() if np.any(self.who == d) else np.nan
-                for d in range(int(self.who.max()) + 1)
+                for d in range(self.demonstrators)
             ]
         )
 
@@ -170,6 +173,7 @@ def score_rollouts(
         coverage=np.array(coverage),
         returns=np.array(returns),
         progress=np.array(progress),
+        demonstrators=len(loops),
     )
 
 

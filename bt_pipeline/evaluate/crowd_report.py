@@ -1,51 +1,62 @@
-"""The conditioned protocol's part of the ``bt reproduce`` report: gate, verdict, share, figure.
+"""The conditioned protocol's part of the ``bt reproduce`` report: gate, verdict, share.
 
-Per cell (set, task, crowd, learner), over the seeds (:mod:`bt_pipeline.evaluate.stats`):
+Per cell (set, task, crowd, learner, approach), over the seeds (:mod:`bt_pipeline.evaluate.stats`):
 
 1. **the truth gate**: learners trained on the shape-only truth beat those trained on the noisy
    demos (success at τ = 10 mm, paired t-test over seeds, p < 0.01); where it fails the cell
    says the protocol cannot tell, and no cleaned-vs-noisy claim is made;
 2. **the verdict**: cleaned vs noisy, paired, p < 0.05, and the share of the truth-noisy gap
    cleaning recovers, with a paired bootstrap interval;
-3. the same on shape distance [mm] to each demonstrator's own true loop, and the
-   shape-plus-timing truth beside it.
+3. the same on shape distance [mm] to each demonstrator's own true loop; the robustness row
+   (starts 1-3 cm off the loops) and L4 (Eq. 9) beside them.
 
-The figure shows success against τ (2-20 mm) per dataset, with Wilson intervals over the pooled
-rollouts of every seed and cell (they describe the rollouts, the verdicts use the seeds).
+Tables: the main crowds (every dataset), then the held-out preference and the per-demonstrator
+learner on the shared crowd, then the sweeps and the ablation
+(:data:`~bt_pipeline.evaluate.crowd_sets.SWEEPS`). Figures are in
+:mod:`~bt_pipeline.evaluate.crowd_figures`.
 """
 
 from __future__ import annotations
 
-import os
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from bt_pipeline.evaluate.conditioned import TAUS_MM
-from bt_pipeline.evaluate.crowd_jobs import CROWD_DATASETS, CrowdRow, CrowdRun
-from bt_pipeline.evaluate.stats import Verdict, verdict, wilson
-from bt_pipeline.viz.plots import LEARNER_TITLES, save_figure
+from bt_pipeline.evaluate.crowd_jobs import CrowdRow, CrowdRun
+from bt_pipeline.evaluate.crowd_sets import CROWD_DATASETS, GATED_DATASETS
+from bt_pipeline.evaluate.stats import Verdict, verdict
+from bt_pipeline.viz.plots import LEARNER_TITLES
 
 TAU_MM = 10.0
 """τ of the headline success rate."""
-_COLORS = {"noisy": "#8c8c8c", "cleaned": "#2ca02c", "best_aligned": "#ff7f0e"}
-_COLORS |= {"truth_shape": "#1f77b4", "truth_timing": "#9ecae1"}
 
-CellKey = tuple[str, str, str, str]
-"""(set, task, crowd, learner)."""
+CellKey = tuple[str, str, str, str, str]
+"""(set, task, crowd, learner, approach)."""
+_CROWD_TEXT = {
+    "independent": "independent",
+    "shared": "shared",
+    "no_expert": "shared, no expert",
+    "three_experts": "shared, 3 experts of 4",
+    "same_preference": "shared, all at θ = 0, ρ = 1",
+    "random_loop": "shared, random loop",
+}
 
 
 @dataclass(frozen=True)
 class CrowdCell:
-    """One cell's per-seed values of each dataset and its verdicts."""
+    """One cell's per-seed values of each dataset it trained and its verdicts."""
 
     success: dict[str, np.ndarray]
     """Success at τ = 10 mm per seed, by dataset."""
+    robust: dict[str, np.ndarray]
+    """The same from starts 1-3 cm off the loops."""
     shape_mm: dict[str, np.ndarray]
     """Mean shape distance [mm] per seed, by dataset."""
+    l4_mm: dict[str, np.ndarray]
+    """Mean L4 (Eq. 9) [mm] per seed, by dataset."""
     on_success: Verdict | None
     """Gate and verdict on success (None with fewer than 2 seeds)."""
     on_shape: Verdict | None
@@ -53,19 +64,18 @@ class CrowdCell:
 
 
 def crowd_cells(run: CrowdRun) -> dict[CellKey, CrowdCell]:
-    """The cells of `run`, in (set, task, crowd, learner) order."""
+    """The cells of `run`, in the order their rows were made."""
     grouped: dict[CellKey, dict[str, dict[int, CrowdRow]]] = defaultdict(lambda: defaultdict(dict))
     for row in run.rows:
-        key = (row.set_name, row.task, row.crowd, row.learner)
+        key = (row.set_name, row.task, row.crowd, row.learner, row.approach)
         grouped[key][row.dataset][row.seed] = row
     out = {}
     for key, by_dataset in grouped.items():
         seeds = sorted(by_dataset["noisy"])
-        success = {
-            d: np.array([by_dataset[d][s].success_at(TAU_MM) for s in seeds])
-            for d in CROWD_DATASETS
-        }
-        shape = {d: np.array([by_dataset[d][s].shape_mm for s in seeds]) for d in CROWD_DATASETS}
+        success = _per_seed(by_dataset, seeds, lambda r: r.success_at(TAU_MM))
+        robust = _per_seed(by_dataset, seeds, lambda r: r.robust[TAUS_MM.index(TAU_MM)])
+        shape = _per_seed(by_dataset, seeds, lambda r: r.shape_mm)
+        l4 = _per_seed(by_dataset, seeds, lambda r: r.l4_mm)
         on_success = on_shape = None
         if len(seeds) >= 2:
             on_success = verdict(
@@ -74,50 +84,139 @@ def crowd_cells(run: CrowdRun) -> dict[CellKey, CrowdCell]:
             on_shape = verdict(
                 shape["noisy"], shape["cleaned"], shape["truth_shape"], higher_is_better=False
             )
-        out[key] = CrowdCell(success, shape, on_success, on_shape)
+        out[key] = CrowdCell(success, robust, shape, l4, on_success, on_shape)
     return out
+
+
+def _per_seed(
+    by_dataset: dict[str, dict[int, CrowdRow]], seeds: list[int], value: Callable[[CrowdRow], float]
+) -> dict[str, np.ndarray]:
+    """`value` of each seed's row, by dataset (those the cell trained, in CROWD_DATASETS order)."""
+    names = [d for d in CROWD_DATASETS if d in by_dataset]
+    return {d: np.array([value(by_dataset[d][s]) for s in seeds]) for d in names}
 
 
 def crowd_section(run: CrowdRun, cells: dict[CellKey, CrowdCell]) -> list[str]:
     """The Markdown section that leads the report."""
     s = run.settings
+    main = {k: c for k, c in cells.items() if k[2] in s.crowds and k[4] == "conditioned"}
     lines = [
         "## Does cleaning help a learner that keeps each demonstrator's preference?",
         "",
-        f"Crowds {', '.join(s.crowds)} (shared: the naive demos share a corner cut, an undershot "
-        "stretch, a pause place and a backwards minority), sets "
+        f"Crowds {', '.join(s.crowds)} (shared: the naive demos share their biases, "
+        "bt_pipeline/data/synth_crowd.py), sets "
         f"{', '.join(s.sets)}, seeds 0..{s.seeds - 1}. Every learner takes each demo's "
         "(θ, ρ) as an input and is rolled out "
         f"{s.per_demonstrator} times per demonstrator from that demonstrator's true loop, its "
         "second period scored against that loop. **Success** at τ: the rollout passes within τ "
         "of ≥ 90 % of the loop, returns within τ of its start and goes ≥ 0.95 times around. "
-        "Datasets: noisy, cleaned, best aligned (the best demo's loop aligned to each demo: what "
-        "selection buys without refinement), and the generator's truth, shape-only and "
-        "shape-plus-timing. "
+        "**Robust**: the same from starts 1-3 cm off the loop. **L4**: Eq. 9 against the true "
+        "loop (it reads the timing too). Datasets: noisy, cleaned, best aligned (the best demo's "
+        "loop aligned to each demo: what selection buys without refinement), and the "
+        "generator's truth, shape-only and shape-plus-timing. "
         f"Wall time {run.seconds:.0f} s.",
         "",
         "| set | task | crowd | learner | success@10 mm noisy / cleaned / best aligned / truth "
-        "shape / truth timing | shape [mm] noisy / cleaned / best aligned / truth shape | gate "
+        "shape / truth timing | robust@10 mm noisy / cleaned / truth | shape [mm] noisy / "
+        "cleaned / best aligned / truth shape | L4 [mm] noisy / cleaned / truth | gate "
         "(truth vs noisy) | cleaned vs noisy | share of the gap recovered |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for (set_name, task, crowd, learner, _), cell in main.items():
+        lines.append(
+            f"| {set_name} | {task} | {crowd} | {LEARNER_TITLES.get(learner, learner)} | "
+            f"{_values(cell.success, CROWD_DATASETS, 2)} | "
+            f"{_values(cell.robust, GATED_DATASETS, 2)} | "
+            f"{_values(cell.shape_mm, CROWD_DATASETS[:4], 1)} | "
+            f"{_values(cell.l4_mm, GATED_DATASETS, 1)} | {_verdict_columns(cell.on_success)} |"
+        )
+    lines += ["", *_summary(main), "", "![success against τ](success_tau.png)", ""]
+    tasks = dict.fromkeys(k[1] for k in main)
+    lines += [f"![rollouts, {t}](rollouts.{t}.png)" for t in tasks] + [""]
+    lines += _held_out_section(run, cells) + _sweep_section(run, cells)
+    return lines
+
+
+def _held_out_section(run: CrowdRun, cells: dict[CellKey, CrowdCell]) -> list[str]:
+    """The held-out preference and the per-demonstrator learner, on the shared crowd."""
+    rows = {k: c for k, c in cells.items() if k[4] in ("held_out", "per_demonstrator")}
+    if not rows:
+        return []
+    seen = {k[:4]: c for k, c in cells.items() if k[4] == "conditioned"}
+    lines = [
+        "### A preference never seen, and one policy per demonstrator (shared crowd)",
+        "",
+        "**Held out**: per seed, demonstrator (seed mod 4) is left out of training and the "
+        "conditioned policy is rolled out for its preference only. **Per demonstrator**: one "
+        "unconditioned policy per demonstrator, trained on its demos alone (one demo in D1). "
+        "*Seen* is the conditioned policy trained on everyone, the same cell's main row.",
+        "",
+        "| set | task | learner | approach | success@10 mm noisy / cleaned / truth shape | "
+        "seen: noisy / cleaned / truth | gate (truth vs noisy) | cleaned vs noisy | share of "
+        "the gap recovered |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for (set_name, task, crowd, learner), cell in cells.items():
-        rates = " / ".join(f"{cell.success[d].mean():.2f}" for d in CROWD_DATASETS)
-        shapes = " / ".join(f"{cell.shape_mm[d].mean():.1f}" for d in CROWD_DATASETS[:4])
-        v = cell.on_success
-        if v is None:
-            gate, outcome, share = "one seed: no gate", "—", "—"
-        else:
-            gate = ("passes: " if v.gate.passed else "fails: ") + v.gate.reason
-            outcome = v.outcome if v.gate.passed else "—"
-            share = _share(v) if v.gate.passed else "—"
-        name = LEARNER_TITLES.get(learner, learner)
+    for (set_name, task, crowd, learner, approach), cell in rows.items():
+        base = seen.get((set_name, task, crowd, learner))
+        seen_text = "—" if base is None else _values(base.success, GATED_DATASETS, 2)
         lines.append(
-            f"| {set_name} | {task} | {crowd} | {name} | {rates} | {shapes} | {gate} | "
-            f"{outcome} | {share} |"
+            f"| {set_name} | {task} | {LEARNER_TITLES.get(learner, learner)} | "
+            f"{approach.replace('_', ' ')} | {_values(cell.success, GATED_DATASETS, 2)} | "
+            f"{seen_text} | {_verdict_columns(cell.on_success)} |"
         )
-    lines += ["", *_summary(cells), "", "![success against τ](success_tau.png)", ""]
-    return lines
+    for approach in ("held_out", "per_demonstrator"):
+        part = {k: c for k, c in rows.items() if k[4] == approach}
+        if part:
+            lines += ["", f"*{approach.replace('_', ' ')}*:", *_summary(part)]
+    return [*lines, ""]
+
+
+def _sweep_section(run: CrowdRun, cells: dict[CellKey, CrowdCell]) -> list[str]:
+    """The sweep of the expert share, the θ = 0, ρ = 1 ablation and the random loops."""
+    s = run.settings
+    rows = {k: c for k, c in cells.items() if k[2] in s.sweeps and k[2] not in s.crowds}
+    if not rows:
+        return []
+    lines = [
+        "### Sweeps: the expert share, one shared preference, loops bt never drew",
+        "",
+        "Shared-bias crowds with no expert-like demo or 3 of 4; with every demonstrator at "
+        "θ = 0, ρ = 1 (where the paper's pooled, unconditioned protocol is legitimate: the "
+        "preference input is then constant); and on a loop drawn at random per seed and task "
+        "instead of the task's guide. Learners "
+        f"{', '.join(LEARNER_TITLES.get(lr, lr) for lr in s.sweep_learners)}.",
+        "",
+        "| set | task | crowd | learner | success@10 mm noisy / cleaned / truth shape | shape "
+        "[mm] noisy / cleaned / truth | gate (truth vs noisy) | cleaned vs noisy | share of "
+        "the gap recovered |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for (set_name, task, crowd, learner, _), cell in rows.items():
+        lines.append(
+            f"| {set_name} | {task} | {_CROWD_TEXT.get(crowd, crowd)} | "
+            f"{LEARNER_TITLES.get(learner, learner)} | "
+            f"{_values(cell.success, GATED_DATASETS, 2)} | "
+            f"{_values(cell.shape_mm, GATED_DATASETS, 1)} | {_verdict_columns(cell.on_success)} |"
+        )
+    for crowd in s.sweeps:
+        part = {k: c for k, c in rows.items() if k[2] == crowd}
+        if part:
+            lines += ["", f"*{_CROWD_TEXT.get(crowd, crowd)}*:", *_summary(part)]
+    return [*lines, ""]
+
+
+def _values(by: dict[str, np.ndarray], names: tuple[str, ...], digits: int) -> str:
+    return " / ".join(f"{by[d].mean():.{digits}f}" if d in by else "—" for d in names)
+
+
+def _verdict_columns(v: Verdict | None) -> str:
+    """The gate, the verdict and the share, as three table cells."""
+    if v is None:
+        return "one seed: no gate | — | —"
+    gate = ("passes: " if v.gate.passed else "fails: ") + v.gate.reason
+    if not v.gate.passed:
+        return f"{gate} | cannot tell | —"
+    return f"{gate} | {v.outcome} | {_share(v)}"
 
 
 def _share(v: Verdict) -> str:
@@ -148,30 +247,6 @@ def _summary(cells: dict[CellKey, CrowdCell]) -> list[str]:
     return out
 
 
-def plot_success_tau(run: CrowdRun, path: str | os.PathLike[str]) -> Path:
-    """Success against τ per dataset, one panel per crowd, Wilson intervals (module doc)."""
-    crowds = list(run.settings.crowds)
-    fig = Figure(figsize=(5.0 * len(crowds), 3.8), layout="constrained")
-    axes = fig.subplots(1, len(crowds), squeeze=False)[0]
-    for ax, crowd in zip(axes, crowds, strict=True):
-        for dataset in CROWD_DATASETS:
-            rows = [r for r in run.rows if r.crowd == crowd and r.dataset == dataset]
-            n = sum(r.rollouts for r in rows)
-            if not n:
-                continue
-            hits = [sum(r.successes[k] for r in rows) for k in range(len(TAUS_MM))]
-            low, high = zip(*(wilson(h, n) for h in hits), strict=True)
-            ax.plot(TAUS_MM, np.array(hits) / n, marker="o", color=_COLORS[dataset], label=dataset)
-            ax.fill_between(TAUS_MM, low, high, color=_COLORS[dataset], alpha=0.2, lw=0)
-        ax.set_xlabel("τ [mm]")
-        ax.set_ylabel("success rate (all learners, seeds, sets)")
-        ax.set_title(f"{crowd} crowd", fontsize=10)
-        ax.set_ylim(0.0, 1.02)
-        ax.legend(fontsize=8, loc="lower right")
-    fig.suptitle("Conditioned learners: success against τ (95 % Wilson intervals over rollouts)")
-    return save_figure(fig, path)
-
-
 def crowd_json(run: CrowdRun, cells: dict[CellKey, CrowdCell]) -> dict[str, object]:
     """The conditioned protocol's rows and cells for results.json."""
     return {
@@ -183,10 +258,14 @@ def crowd_json(run: CrowdRun, cells: dict[CellKey, CrowdCell]) -> dict[str, obje
                 "crowd": r.crowd,
                 "learner": r.learner,
                 "dataset": r.dataset,
+                "approach": r.approach,
                 "success": dict(zip(map(str, TAUS_MM), r.success, strict=True)),
                 "robust_success": dict(zip(map(str, TAUS_MM), r.robust, strict=True)),
                 "shape_mm": r.shape_mm,
-                "shape_by_demonstrator_mm": list(r.shape_by_demonstrator_mm),
+                "shape_by_demonstrator_mm": [
+                    v if np.isfinite(v) else None for v in r.shape_by_demonstrator_mm
+                ],
+                "l4_mm": r.l4_mm,
                 "train_seconds": r.train_seconds,
             }
             for r in run.rows
@@ -197,6 +276,7 @@ def crowd_json(run: CrowdRun, cells: dict[CellKey, CrowdCell]) -> dict[str, obje
                 "task": key[1],
                 "crowd": key[2],
                 "learner": key[3],
+                "approach": key[4],
                 "verdict_success": None if c.on_success is None else c.on_success.summary(),
                 "verdict_shape": None if c.on_shape is None else c.on_shape.summary(),
             }

@@ -1,11 +1,14 @@
 """``bt reproduce``: the paper's Sec. IV end to end on synthetic D1 and D2, for every task.
 
-The report leads with the conditioned protocol (:mod:`~bt_pipeline.evaluate.crowd_jobs`,
-:mod:`~bt_pipeline.evaluate.crowd_report`): learners that take each demonstrator's (θ, ρ) as an
-input, trained on noisy, cleaned and true demos of independent and shared-bias crowds, and
-scored per demonstrator against its own true loop, with a truth gate and paired verdicts over
-seeds. The paper's protocol follows (``--paper-only`` runs it alone), in two stages of jobs run
-in parallel with ``workers`` (:mod:`~bt_pipeline.evaluate.reproduce_jobs`)::
+The report leads with the conditioned protocol (:mod:`~bt_pipeline.evaluate.crowd_sets`,
+:mod:`~bt_pipeline.evaluate.crowd_jobs`, :mod:`~bt_pipeline.evaluate.crowd_report`,
+:mod:`~bt_pipeline.evaluate.crowd_figures`): learners that take each demonstrator's (θ, ρ) as an
+input, trained on noisy, cleaned and true demos of independent and shared-bias crowds (with a
+held-out preference, a per-demonstrator learner, a sweep of the expert share, a θ = 0, ρ = 1
+ablation and random loops), and scored per demonstrator against its own true loop, with a truth
+gate and paired verdicts over seeds. The paper's protocol follows (``--paper-only`` runs it
+alone), in two stages of jobs run in parallel with ``workers``
+(:mod:`~bt_pipeline.evaluate.reproduce_jobs`)::
 
     stage 1, one job per (seed, set, task):
     make_d1 / make_d2 (bt_pipeline.data.synth) ──demos_from_recording──▶ noisy demos
@@ -27,13 +30,10 @@ import json
 import logging
 from pathlib import Path
 
-from bt_pipeline.evaluate.crowd_jobs import CrowdRun, CrowdSettings, run_crowd
-from bt_pipeline.evaluate.crowd_report import (
-    crowd_cells,
-    crowd_json,
-    crowd_section,
-    plot_success_tau,
-)
+from bt_pipeline.evaluate.crowd_figures import plot_success_tau, plot_task_rollouts
+from bt_pipeline.evaluate.crowd_jobs import CrowdRun, run_crowd
+from bt_pipeline.evaluate.crowd_report import crowd_cells, crowd_json, crowd_section
+from bt_pipeline.evaluate.crowd_sets import CrowdSettings
 from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig, ReproduceRun, run_reproduce
 from bt_pipeline.evaluate.reproduce_report import cells, report_markdown, results_json, reward_bars
 from bt_pipeline.execute import ExecutorConfig
@@ -73,6 +73,9 @@ def write_outputs(
     if crowd is not None:
         table = crowd_cells(crowd)
         paths.append(plot_success_tau(crowd, out / "success_tau.png"))
+        for task in run.config.tasks:
+            figure = plot_task_rollouts(crowd, task, out / f"rollouts.{task}.png")
+            paths += [] if figure is None else [figure]
         results["conditioned"] = crowd_json(crowd, table)
         lines += [*crowd_section(crowd, table), "## The paper's protocol (unconditioned learners)"]
     lines += paper

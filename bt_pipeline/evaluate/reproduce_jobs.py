@@ -77,7 +77,8 @@ class ReproduceConfig:
     oracle: bool = False
     """Also train every learner on the demos' ground-truth shapes (the upper bound of cleaning)."""
     competence: bool = True
-    """Run the competence checks (perfect demos of one and of four demonstrators) as oracle rows."""
+    """Run the competence checks (perfect demos of one and of four demonstrators, the four also
+    given to conditioned learners) as oracle rows."""
     paper_learners: bool = False
     """The learners as the paper wrote them: 2-D position state, no corrective data."""
 
@@ -268,17 +269,24 @@ class ReproduceRun:
         return (*DATASETS, "truth") if self.config.oracle else DATASETS
 
 
-CompetenceJob = tuple[str, GuidedTask, LearnerName, ReproduceConfig]
-"""("one" or "four", task, learner, config): one competence check."""
+CompetenceCheck = Literal["one", "four", "four_conditioned"]
+"""The competence checks (:mod:`~bt_pipeline.evaluate.oracle`): perfect demos of one
+demonstrator, of the four D1 demonstrators, and of the four given to a conditioned learner."""
+COMPETENCE_CHECKS: tuple[CompetenceCheck, ...] = ("one", "four", "four_conditioned")
+CompetenceJob = tuple[CompetenceCheck, GuidedTask, LearnerName, ReproduceConfig]
+"""(check, task, learner, config): one competence check."""
 
 
 def run_competence(job: CompetenceJob) -> CompetenceRow:
-    """One competence check, seed 0 (runs in a worker when workers > 1)."""
+    """One competence check, seed 0 (runs in a worker when workers > 1); the conditioned one
+    trains the quick presets, as the conditioned protocol does (its ``quick_learners``)."""
     check, task, learner, config = job
-    rollouts = min(20, config.rollouts)
+    conditioned = check == "four_conditioned"
+    quick, steps, paper = config.quick or conditioned, config.steps, config.paper_learners
     return competence_check(
-        check, task, learner, config.quick, 0, rollouts, config.steps, config.paper_learners
-    )
+        "four" if conditioned else check, task, learner, quick, 0, min(20, config.rollouts),
+        steps, paper, conditioned=conditioned,
+    )  # fmt: skip
 
 
 STEP_COST: dict[LearnerName, float] = {"bc": 1.0, "traj_bc": 1.1, "ileed": 1.4, "node": 14.0}
@@ -354,11 +362,12 @@ def run_reproduce(
                     jobs.append(job)
                     costs.append(job_cost(learner, config, positions.shape[0]))
         if config.competence:
-            for check in ("one", "four"):
+            for check in COMPETENCE_CHECKS:
+                sized = replace(config, quick=True) if check == "four_conditioned" else config
                 for task in config.tasks:
                     for learner in config.learners:
                         jobs.append((check, task, learner, config))
-                        costs.append(job_cost(learner, config) * COMPETENCE_COST)
+                        costs.append(job_cost(learner, sized) * COMPETENCE_COST)
         order = sorted(range(len(jobs)), key=lambda i: -costs[i])  # longest first
         done = run_jobs(
             _run_stage2,

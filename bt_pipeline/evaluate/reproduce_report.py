@@ -7,6 +7,7 @@ import numpy as np
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.evaluate.cells import (
     Cell,
+    CellVerdict,
     cells,
     verdict,
     verdict_shape,
@@ -15,7 +16,12 @@ from bt_pipeline.evaluate.cells import (
 from bt_pipeline.evaluate.learners import LearnerName
 from bt_pipeline.evaluate.protocol import DATASETS
 from bt_pipeline.evaluate.reproduce_jobs import PAPER_ILEED_D1_GAIN, ReproduceRun, SetName
-from bt_pipeline.evaluate.reproduce_why import why_lines
+from bt_pipeline.evaluate.reproduce_verdicts import (
+    cell_verdict,
+    verdict_cell,
+    verdict_section,
+    verdicts_json,
+)
 from bt_pipeline.viz.plots import RewardBar
 
 
@@ -71,7 +77,7 @@ def report_markdown(
         lines += [
             f"### {set_name}",
             "",
-            "| task | learner | R̄ noisy | R̄ cleaned | Δ R̄ | verdict (test, p) |"
+            "| task | learner | R̄ noisy | R̄ cleaned | Δ R̄ | verdict (paired over seeds) |"
             + oracle_head
             + " R̄ nearest noisy → cleaned | min-max noisy → cleaned | coverage noisy → cleaned |"
             " shape [mm] noisy → cleaned | L4 [mm] noisy → cleaned | Ũ noisy → cleaned |",
@@ -87,10 +93,9 @@ def report_markdown(
             )
             for learner in c.learners:
                 n, k = (table[(set_name, task, learner, d)] for d in DATASETS)
-                word, test, p = verdict_test(n, k)
                 lines.append(
                     f"| {task} | {learner} | {_pm(n, c.seeds)} | {_pm(k, c.seeds)} | "
-                    f"{k.mean - n.mean:+.3f} | {word} ({test}, p = {p:.2g}) | "
+                    f"{k.mean - n.mean:+.3f} | {verdict_cell(table, set_name, task, learner)} | "
                     + (
                         f"{_pm(table[(set_name, task, learner, 'truth')], c.seeds)} | "
                         if c.oracle
@@ -106,7 +111,7 @@ def report_markdown(
             blanks = "| " * (10 + c.oracle)
             lines.append(f"| {task} | *best raw demo (ceiling)* | {ceiling:.3f} {blanks}|")
         lines.append("")
-    lines += _paper_section(run, table) + _verdict_section(run, table) + _timing_section(run, table)
+    lines += _paper_section(run, table) + verdict_section(run, table) + _timing_section(run, table)
     lines += [
         "## Figures",
         "",
@@ -122,7 +127,8 @@ def report_markdown(
 
 
 def competence_section(run: ReproduceRun) -> list[str]:
-    """The oracle rows: competence on perfect demos of one and of the four D1 demonstrators."""
+    """The oracle rows: competence on perfect demos of one and of the four D1 demonstrators,
+    the four also given to conditioned learners."""
     rows = run.competence
     if not rows:
         return []
@@ -145,14 +151,35 @@ def competence_section(run: ReproduceRun) -> list[str]:
                 f"{1e3 * r.demos_error_m:.2f} | {'yes' if r.passed else '**no**'} | "
                 f"{r.converged:.2f} ({1e3 * r.final_gap_m:.1f} mm) |"
             )
+    conditioned = [r for r in rows if r.check == "four_conditioned"]
+    if conditioned:
+        lines += [
+            "",
+            "Four demonstrators, conditioned: one perfect demo each of teacher_a-d, every learner "
+            "given each demo's (θ, ρ) as an input (the conditioned protocol's learners, quick "
+            "presets) and each rollout run with the preference of the demonstrator it started "
+            "from. *Own loop, worst demonstrator*: per demonstrator the mean distance of its "
+            "rollouts to its own loop, the largest of the four. Pass: ≤ 2 mm.",
+            "",
+            "| task | learner | coverage of own loop | own loop, worst demonstrator [mm] | "
+            "mean loop [mm] | nearest loop is own | pass | attracting |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for r in conditioned:
+            lines.append(
+                f"| {r.task} | {r.learner} | {r.coverage:.2f} | {1e3 * r.worst_own_error_m:.2f} "
+                f"| {1e3 * r.mean_loop_error_m:.1f} | {r.nearest_own:.2f} | "
+                f"{'yes' if r.passed else '**no**'} | {r.converged:.2f} |"
+            )
     four = [r for r in rows if r.check == "four"]
     if four:
         lines += [
             "",
-            "Four demonstrators (one perfect demo each of teacher_a-d, θ = 5, -5, 10, -10°, "
-            "ρ = 1-1.3): each rollout against the loop of the demonstrator whose demo it started "
-            "from (*own*), and against the mean-preference loop (θ = 0°, ρ = 1.15). A single "
-            "policy that averages the preferences lies nearer the mean loop than its own.",
+            "Four demonstrators, unconditioned (one perfect demo each of teacher_a-d, "
+            "θ = 5, -5, 10, -10°, ρ = 1-1.3): each rollout against the loop of the "
+            "demonstrator whose demo it started from (*own*), and against the mean-preference "
+            "loop (θ = 0°, ρ = 1.15). A single policy that averages the preferences lies nearer "
+            "the mean loop than its own.",
             "",
             "| task | learner | coverage of own loop | shape to own [mm] | shape to mean loop "
             "[mm] | nearest loop is own | attracting |",
@@ -199,92 +226,6 @@ def _paper_section(run: ReproduceRun, table: dict) -> list[str]:
     return [*lines, ""]
 
 
-def _verdict_section(run: ReproduceRun, table: dict) -> list[str]:
-    keys = [
-        (s, t, lr) for s in run.config.sets for t in run.config.tasks for lr in run.config.learners
-    ]
-    verdicts = {key: verdict(table[(*key, "noisy")], table[(*key, "cleaned")]) for key in keys}
-    count = {v: sum(1 for x in verdicts.values() if x == v) for v in ("cleaned", "tie", "noisy")}
-    test = (
-        "Welch's t-test on the per-seed means"
-        if run.config.seeds >= 2
-        else "Welch's t-test on the per-rollout R̄ (one seed: training-seed variance unseen)"
-    )
-    shape_wins = sum(
-        1
-        for key in keys
-        if verdict_shape(table[(*key, "noisy")], table[(*key, "cleaned")]) == "cleaned"
-    )
-    lines = [
-        "## Where cleaned beats noisy, and where it does not",
-        "",
-        f"Of {len(keys)} (set, task, learner) cells, R̄ (the paper's reading) is higher on cleaned "
-        f"demos in **{count['cleaned']}**, lower in **{count['noisy']}**, and not different in "
-        f"**{count['tie']}** ({test}, p < 0.05). Against the true loops, the phase-free shape "
-        f"distance is lower on cleaned demos in {shape_wins} cells.",
-        "",
-    ]
-    for label, which in (("Cleaned worse", "noisy"), ("No clear difference", "tie")):
-        worse = [key for key in keys if verdicts[key] == which]
-        if worse:
-            items = ", ".join(
-                f"{s} {t} {lr} ({table[(s, t, lr, 'noisy')].mean:.3f} → "
-                f"{table[(s, t, lr, 'cleaned')].mean:.3f})"
-                for s, t, lr in worse
-            )
-            lines += [f"- {label}: {items}."]
-    partial = [
-        key
-        for key in keys
-        if min(table[(*key, "noisy")].coverage, table[(*key, "cleaned")].coverage) < 0.5
-    ]
-    if partial:
-        items = ", ".join(
-            f"{s} {t} {lr} ({table[(s, t, lr, 'noisy')].coverage:.2f} → "
-            f"{table[(s, t, lr, 'cleaned')].coverage:.2f})"
-            for s, t, lr in partial
-        )
-        lines += [
-            "- Rollouts cover less than half of the nearest demonstrator's true loop "
-            f"(coverage < 0.5) on at least one side in: {items}. A single policy trained on "
-            "several demonstrators draws a loop near their mean preference (see the oracle rows: "
-            "0.2 coverage of each own loop even on perfect demos), so coverage here measures "
-            "the averaging as much as the data."
-        ]
-    shape_better = sum(
-        1
-        for key in keys
-        if table[(*key, "cleaned")].shape_distance < table[(*key, "noisy")].shape_distance
-    )
-    l4_better = sum(
-        1 for key in keys if table[(*key, "cleaned")].shape_loss < table[(*key, "noisy")].shape_loss
-    )
-    nearest_better = sum(
-        1 for key in keys if table[(*key, "cleaned")].nearest > table[(*key, "noisy")].nearest
-    )
-    if run.config.oracle:
-        gains = []
-        for task in run.config.tasks:
-            mine = [key for key in keys if key[1] == task]
-            truth, clean = (
-                np.mean([table[(*key, d)].mean - table[(*key, "noisy")].mean for key in mine])
-                for d in ("truth", "cleaned")
-            )
-            gains.append(f"{task} {truth:+.3f} with the truth, {clean:+.3f} cleaned")
-        lines += [
-            "- Mean gain in R̄ over noisy, by task (all sets and learners): "
-            + "; ".join(gains)
-            + ". The truth column bounds what any cleaning can give to these learners."
-        ]
-    lines += [
-        f"- Phase-free shape distance lower on cleaned demos in {shape_better} of {len(keys)} "
-        f"cells; L4 lower in {l4_better}; R̄ nearest frame higher in {nearest_better}.",
-        *why_lines(run, table, [key for key in keys if verdicts[key] != "cleaned"]),
-        "",
-    ]
-    return lines
-
-
 def _timing_section(run: ReproduceRun, table: dict) -> list[str]:
     lines = [
         "## Timings",
@@ -312,7 +253,8 @@ def _timing_section(run: ReproduceRun, table: dict) -> list[str]:
 
 
 def results_json(run: ReproduceRun) -> dict[str, object]:
-    """Every evaluated row, with its set and seed, plus the cleaning quality and timings."""
+    """Every evaluated row, with its set and seed, plus the cleaning quality, timings and each
+    (set, task, learner)'s verdict."""
     rows = []
     for job in run.jobs:
         for result in job.evaluation.results:
@@ -353,6 +295,7 @@ def results_json(run: ReproduceRun) -> dict[str, object]:
         "results": rows,
         "competence": [r.to_json() for r in run.competence],
         "cleaning": cleaning,
+        "verdicts": verdicts_json(run),
     }
 
 
@@ -378,11 +321,14 @@ def reward_bars(run: ReproduceRun) -> list[RewardBar]:
 
 __all__ = [
     "Cell",
+    "CellVerdict",
+    "cell_verdict",
     "cells",
     "report_markdown",
     "results_json",
     "reward_bars",
     "verdict",
+    "verdict_cell",
     "verdict_shape",
     "verdict_test",
 ]
