@@ -20,8 +20,10 @@ from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.random_loops import draw_set_loop
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.records import forward_difference_actions
+from bt_pipeline.data.synth_crowd import make_crowd_set
 from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.data.synth_truth import truth_ratios
+from bt_pipeline.evaluate.distance import distance_to_truth
 
 FAST = CleanOptions(epochs=30, progress=False, write_rrd=False)
 
@@ -197,3 +199,20 @@ def test_a_single_demo_of_a_new_task_is_cleaned_against_its_own_loop() -> None:
     result = clean_demos(demos_from_recording(synth.recording), FAST)
     assert result.loop is not None and result.loop.source == "learned"
     assert any("only demo" in note for note in result.notes)
+
+
+@pytest.mark.parametrize("seed", [2, 5])
+def test_a_majority_sharing_one_bias_does_not_outvote_the_demo_that_traced_the_guide(
+    seed: int,
+) -> None:
+    """Three naive weaving demos go round the same lobe twice (the shared wrong lobe); their
+    consensus lies ~70 % off the guide, the expert-like demo within 2 %. It stays the best demo,
+    and cleaning leaves it where it was (it was cleaned to 37-44 mm when the consensus won)."""
+    crowd = make_crowd_set("weaving", 4, seed)
+    demos = demos_from_recording(crowd.recording)
+    result = clean_demos(demos, CleanOptions(seed=seed, write_rrd=False, progress=False))
+    e = crowd.expert_index
+    assert result.stage1.best_index == e
+    raw = distance_to_truth(demos[e].positions, crowd.demos[e].truth)
+    cleaned = distance_to_truth(result.positions[e], crowd.demos[e].truth)
+    assert cleaned <= 1.5 * raw + 2e-4

@@ -22,11 +22,10 @@ against before the best demo is known, so the loop is learned from every demo fi
 4. **Guide or learned.** A task with a built-in guide keeps its guide when some demo's own
    loop lies within 4 % (RMS, of its RMS radius) of a similarity of the guide (of the guide
    turned and scaled by its stated θ/ρ, when it states them) and the
-   consensus within 12 %: the demos follow it, and today's guide-based results stay as they
-   were (every guide set of ``bench_clean_human.py`` keeps the guide, and
-   ``tests/test_clean_loops.py`` checks it; the foreign wiping oval, whose closest demo lies
-   9 % off, does not).
-   Otherwise the learned loop is used.
+   consensus within 12 %: the demos follow it (every guide set of ``bench_clean_human.py`` keeps
+   the guide, ``tests/test_clean_loops.py``; the foreign wiping oval, closest demo 9 % off, does
+   not); or when some demo lies within 2 %, whatever the consensus (a traced guide must not be
+   outvoted by a majority sharing one bias). Otherwise the learned loop is used.
 5. **Frame.** A learned loop's θ = 0, ρ = 1 is the set's: each demo's similarity to the
    consensus is read off its alignment, and the loop is turned and scaled so that these have
    circular-mean θ 0 and geometric-mean ρ 1; when demos state θ/ρ, so that theirs match the
@@ -91,6 +90,10 @@ similarity of the guide"""
 GUIDE_MISFIT = 0.12
 """and the learned consensus within this share (a consensus of a few noisy demos is itself
 several % off the shape they meant)."""
+GUIDE_TRACED = 0.02
+"""Or when some demo's own loop lies within this share of the guide, whatever the consensus: it
+traced the guide (the loosest expert of shared-bias weaving crowds 0-9 lies 1.6 % off), and a
+majority that shares one bias (the wrong lobe of an eight) must not outvote it."""
 _HARMONICS = 12  # Harmonics of a learned loop.
 _MAX_PAIRWISE = 40  # Loops compared pairwise for the medoid.
 _OUTLIER = 3.0  # Loops farther than this many median distances from the medoid are left out,
@@ -239,10 +242,27 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
         misfit = align(centred_complex(learned.points(LOOP_POINTS)), drawn)[3]
         # A demo that states θ/ρ follows the guide only in that frame (a guide turned or
         # scaled to fit it would read its stated preference against another shape).
-        closest = min(
+        gaps = [
             _guide_distance(loop, guide, drawn, demos[i])
             for loop, i in zip(loops, used, strict=True)
-        )
+        ]
+        closest = min(gaps)
+        if closest <= GUIDE_TRACED and misfit > GUIDE_MISFIT:
+            tracers = [used[k] for k, g in enumerate(gaps) if g <= GUIDE_FOLLOWED]
+            return TaskLoop(
+                guide,
+                "guide",
+                misfit,
+                _labels(demos, tracers),
+                f"the {task} guide's frame",
+                (
+                    f"{_labels(demos, tracers)[0]} traces the {task} guide within "
+                    f"{100 * closest:.1f} % of its size, though the other demos' consensus lies "
+                    f"{100 * misfit:.0f} % off it: the guide is used",
+                ),
+                own=own,
+                repeats=repeats,
+            )
         if closest <= GUIDE_FOLLOWED and misfit <= GUIDE_MISFIT:
             return TaskLoop(
                 guide,

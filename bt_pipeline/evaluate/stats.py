@@ -18,6 +18,7 @@ and :func:`holm` (scipy's ``false_discovery_control`` has only Benjamini-Hochber
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Literal
 
@@ -135,7 +136,11 @@ def paired(
     d = y - x if higher_is_better else x - y
     n, mean = d.size, float(np.mean(d))
     half = float(scipy.stats.t.ppf(0.5 + confidence / 2, n - 1) * np.std(d, ddof=1) / np.sqrt(n))
-    p_t = float(scipy.stats.ttest_rel(y, x).pvalue)  # two-sided: the same in either orientation
+    with warnings.catch_warnings():
+        # Differences all (nearly) equal: scipy warns of precision loss; t is then ±inf (p 0)
+        # or undefined (p NaN, all 0), which the callers read as such.
+        warnings.simplefilter("ignore", RuntimeWarning)
+        p_t = float(scipy.stats.ttest_rel(y, x).pvalue)  # two-sided: either orientation
     nonzero, p_w = d[d != 0], np.nan
     if nonzero.size >= WILCOXON_MIN_N:
         # scipy's stubs type wilcoxon's result as an anonymous class without fields.
