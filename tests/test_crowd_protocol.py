@@ -95,3 +95,18 @@ def test_quick_units_and_bad_settings() -> None:
         CrowdSettings(sweeps=("nobody",))  # type: ignore[arg-type]
     prepared = prepare_crowd((0, "D1", "wiping", "no_expert", CrowdSettings(), 2))
     assert prepared.positions["noisy"].shape[0] == 4
+
+
+def test_the_report_says_why_from_its_own_numbers(tiny: CrowdRun) -> None:
+    for p in tiny.prepared:
+        assert np.all(p.coverage["truth_shape"] >= 0.99)  # the truth covers its own loop
+        assert 0 <= p.best < 4
+    shared = [p for p in tiny.prepared if p.crowd == "shared"]
+    # Every naive demo of a shared crowd leaves the same part of its loop out.
+    assert all(np.delete(p.coverage["noisy"], p.best).max() < 0.97 for p in shared)
+    for row in tiny.rows:
+        per = np.array(row.success_by_demonstrator)
+        if row.approach == "conditioned":  # equal rollouts per demonstrator: the mean is the rate
+            assert np.mean(per) == pytest.approx(row.success_at(10.0))
+    text = "\n".join(crowd_section(tiny, crowd_cells(tiny)))
+    assert "*Why, independent crowd.*" in text and "*Why, shared crowd.*" in text

@@ -63,6 +63,8 @@ class CrowdRow:
     """The same per demonstrator [mm] (NaN for one not rolled out)."""
     l4_mm: float
     """Mean L4 (Eq. 9) of the rollouts against their demonstrator's true loop [mm]."""
+    success_by_demonstrator: tuple[float, ...]
+    """Success at τ = 10 mm of each demonstrator's rollouts (NaN for one not rolled out)."""
     successes: tuple[int, ...]
     """Successful rollouts at each τ (for Wilson intervals over the rollouts)."""
     rollouts: int
@@ -112,6 +114,9 @@ def run_crowd_learner(job: CrowdJob) -> CrowdRow:
             float(v) for v in e.scores.by_demonstrator(e.scores.shape_mm)
         ),
         l4_mm=float(np.mean(e.scores.l4_mm)),
+        success_by_demonstrator=tuple(
+            float(v) for v in e.scores.by_demonstrator(ok[:, TAUS_MM.index(10.0)])
+        ),
         successes=tuple(int(v) for v in ok.sum(axis=0)),
         rollouts=int(ok.shape[0]),
         train_seconds=e.train_seconds,

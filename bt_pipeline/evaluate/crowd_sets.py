@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from scipy.spatial import KDTree
 
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import Demo, demos_from_recording
@@ -74,6 +75,8 @@ baseline); the truth, shape-only and shape-plus-timing."""
 GATED_DATASETS: tuple[CrowdDataset, ...] = ("noisy", "cleaned", "truth_shape")
 """What a verdict needs: the sweeps, the held-out and the per-demonstrator rows train these."""
 SIZES: dict[SetName, int] = {"D1": 4, "D2": 20}
+COVERAGE_M = 0.010
+"""Tolerance of :attr:`PreparedCrowd.coverage` [m] (the report's τ)."""
 _LOOP_STREAM = 35  # Seeds the random loops apart from the sets' own streams.
 
 
@@ -134,6 +137,11 @@ class PreparedCrowd:
     """Mean phase-free distance of the noisy demos to their true loops [mm]."""
     truth_cleaned_mm: float
     """The same for the cleaned demos [mm]."""
+    coverage: dict[CrowdDataset, FloatArray]
+    """Each dataset's demos: the share of their true loop within 10 mm of them, shape (M,)
+    (a learner trained on a demo that leaves part of its loop out has no example of that part)."""
+    best: int
+    """Index of the cleaner's best demo."""
     seconds: float
 
 
@@ -189,6 +197,14 @@ def prepare_crowd(job: PrepareJob) -> PreparedCrowd:
     # A demonstrator is rolled out with the preference its demos were trained with.
     loops, _ = loops_by_demonstrator(names, preferences, truths)
 
+    def coverage(ds: Sequence[Demo]) -> FloatArray:
+        return np.array(
+            [
+                np.mean(KDTree(d.positions).query(t)[0] <= COVERAGE_M)
+                for d, t in zip(ds, truths, strict=True)
+            ]
+        )
+
     def mean_gap(ds: Sequence[Demo]) -> float:
         gaps = [distance_to_truth(d.positions, t) for d, t in zip(ds, truths, strict=True)]
         return 1e3 * float(np.mean(gaps))
@@ -204,6 +220,8 @@ def prepare_crowd(job: PrepareJob) -> PreparedCrowd:
         loops=tuple(loops),
         truth_raw_mm=mean_gap(demos),
         truth_cleaned_mm=mean_gap(cleaned),
+        coverage={k: coverage(ds) for k, ds in datasets.items()},
+        best=int(result.stage1.best_index),
         seconds=time.perf_counter() - start,
     )
 
