@@ -56,9 +56,9 @@ def measure(task: str, preset: str, seed: int, rows: tuple[str, ...]) -> dict[st
         if row in ("default", "paper"):
             result = results[row]
             cleaned = result.positions
-            utility_ok = np.mean(
+            utility_ok = np.mean(  # Stage 2's own objective: what refinement maximises
                 [
-                    c.utility >= r.utility - 1e-9
+                    c.objective >= r.objective - 1e-9
                     for c, r in zip(result.cleaned, result.raw, strict=True)
                 ]
             )
@@ -110,7 +110,7 @@ def main() -> None:
     print()
     print(
         "| task | set | method | naive ratio (mean) | naive ratio (worst) | expert ratio | "
-        "Ũ ≥ raw | closure after/before | smoothness after/before | s per set |"
+        "objective ≥ raw | closure after/before | smoothness after/before | s per set |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for (task, preset, row), runs in table.items():

@@ -9,7 +9,7 @@ from pathlib import Path
 from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.library_view import DEFAULT_LISTED
-from bt_teleop.rerun_live import RERUN_MODES, RerunMode
+from bt_teleop.rerun_live import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, RERUN_MODES, RerunMode
 from bt_teleop.scene import Robot, parse_robot
 from bt_teleop.session import SessionConfig
 
@@ -48,10 +48,13 @@ class AppOptions:
     """Run clean jobs in a separate process (keeps the sessions responsive)."""
     initial_task: GuidedTask = "wiping"
     """The task a new tab opens with."""
-    rerun_grpc_port: int = 9876
-    """Preferred port of Rerun's gRPC server (serve mode)."""
-    rerun_web_port: int = 9090
-    """Preferred port of Rerun's web viewer (serve mode)."""
+    rerun_grpc_port: int = DEFAULT_GRPC_PORT
+    """Preferred port of the app's Rerun gRPC proxy (serve mode; a free one when busy). Not
+    Rerun's default 9876: there a user's ``rerun FILE`` would find the app's viewer and stream
+    the file into it instead of opening its own."""
+    rerun_web_port: int = DEFAULT_WEB_PORT
+    """Preferred port of the app's Rerun web viewer (serve mode; a free one when busy). Not
+    Rerun's default 9090."""
     rerun_newest_first: bool = False
     """A Rerun viewer that connects late gets the newest data first (serve mode; off: it did
     not reach the present sooner in benchmarks/bench_teleop_rerun.py, docs/teleop.md)."""

@@ -28,7 +28,7 @@ from bt_pipeline.data.validate import DEMO_ATTRS, sorted_demo_names
 from bt_pipeline.exceptions import RecordingError
 from bt_teleop.tracks import FileStamp, FileTracks, ReplayTrack, cleaned_key
 
-__all__ = ["read_cleaned_listing"]
+__all__ = ["moved_from_attrs", "read_cleaned_listing"]
 
 
 def read_cleaned_listing(path: Path, stamp: FileStamp) -> FileTracks:
@@ -70,6 +70,7 @@ def _listing(file: h5py.File, path: Path, stamp: FileStamp) -> FileTracks:
         extra = read_extra_attrs(attrs, DEMO_ATTRS)
         key, source = cleaned_key(name, extra.get("cleaned_from"))
         utility = extra.get("utility_cleaned")
+        moved = extra.get("moved_mean"), extra.get("moved_max")
         tracks.append(
             ReplayTrack(
                 key=key,
@@ -84,9 +85,19 @@ def _listing(file: h5py.File, path: Path, stamp: FileStamp) -> FileTracks:
                 rho=float_attr(attrs, "rho", demo_label),
                 utility=None if utility is None else float(utility),
                 source=source,
+                moved_mm=moved_from_attrs(*moved),
             )
         )
     return FileTracks(path, stamp, task, tuple(tracks))
+
+
+def moved_from_attrs(mean: object, most: object) -> tuple[float, float] | None:
+    """A cleaned demo's attrs ``moved_mean`` and ``moved_max`` [m] as (mean, max) [mm]; None
+    when the file (written before they were) lacks them or they are not finite numbers."""
+    if not isinstance(mean, int | float) or not isinstance(most, int | float):
+        return None
+    values = (1e3 * float(mean), 1e3 * float(most))
+    return values if all(math.isfinite(v) for v in values) else None
 
 
 def _time_span(group: h5py.Group, num_samples: int, label: str) -> tuple[np.float64, np.float64]:

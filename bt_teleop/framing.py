@@ -11,10 +11,13 @@ board), and from where the arm hides little of them::
     vertical plane (a board):                  dir = normalise(n_r + 1.1 l + 0.45 z)
         n_r the normal pointing to the robot's side; from the robot's side, well to the
         left of the arm and a little above
-    camera = origin + distance · dir,  look_at = origin,  up = +z
+    camera = origin + distance · dir,  look_at = origin,  up = +z,  vertical field of view 75°
 
 The gizmo's arrows are the plane's axes u, v and its normal, so dragging along an arrow moves
-along the task.
+along the task. The gizmo sits at the end effector, inside the tool, so its middle is no handle
+(a press there turns the view); its arrows' tips and the square between u and v reach past the
+tool and the arm in each task's default view (``tests/test_teleop_framing.py`` projects them
+and casts rays at the robot).
 """
 
 from __future__ import annotations
@@ -31,6 +34,9 @@ __all__ = ["CameraView", "default_view", "plane_wxyz"]
 
 VIEW_DISTANCE_M = 0.85
 """Distance of the default camera from the plane origin [m]."""
+VIEW_FOV_RAD = float(np.radians(75.0))
+"""Vertical field of view of the default camera [rad] (viser's default, set explicitly: the view
+``tests/test_teleop_framing.py`` projects the gizmo into)."""
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays
@@ -43,6 +49,8 @@ class CameraView:
     """Point looked at, shape (3,) [m]."""
     up: FloatArray
     """Up direction, shape (3,)."""
+    fov_rad: float = VIEW_FOV_RAD
+    """Vertical field of view [rad]."""
 
 
 def default_view(plane: TaskPlane, distance_m: float = VIEW_DISTANCE_M) -> CameraView:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import heapq
 from dataclasses import dataclass
 
-from bt_teleop.library import TaskLibrary, library_markdown, ranked
+from bt_teleop.library import RowOrder, TaskLibrary, library_markdown, ranked
 from bt_teleop.tracks import ReplayTrack
 
 __all__ = ["DEFAULT_LISTED", "TABLE_ROWS", "LibraryView", "library_view"]
@@ -55,9 +55,13 @@ class LibraryView:
 
 
 def library_view(
-    library: TaskLibrary, listed: int = DEFAULT_LISTED, table_rows: int = TABLE_ROWS
+    library: TaskLibrary,
+    listed: int = DEFAULT_LISTED,
+    table_rows: int = TABLE_ROWS,
+    order: RowOrder = "rank",
 ) -> LibraryView:
-    """The table and the pickers' options of `library`, bounded by `listed` and `table_rows`.
+    """The table and the pickers' options of `library`, bounded by `listed` and `table_rows`;
+    the table's usable rows by rank or by Ũ (`order`).
 
     Costs O(M log listed) time for a task of M takes, and memory and message bytes that do not
     grow with M.
@@ -87,7 +91,7 @@ def library_view(
     )
     for track in best_cleaned:
         cleaned.setdefault(track.key, track)
-    markdown = library_markdown(library, table_rows)
+    markdown = library_markdown(library, table_rows, order)
     total = len(raw)
     if total > len(moderation_keys):
         markdown += (

@@ -8,6 +8,13 @@ it through the same IK as a person's gizmo::
         approach: target = track start, until the end effector is within 5 mm (or 2 s)
         play:     target = track(t_sim - t0), t_sim the session's simulation time
         -> ReplayResult (actual path, target path, RMS tracking error)
+    after: target = where the end effector stands (:func:`hold_pose`)
+
+Every target a replay sets lies in the scene's workspace box (:func:`within_workspace`). A
+demo's samples are where its end effector *was*, which may lie a hair outside the box (a wiping
+take pressed onto the table, z below the box's floor), and the session flags a target it had to
+clamp: the page's "⚠ target clamped to the workspace" is for a person's own target, not for a
+replay nobody touched.
 
 :func:`replay_sync` does the same synchronously, stepping the session (tests, benchmarks).
 """
@@ -56,10 +63,23 @@ class ReplayResult:
         return float(np.sqrt(np.mean(np.sum((self.ee_positions - self.targets) ** 2, axis=1))))
 
 
+def within_workspace(session: Session | SessionProcess, p_world: FloatArray) -> FloatArray:
+    """`p_world` (3,) [m] moved into `session`'s workspace box (the nearest point of it)."""
+    return session.scene.workspace.clamp(p_world)[0]
+
+
+def hold_pose(session: Session | SessionProcess) -> FloatArray:
+    """After a replay: make where the end effector stands (inside the workspace) the target, so
+    the robot stays and nothing is flagged clamped; that target, shape (3,) [m]."""
+    target = within_workspace(session, session.status().ee_pos)
+    session.set_target(target)
+    return target
+
+
 def replay_sync(session: Session, track: TrackSamples) -> ReplayResult:
     """Replay `track` on `session` synchronously (the session must not run in real time)."""
     quat = session.scene.ee_quat
-    session.set_target(track.positions[0], quat)
+    session.set_target(within_workspace(session, track.positions[0]), quat)
     waited = 0.0
     while waited < APPROACH_TIMEOUT_S:
         if np.linalg.norm(session.status().ee_pos - track.positions[0]) < APPROACH_TOLERANCE_M:
@@ -69,8 +89,7 @@ def replay_sync(session: Session, track: TrackSamples) -> ReplayResult:
     times, reached, targets = [], [], []
     for k in range(math.ceil(track.duration_s / session.dt_s) + 1):
         t_s = min(k * session.dt_s, track.duration_s)
-        target = track.target_at(t_s)
-        session.set_target(target)
+        session.set_target(within_workspace(session, track.target_at(t_s)))
         session.step(1)
         times.append(t_s)
         reached.append(session.status().ee_pos)
@@ -170,7 +189,7 @@ class ReplayPlayer:
 
     def _play(self) -> None:
         session, track = self.session, self.samples
-        session.set_target(track.positions[0], session.scene.ee_quat)
+        session.set_target(within_workspace(session, track.positions[0]), session.scene.ee_quat)
         t_start = session.status().sim_time_s
         while not self._stop.is_set():
             status = session.status()
@@ -191,7 +210,7 @@ class ReplayPlayer:
             self._t_s = t_s
             if t_s >= track.duration_s or not status.running:
                 break
-            session.set_target(track.target_at(t_s + self.period_s))
+            session.set_target(within_workspace(session, track.target_at(t_s + self.period_s)))
             time.sleep(self.period_s)
         if not self._stop.is_set():
             self.result = ReplayResult(np.array(times), np.array(reached), np.array(targets))
@@ -204,8 +223,10 @@ __all__ = [
     "TaskLibrary",
     "TrackKind",
     "TrackSamples",
+    "hold_pose",
     "library_markdown",
     "load_library",
     "read_replay",
     "replay_sync",
+    "within_workspace",
 ]

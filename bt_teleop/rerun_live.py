@@ -23,8 +23,11 @@ latency").
 
 Entities of a session's recording (timeline ``sim_time``, simulation seconds of the session):
 ``/ee/position`` (Points3D) and ``/joints`` (Scalars, fr3_joint1..7), sent as columns;
-``/demos/<file stem>`` (static LineStrips3D) when a demo is saved; ``/replay/<raw|cleaned>``
-(LineStrips3D) when a demo is replayed on the robot; after Clean everything
+``/demos/<name>`` (static LineStrips3D) when a demo is saved, named as the page names it (who
+and when, e.g. ``alice_2026-12-06_1203``; :mod:`bt_pipeline.viz.demo_style`), one colour each,
+and ``/legend`` (a TextDocument: each saved demo's colour and name); ``/replay/<raw|cleaned>``
+(LineStrips3D) when a demo is replayed on the robot (raw thin and light, cleaned wide); after
+Clean everything
 :func:`bt_pipeline.viz.rerun_clean.log_clean_result` logs under ``/<task>``, plus Stage 1's DMP
 rollouts behind the value map V_E under ``/<task>/plane/rollouts``, sent by the Clean job's own
 process (:mod:`bt_teleop.rerun_clean_log`; :meth:`SessionLogger.clean_target`). The blueprint
@@ -51,6 +54,17 @@ import rerun as rr
 
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError
+from bt_pipeline.viz.demo_style import (
+    CLEANED_RADIUS_UI,
+    RAW_RADIUS_UI,
+    cleaned_color,
+    demo_color,
+    entity_part,
+    legend_markdown,
+    name_from_stem,
+    raw_color,
+    unique_names,
+)
 from bt_teleop.escape import display_text
 from bt_teleop.naming import utc_stamp
 from bt_teleop.rerun_clean_log import APP_ID, CleanLogTarget
@@ -76,6 +90,15 @@ of ms in software WebGL: one message per state (60 a second per tab) left it min
 two a second keep it at the present (docs/teleop.md, "Live Rerun latency")."""
 SESSION_MEMORY_LIMIT = "64MiB"
 """Log data a session's proxy keeps for viewers that open late (the oldest is dropped)."""
+DEFAULT_GRPC_PORT = 9877
+"""Preferred port of the app's web viewer's own gRPC proxy: not Rerun's default 9876, where a
+user's ``rerun FILE`` looks for a running viewer and would stream the file into the app's."""
+DEFAULT_WEB_PORT = 9091
+"""Preferred port of the app's Rerun web viewer: not Rerun's default 9090 (``rerun FILE
+--web-viewer`` binds it)."""
+REPLAY_RGB = (255, 190, 0)
+"""The hue of replayed paths in the robot view (raw thin and light, cleaned wide)."""
+_REPLAY_NOTE = "Replays (`/replay`): gold; the raw path thin and light, the cleaned one wide.\n"
 
 
 class SessionLogger:
@@ -96,6 +119,8 @@ class SessionLogger:
         self._on_close = on_close
         self.cleaned_tasks: list[str] = []
         """Tasks whose Clean result was logged (each has a tab in the layout), in order."""
+        self.demo_names: dict[str, str] = {}
+        """Saved demos' file stems and their entity names (``/demos/<name>``), in save order."""
         self.dropped = 0
         """Items dropped because the queue was full."""
         self._queue: queue.Queue[object] = queue.Queue(maxsize=queue_size)
@@ -138,19 +163,49 @@ class SessionLogger:
             with self._lock:
                 self._flush_pending = False
 
-    def log_demo(self, name: str, ee_pos: FloatArray) -> None:
-        """Queue a saved demo's end-effector path (T, 3) [m] as ``/demos/<name>`` (static)."""
+    def log_demo(self, stem: str, ee_pos: FloatArray) -> None:
+        """Queue a saved demo's end-effector path (T, 3) [m] as ``/demos/<name>`` (static) and
+        the legend: `stem` is its file's stem, ``<who>_<UTC stamp>_<hex>``, and ``<name>`` is
+        who and when as the page shows them, e.g. ``alice_2026-12-06_1203`` (unique in the
+        session: a repeat gets ``_2``); each demo has a colour of its own (save order)."""
         path = np.array(ee_pos, dtype=np.float32)
-        entity = f"demos/{rr.escape_entity_path_part(name)}"
-        self._submit(lambda rec: rec.log(entity, rr.LineStrips3D([path]), static=True))
+        with self._lock:
+            if stem not in self.demo_names:
+                base = name_from_stem(stem) or entity_part(stem) or "demo"
+                taken = list(self.demo_names.values())
+                self.demo_names[stem] = unique_names([*taken, base])[-1]
+            name = self.demo_names[stem]
+            names = list(self.demo_names.values())
+        index = names.index(name)
+        strips = rr.LineStrips3D(
+            [path],
+            colors=[raw_color(demo_color(index))],
+            radii=rr.Radius.ui_points(RAW_RADIUS_UI * 2),
+            labels=[name],
+        )
+        legend = rr.TextDocument(
+            legend_markdown(names, cleaned=False) + "\n" + _REPLAY_NOTE,
+            media_type="text/markdown",
+        )
+
+        def job(rec: rr.RecordingStream) -> None:
+            rec.log(f"demos/{name}", strips, static=True)
+            rec.log("legend", legend, static=True)
+
+        self._submit(job)
 
     def log_replay(self, key: str, ee_pos: FloatArray, kind: str) -> None:
         """Queue a replayed demo's path (T, 3) [m] as ``/replay/<kind>`` (its label: `key`)."""
         path = np.array(ee_pos, dtype=np.float32)
         label = display_text(key, 120)  # see escape.py
         entity = f"replay/{rr.escape_entity_path_part(kind)}"
-        color = (40, 200, 110) if kind == "cleaned" else (255, 140, 0)
-        strips = rr.LineStrips3D([path], labels=[label], colors=[color])
+        if kind == "cleaned":
+            color, radius = cleaned_color(REPLAY_RGB), CLEANED_RADIUS_UI
+        else:
+            color, radius = raw_color(REPLAY_RGB), RAW_RADIUS_UI
+        strips = rr.LineStrips3D(
+            [path], labels=[label], colors=[color], radii=rr.Radius.ui_points(radius)
+        )
         self._submit(lambda rec: rec.log(entity, strips))
 
     def clean_target(self) -> CleanLogTarget | None:
@@ -237,8 +292,8 @@ class RerunHub:
         recordings_dir: str | Path,
         *,
         host: str = "127.0.0.1",
-        grpc_port: int = 9876,
-        web_port: int = 9090,
+        grpc_port: int = DEFAULT_GRPC_PORT,
+        web_port: int = DEFAULT_WEB_PORT,
         memory_limit: str = SESSION_MEMORY_LIMIT,
         newest_first: bool = False,
     ) -> None:
@@ -249,7 +304,8 @@ class RerunHub:
             recordings_dir: Root folder of the recordings (``save`` writes under it).
             host: Interface the proxies and the web viewer bind (the app's ``--host``).
             grpc_port: Preferred port of the web viewer's own gRPC proxy (a free one when
-                busy); each session's proxy takes a free port.
+                busy); each session's proxy takes a free port. Not Rerun's default 9876, so a
+                user's ``rerun FILE`` opens its own viewer instead of streaming into the app's.
             web_port: Preferred port of the web viewer (a free one when busy).
             memory_limit: Log data each session's proxy keeps for viewers that open late.
             newest_first: A viewer that opens late gets a session's newest data first.

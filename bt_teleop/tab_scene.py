@@ -8,7 +8,9 @@ the task-shape guide, the live trail and replayed paths, drawn into the tab's ow
     frame(camera, task scene)                  the task's default camera (and "Reset view")
     draw_guide(task scene, θ, ρ)               the blue loop the demonstrator traces
     show(status, trail)                        one frame (inside the tab's ``client.atomic()``)
-    draw_replay_path / clear_replay_paths      raw (orange) and cleaned (green) paths
+    draw_replay_path / clear_replay_paths      cleaned (green, solid, on top) and raw (light
+                                               orange, wide, dashed, beneath) paths: both
+                                               show where they overlap
 
 Only the tab worker (:class:`bt_teleop.ui.ClientUI`) calls it; the gizmo callback only hands
 the dragged position to ``on_drag``.
@@ -19,6 +21,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 import viser
 
 from bt_pipeline.data.records import FloatArray
@@ -28,9 +31,17 @@ from bt_teleop.scene import SceneModel
 from bt_teleop.session_config import SessionStatus
 from bt_teleop.viewer import MjSceneView, Trail, draw_path, floor_height, guide_loop_world
 
-__all__ = ["CLEANED_RGB", "GUIDE_RGB", "RAW_RGB", "TRAIL_RGB", "Frame", "TabScene"]
+__all__ = [
+    "CLEANED_RGB",
+    "GIZMO_SCALE_M",
+    "GUIDE_RGB",
+    "RAW_RGB",
+    "TRAIL_RGB",
+    "Frame",
+    "TabScene",
+]
 
-RAW_RGB = (255, 140, 0)
+RAW_RGB = (255, 175, 70)
 """Colour of a replayed raw demo's path."""
 CLEANED_RGB = (40, 200, 110)
 """Colour of a replayed cleaned demo's path."""
@@ -40,6 +51,20 @@ GUIDE_RGB = (70, 130, 255)
 """Colour of the task-shape guide."""
 REPLAY_NODES = ("/replay/raw", "/replay/cleaned")
 """Scene nodes of the replayed paths."""
+GIZMO_SCALE_M = 0.3
+"""Length of the gizmo's arrows [m] (its squares are 0.225 of it across): their tips and the
+square between u and v reach past the tool and the arm (bt_teleop/framing.py)."""
+GIZMO_LINE_WIDTH_PX = 4.0
+"""Width of the gizmo's lines [px]."""
+RAW_THICKNESS_M = 0.008
+"""Width of a replayed raw path [m] (dashed): twice the cleaned one's, so it shows on both
+sides of a cleaned path drawn over it."""
+CLEANED_THICKNESS_M = 0.004
+"""Width of a replayed cleaned path [m]."""
+CLEANED_LIFT_M = 0.0015
+"""The cleaned path is drawn this far [m] off its samples toward the side of the task plane the
+default camera looks from, so it lies on top of its raw source where the two coincide (cleaning
+moves a demo by a few mm at most; both at one depth would each hide the other in patches)."""
 
 
 @dataclass(frozen=True)
@@ -107,9 +132,19 @@ class TabScene:
             self.gizmo.position = status.command_pos
 
     def draw_replay_path(self, kind: TrackKind, positions: FloatArray) -> None:
-        """Draw a replayed demo's path, shape (T, 3) [m] (a cleaned one beside its raw source)."""
-        color = CLEANED_RGB if kind == "cleaned" else RAW_RGB
-        draw_path(self.scene_api, f"/replay/{kind}", positions, color)
+        """Draw a replayed demo's path, shape (T, 3) [m] (a cleaned one beside its raw source):
+        cleaned solid, green, narrow and on top (:data:`CLEANED_LIFT_M`); raw dashed, light
+        orange and twice as wide, so where a cleaned path follows its raw one the raw shows on
+        both sides of it, and where they part each shows whole."""
+        cleaned = kind == "cleaned"
+        draw_path(
+            self.scene_api,
+            f"/replay/{kind}",
+            positions + CLEANED_LIFT_M * self._toward_camera if cleaned else positions,
+            CLEANED_RGB if cleaned else RAW_RGB,
+            thickness=CLEANED_THICKNESS_M if cleaned else RAW_THICKNESS_M,
+            dashed=not cleaned,
+        )
 
     def clear_replay_paths(self) -> None:
         """Remove the replayed paths."""
@@ -125,14 +160,20 @@ class TabScene:
         camera.up_direction = tuple(view.up)
         camera.position = tuple(view.position)
         camera.look_at = tuple(view.look_at)
+        camera.fov = view.fov_rad
 
     def _draw_task(self, scene: SceneModel) -> None:
         """(Re)draw what depends on the task: gizmo, target marker, floor."""
+        normal = scene.plane.normal / np.linalg.norm(scene.plane.normal)
+        seen_from = default_view(scene.plane).position - scene.plane.origin
+        self._toward_camera = normal if float(normal @ seen_from) > 0.0 else -normal
+        """Unit normal of the task plane on the default camera's side, shape (3,)."""
         self.gizmo = self.scene_api.add_transform_controls(
             "/target",
-            scale=0.18,
+            scale=GIZMO_SCALE_M,
+            line_width=GIZMO_LINE_WIDTH_PX,
             disable_rotations=True,
-            depth_test=False,
+            depth_test=False,  # drawn over the robot: it sits inside the tool
             position=scene.ready_pos,
             wxyz=plane_wxyz(scene.plane),  # arrows along the task plane's axes u, v, normal
         )

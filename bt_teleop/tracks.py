@@ -116,6 +116,11 @@ class ReplayTrack:
     the take checks' remark ``off_guide``)."""
     source: str = ""
     """For a cleaned demo, the key of the raw demo it was cleaned from (empty for raw ones)."""
+    utility_saved: float | None = None
+    """The Ũ it read when first listed after its save (:mod:`bt_teleop.saved_utility`): the
+    page marks a Ũ that has moved since ("0.36 (was 0.56)")."""
+    moved_mm: tuple[float, float] | None = None
+    """A cleaned demo: how far cleaning moved it from its raw samples, (mean, max) [mm]."""
 
     @property
     def usable(self) -> bool:
@@ -234,15 +239,26 @@ def cleaned_key(name: str, cleaned_from: object) -> tuple[str, str]:
 def _cleaned_tracks(recording: Recording, stamp: FileStamp) -> tuple[ReplayTrack, ...]:
     """The tracks of a cleaned file read in full (the reference that
     :func:`bt_teleop.cleaned_listing.read_cleaned_listing` is tested against)."""
+    from bt_teleop.cleaned_listing import moved_from_attrs
+
     assert recording.path is not None
     tracks = []
     for name, record in recording.demos.items():
         key, source = cleaned_key(name, record.attrs.get("cleaned_from"))
         utility = record.attrs.get("utility_cleaned")
         utility = None if utility is None else float(utility)
+        moved = moved_from_attrs(record.attrs.get("moved_mean"), record.attrs.get("moved_max"))
         tracks.append(
             _track(
-                key, "cleaned", recording.path, name, record, stamp, utility=utility, source=source
+                key,
+                "cleaned",
+                recording.path,
+                name,
+                record,
+                stamp,
+                utility=utility,
+                source=source,
+                moved_mm=moved,
             )
         )
     return tuple(tracks)

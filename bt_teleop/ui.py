@@ -43,7 +43,8 @@ from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.escape import breakable, display_text
 from bt_teleop.library import TaskLibrary
-from bt_teleop.replay import ReplayPlayer, read_replay
+from bt_teleop.motion_hint import motion_hint
+from bt_teleop.replay import ReplayPlayer, hold_pose, read_replay
 from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
 from bt_teleop.session_process import TabSession, open_session
@@ -249,7 +250,9 @@ class ClientUI:
         with self.client.atomic():
             trail = self.session.trail() if status.recording else None
             self.tab_scene.show(status, trail, follow=self.replay is not None)
-            c.show_status(status, self.replay)
+            period_s = 1.0 / self.ctx.session_config.record_hz
+            hint = None if trail is None else motion_hint(trail, period_s)  # "drag the gizmo"
+            c.show_status(status, self.replay, hint)
         self._frames += 1
         self.last_frame = Frame(
             self._frames, time.perf_counter(), status.sim_time_s, status.ee_pos.copy()
@@ -331,9 +334,7 @@ class ClientUI:
             return
         self.replay, self.last_replay = None, player
         self.controls.stop_replay_button.disabled = True
-        status = self.session.status()
-        self.session.set_target(status.ee_pos)
-        self.tab_scene.gizmo.position = status.ee_pos
+        self.tab_scene.gizmo.position = hold_pose(self.session)  # inside the box: no ⚠ clamped
         if player.result is not None:
             error_mm = 1e3 * player.result.rms_error_m
             self._notify("Replay done", f"{player.track.key}: tracked within {error_mm:.1f} mm RMS")
@@ -387,7 +388,7 @@ class ClientUI:
         stale = functools.partial(self.ctx.versions.bump, self.task)  # a file gone: reload
         samples, paths = read_replay(self.library, track, self.ctx.samples, stale)
         self._do_stop_replay()
-        for kind, path in paths:
+        for kind, path in sorted(paths, key=lambda p: p[0] == "cleaned"):  # cleaned on top
             self.tab_scene.draw_replay_path(kind, path)
         self.replay = ReplayPlayer(self.session, track, samples)
         self.replay.start()

@@ -5,14 +5,17 @@
     Demonstration   Task, Demonstrator, θ [deg], ρ, Stay on task plane, Gripper, Reset view
     Record          Record, Stop & save, Discard, status line (:func:`status_markdown`),
                     Discard this take (after a take that failed the checks)
-    Recordings      the task's demos with their scores; Demo picker, Exclude, Restore,
-                    Operator token (when the app has one)
-    Clean & replay  Clean, progress bar, Replay picker, Play, Stop replay
+    Recordings      Sort rows (by rank or by Ũ), the task's demos with their scores; Demo
+                    picker, Exclude, Restore, Operator token (when the app has one)
+    Clean & replay  Clean, progress bar, Replay picker, Play, Stop replay, the paths' legend
     (link)          this session's recording in the live Rerun viewer, or where its .rrd goes
 
 :class:`TabControls` builds the controls and connects them to a tab's actions
 (:class:`TabActions`, implemented by :class:`bt_teleop.ui.ClientUI`): every callback is async,
 so viser runs them in order, and only stores a value or queues a command.
+
+The Demo and Replay pickers show each demo as the table reads it and open on the newest usable
+take (Replay: the cleaned ★), following it until the person picks (:mod:`bt_teleop.pickers`).
 """
 
 from __future__ import annotations
@@ -26,17 +29,31 @@ import viser
 from bt_pipeline.data.tasks import TASKS, GuidedTask
 from bt_teleop.cleaning import CleanProgress
 from bt_teleop.escape import html_text, markdown_text
-from bt_teleop.library import TaskLibrary
-from bt_teleop.library_view import library_view
+from bt_teleop.library import RowOrder, TaskLibrary
+from bt_teleop.library_view import LibraryView, library_view
+from bt_teleop.pickers import NO_DEMOS, Picker, PickerOptions, picker_options
 from bt_teleop.recorder import RHO_RANGE, THETA_RANGE_DEG
 from bt_teleop.replay import ReplayPlayer
 from bt_teleop.session_config import SessionStatus
+from bt_teleop.tab_scene import CLEANED_RGB, RAW_RGB
 from bt_teleop.ui_context import UiContext
 
-__all__ = ["NO_DEMOS", "TabActions", "TabControls", "status_markdown"]
+__all__ = ["NO_DEMOS", "PATHS_LEGEND", "TabActions", "TabControls", "status_markdown"]
 
-NO_DEMOS = "(no demos yet)"
-"""The Replay picker's only option while the task has no demos."""
+ROW_ORDERS: dict[str, RowOrder] = {"by rank": "rank", "by Ũ": "utility"}
+"""The Sort rows buttons and the table order each picks."""
+
+
+def _swatch(rgb: tuple[int, int, int], text: str) -> str:
+    r, g, b = rgb
+    return f'<span style="color: rgb({r}, {g}, {b}); font-weight: bold">{text}</span>'
+
+
+PATHS_LEGEND = (
+    f"Replay draws {_swatch(CLEANED_RGB, '━━')} the cleaned path (green, on top) and "
+    f"{_swatch(RAW_RGB, '▬ ▬')} the raw path (light orange, wide, dashed)."
+)
+"""The legend under the Replay picker (no text from a browser in it)."""
 
 
 class TabActions(Protocol):
@@ -86,6 +103,8 @@ class TabControls:
             """Why the last take was flagged (shown until the next Record)."""
             self.discard_take_button = gui.add_button("Discard this take", visible=False)
         with gui.add_folder("Recordings"):
+            self.order_input = gui.add_button_group("Sort rows", tuple(ROW_ORDERS))
+            """Order the table's usable takes by rank (★ first) or by Ũ."""
             self.library_text = gui.add_markdown("Loading the recordings…")
             self.moderate_input: viser.GuiDropdownHandle[str] = gui.add_dropdown(
                 "Demo", [str(NO_DEMOS)]
@@ -105,11 +124,19 @@ class TabControls:
             )
             self.play_button = gui.add_button("Play", disabled=True)
             self.stop_replay_button = gui.add_button("Stop replay", disabled=True)
+            self.paths_legend = gui.add_markdown(PATHS_LEGEND)
         self._theta = 0.0
         self._rho = 1.0
         self._status_shown = ""
         self._moderation: tuple[list[str], set[str]] = ([], set())
+        self.demo_picker = Picker(self.moderate_input, "Demo")
+        """The Demo picker's labels, keys and default (bt_teleop/pickers.py)."""
+        self.replay_picker = Picker(self.replay_input, "Replay")
+        """The Replay picker's labels, keys and default."""
         self._listed = ctx.listed_demos
+        self._order: RowOrder = "rank"
+        self._library: TaskLibrary | None = None
+        """The library the table shows (re-sorted when Sort rows is clicked)."""
         link = ctx.rerun.session_url(session_id)
         if link is not None:
             gui.add_html(
@@ -137,17 +164,23 @@ class TabControls:
             self._rho = _finite_or(self.rho_input, self._rho)
             tab.redraw_guide()
 
+        @self.order_input.on_click
+        async def _(_: viser.GuiEvent) -> None:
+            self._order = ROW_ORDERS.get(self.order_input.value, "rank")
+            if self._library is not None:
+                self._show_table(self._library)
+
         @self.moderate_input.on_update
         async def _(_: viser.GuiEvent) -> None:
             self._moderation_buttons()
 
         @self.exclude_button.on_click
         async def _(_: viser.GuiEvent) -> None:
-            tab.moderate("exclude", self.moderate_input.value)
+            tab.moderate("exclude", self.demo_picker.key)
 
         @self.restore_button.on_click
         async def _(_: viser.GuiEvent) -> None:
-            tab.moderate("restore", self.moderate_input.value)
+            tab.moderate("restore", self.demo_picker.key)
 
         @self.token_input.on_update
         async def _(_: viser.GuiEvent) -> None:
@@ -175,7 +208,7 @@ class TabControls:
 
         @self.play_button.on_click
         async def _(_: viser.GuiEvent) -> None:
-            tab.play(self.replay_input.value)
+            tab.play(self.replay_picker.key)
 
     @property
     def theta_deg(self) -> float:
@@ -187,9 +220,12 @@ class TabControls:
         """ρ: the slider's value, or the last valid one when the box holds no number."""
         return _finite_or(self.rho_input, self._rho, restore=False)
 
-    def show_status(self, status: SessionStatus, replay: ReplayPlayer | None) -> None:
-        """The status line (rewritten only when it changes) and the record buttons' states."""
-        text = status_markdown(status, replay)
+    def show_status(
+        self, status: SessionStatus, replay: ReplayPlayer | None, hint: str | None = None
+    ) -> None:
+        """The status line (rewritten only when it changes), with `hint` (e.g. how to move the
+        robot: :mod:`bt_teleop.motion_hint`), and the record buttons' states."""
+        text = status_markdown(status, replay, hint)
         if text != self._status_shown:
             self._status_shown = text
             self.status_text.content = text
@@ -197,14 +233,32 @@ class TabControls:
         self.save_button.disabled = not status.recording
         self.discard_button.disabled = not status.recording
 
+    def choose_demo(self, key: str) -> None:
+        """Choose demo `key` in the Demo picker as a person would, and set Exclude / Restore.
+
+        Raises:
+            KeyError: The picker does not offer `key`.
+        """
+        self.demo_picker.choose(key)
+        self._moderation_buttons()
+
     def show_library(self, library: TaskLibrary) -> None:
         """The recordings table, the replay picker and the moderation picker of a task, each
-        bounded however many takes it has (:func:`bt_teleop.library_view.library_view`)."""
-        view = library_view(library, self._listed)
+        bounded however many takes it has (:func:`bt_teleop.library_view.library_view`), the
+        pickers' entries labelled as the table reads (:mod:`bt_teleop.pickers`)."""
+        self._library = library
+        view = self._show_table(library)
+        self.show_replay_options(picker_options(library, view.replay_keys, replay=True))
+        self.show_moderation_options(
+            picker_options(library, view.moderation_keys, replay=False), view.excluded
+        )
+
+    def _show_table(self, library: TaskLibrary) -> LibraryView:
+        """The recordings table of `library` in the chosen order; the view it was read from."""
+        view = library_view(library, self._listed, order=self._order)
         if self.library_text.content != view.markdown:
             self.library_text.content = view.markdown
-        self.show_replay_keys(view.replay_keys)
-        self.show_moderation_keys(view.moderation_keys, view.excluded)
+        return view
 
     def show_take_check(self, reasons: list[str] | None) -> None:
         """Say why the last take was flagged and offer to discard it (None: hide both)."""
@@ -228,34 +282,23 @@ class TabControls:
         self.clean_button.disabled = running
         self.cancel_clean_button.disabled = not running
 
-    def show_replay_keys(self, keys: list[str]) -> None:
-        """Offer `keys` in the Replay picker, keeping the current choice if it is still there."""
-        self.play_button.disabled = not keys
-        _offer(self.replay_input, keys)
+    def show_replay_options(self, options: PickerOptions) -> None:
+        """Offer `options` in the Replay picker (:meth:`Picker.offer`)."""
+        self.play_button.disabled = options.labels == (NO_DEMOS,)
+        self.replay_picker.offer(options)
 
-    def show_moderation_keys(self, keys: list[str], excluded: set[str]) -> None:
-        """Offer the raw demos `keys` in the Demo picker; Exclude or Restore per the chosen."""
-        self._moderation = (list(keys), set(excluded))
-        _offer(self.moderate_input, keys)
+    def show_moderation_options(self, options: PickerOptions, excluded: set[str]) -> None:
+        """Offer the raw demos `options` in the Demo picker; Exclude or Restore per the
+        chosen (`excluded`: the keys of the excluded ones)."""
+        self._moderation = ([k for k in options.keys if k], set(excluded))
+        self.demo_picker.offer(options)
         self._moderation_buttons()
 
     def _moderation_buttons(self) -> None:
         keys, excluded = self._moderation
-        chosen = self.moderate_input.value
+        chosen = self.demo_picker.key
         self.exclude_button.disabled = chosen not in keys or chosen in excluded
         self.restore_button.disabled = chosen not in excluded
-
-
-def _offer(dropdown: viser.GuiDropdownHandle[str], keys: list[str]) -> None:
-    """Set a picker's options, keeping its choice if still offered, else the first (the newest
-    demo; a placeholder if none)."""
-    keys = keys or [NO_DEMOS]
-    current = dropdown.value
-    if tuple(dropdown.options) != tuple(keys):
-        dropdown.options = keys
-    new = current if current in keys else keys[0]
-    if dropdown.value != new:
-        dropdown.value = new
 
 
 def _finite_or(slider: viser.GuiSliderHandle[Any], last: float, *, restore: bool = True) -> float:
@@ -288,9 +331,11 @@ def clean_done_text(task: str, progress: CleanProgress) -> str:
     return f"{task}: cleaned demos in .cleaned/{name}{skipped}"
 
 
-def status_markdown(status: SessionStatus, replay: ReplayPlayer | None) -> str:
-    """The tab's status line: recording / replay progress, end-effector position, warnings
-    (text from elsewhere is escaped)."""
+def status_markdown(
+    status: SessionStatus, replay: ReplayPlayer | None, hint: str | None = None
+) -> str:
+    """The tab's status line: recording / replay progress, end-effector position, warnings,
+    then `hint` (the app's own text; text from elsewhere is escaped)."""
     if status.recording:
         head = f"**● Recording** · {status.n_samples} samples · {status.duration_s:.1f} s"
     elif replay is not None:
@@ -305,4 +350,6 @@ def status_markdown(status: SessionStatus, replay: ReplayPlayer | None) -> str:
         lines.append("⚠ target clamped to the workspace")
     if status.warning:
         lines.append(f"⚠ {markdown_text(status.warning, 200)}")
+    if hint:
+        lines.append(f"**{hint}**")
     return "  \n".join(lines)

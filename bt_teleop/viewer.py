@@ -177,6 +177,21 @@ def segments(points: ArrayLike, closed: bool = False) -> FloatArray:
     return np.stack([q[:-1], q[1:]], axis=1)
 
 
+def dashed_segments(points: ArrayLike, dash_m: float = 0.01, gap_m: float = 0.006) -> FloatArray:
+    """The segments of a polyline (T, 3) [m] that fall in its dashes, shape (K, 2, 3).
+
+    Along the path's arc length, `dash_m` [m] drawn then `gap_m` [m] left out, in turn; a
+    segment is kept when its midpoint lies in a dash (demo samples are a few mm apart, so the
+    dashes come out about `dash_m` long).
+    """
+    pairs = segments(points)
+    if len(pairs) == 0:
+        return pairs
+    lengths = np.linalg.norm(pairs[:, 1] - pairs[:, 0], axis=1)
+    middle = np.cumsum(lengths) - 0.5 * lengths
+    return pairs[np.mod(middle, dash_m + gap_m) < dash_m]
+
+
 def draw_path(
     scene_api: viser.SceneApi,
     name: str,
@@ -185,11 +200,14 @@ def draw_path(
     *,
     closed: bool = False,
     thickness: float = 0.004,
+    dashed: bool = False,
 ) -> viser.SceneNodeHandle:
-    """Draw a polyline (T, 3) [m] as line segments (replaces a node of the same name)."""
+    """Draw a polyline (T, 3) [m] as line segments (replaces a node of the same name), solid
+    or `dashed` (:func:`dashed_segments`)."""
+    pairs = dashed_segments(points) if dashed else segments(points, closed=closed)
     return scene_api.add_line_segments(
         name,
-        segments(points, closed=closed),
+        pairs,
         color,
         thickness=thickness,
         thickness_units="world",
@@ -288,6 +306,7 @@ def floor_height(model: mujoco.MjModel) -> float | None:
 __all__: Sequence[str] = [
     "MjSceneView",
     "Trail",
+    "dashed_segments",
     "draw_path",
     "floor_height",
     "guide_loop_world",

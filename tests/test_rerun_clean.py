@@ -119,9 +119,10 @@ def test_raw_and_cleaned_side_by_side_on_the_time_timeline(cleaned: Cleaned, sav
     result = cleaned.result
     chunks = _chunks(saved)
     plane = result.demos[result.best_index].plane
+    names = demo_entity_names(result.demos)
     for i, demo in enumerate(result.demos):
         for group, uv in (("raw", demo.positions), ("cleaned", result.positions[i])):
-            ee = chunks[f"/wiping/timeline/world/{group}/{i}_{demo.name}/ee"]
+            ee = chunks[f"/wiping/timeline/world/{group}/{names[i]}/ee"]
             points = _values(ee, "Points3D:positions", static=False)
             np.testing.assert_allclose(np.concatenate(points), plane.to_world(uv), atol=1e-6)
             batches = [c.to_record_batch() for c in ee if not c.is_static]
@@ -315,10 +316,50 @@ def test_blueprint_validates_tasks() -> None:
         clean_blueprint([])
 
 
-def test_entity_names_are_unique_and_path_safe(cleaned: Cleaned) -> None:
+def test_entity_names_are_who_and_when_unique_and_path_safe(cleaned: Cleaned) -> None:
     demos = cleaned.result.demos
-    assert demo_entity_names(demos) == tuple(d.name for d in demos)
+    # As the page names them: who and when (make_d1's demo k was created at 00:0k UTC).
+    expected = tuple(f"{d.demonstrator}_2026-01-01_000{d.name[-1]}" for d in demos)
+    assert demo_entity_names(demos) == expected
     twice = demo_entity_names([demos[0], demos[0].with_positions(demos[0].positions)])
-    assert twice == (f"0_{demos[0].name}", f"1_{demos[0].name}")
-    odd = dataclasses.replace(demos[0], name="demo 1/a")
-    assert demo_entity_names([odd]) == ("demo_1_a",)
+    assert twice == (expected[0], f"{expected[0]}_2")
+    # App takes are named from their file name, each in a file of its own as demo_0.
+    takes = [
+        dataclasses.replace(demos[k], file=f"rec/wiping/ann_20261206T12030{k}Z_ab{k}.hdf5")
+        for k in range(2)
+    ]
+    takes = [dataclasses.replace(t, name="demo_0") for t in takes]
+    assert demo_entity_names(takes) == ("ann_2026-12-06_1203", "ann_2026-12-06_1203_2")
+    odd = dataclasses.replace(demos[0], demonstrator="<img src=x> 1/a", created=None, file="")
+    assert demo_entity_names([odd]) == ("img-src-x-1-a_demo_0",)
+
+
+def test_raw_and_cleaned_share_a_colour_each_demo_its_own_with_a_legend(
+    cleaned: Cleaned, saved: Path
+) -> None:
+    result = cleaned.result
+    chunks = _chunks(saved)
+    names = demo_entity_names(result.demos)
+    cleaned_rgb, widths = [], []
+    for name in names:
+        [[raw]] = _values(chunks[f"/wiping/plane/raw/{name}"], "LineStrips2D:colors", static=True)
+        [[clean]] = _values(
+            chunks[f"/wiping/plane/cleaned/{name}"], "LineStrips2D:colors", static=True
+        )
+        raw_rgba, clean_rgba = raw.to_bytes(4, "big"), clean.to_bytes(4, "big")
+        assert clean_rgba[3] == 255 and sum(raw_rgba[:3]) > sum(clean_rgba[:3])  # raw lighter
+        cleaned_rgb.append(clean_rgba[:3])
+        [[raw_r]] = _values(chunks[f"/wiping/plane/raw/{name}"], "LineStrips2D:radii", static=True)
+        [[clean_r]] = _values(
+            chunks[f"/wiping/plane/cleaned/{name}"], "LineStrips2D:radii", static=True
+        )
+        widths.append((abs(raw_r), abs(clean_r)))  # UI points are stored negative
+    assert len(set(cleaned_rgb)) == len(names)  # a colour per demo
+    assert all(clean > raw for raw, clean in widths)  # cleaned wider
+    [[legend]] = _values(chunks["/wiping/legend"], "TextDocument:text", static=True)
+    assert all(f"`{name}`" in legend for name in names)
+    assert "★ best" in legend
+    [[timeline_legend]] = _values(
+        chunks["/wiping/timeline/legend"], "TextDocument:text", static=True
+    )
+    assert all(f"`{name}`" in timeline_legend for name in names)

@@ -191,7 +191,8 @@ def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
     wait_until(lambda: ui.library is not None and len(ui.library.raw) == 1, what="library")
     listed = ui.controls.library_text.content
     assert "10°, 1.20" in listed and "★" in listed
-    assert ui.controls.replay_input.options == (ui.library.raw[0].key,)  # type: ignore[union-attr]
+    assert len(ui.controls.replay_input.options) == 1
+    assert ui.controls.replay_picker.key == ui.library.raw[0].key  # type: ignore[union-attr]
     assert app.reader is not None and app.reader.pid is not None  # read and scored in the child
     # The loads list the takes on a thread below the sessions' control loops (nice +10).
     (loader,) = [t for t in threading.enumerate() if t.name.startswith("bt-read")]
@@ -263,9 +264,12 @@ def test_clean_button_then_replay_a_cleaned_demo(three_recordings, make_app, tab
     # The job logged the result beside the tab's .rrd, and the tab's layout grew its tab.
     assert len(list((three_recordings / "rerun").glob("*_clean_wiping_*.rrd"))) == 1
     wait_until(lambda: ui.logger.cleaned_tasks == ["wiping"], what="the layout to grow")
-    wait_until(lambda: ui.library is not None and ui.library.cleaned, what="cleaned demos")
-    key = ui.library.cleaned[0].key  # type: ignore[union-attr]
-    ui.controls.replay_input.value = key
+    # the Replay picker opens on the cleaned ★: the cleaned version of the best raw demo
+    wait_until(lambda: ui.controls.replay_picker.key.startswith("cleaned · "), what="cleaned demos")
+    library = ui.library
+    assert library is not None and library.best is not None
+    key = ui.controls.replay_picker.key
+    assert library.find(key).source == library.best.key
     ui.controls.play_button.value = True
     assert ui.wait_idle()
     scene = ui.client.scene
@@ -275,6 +279,9 @@ def test_clean_button_then_replay_a_cleaned_demo(three_recordings, make_app, tab
     result = ui.last_replay.result  # type: ignore[union-attr]
     assert result is not None and result.rms_error_m < 0.01
     wait_until(lambda: any(t == "Replay done" for t, _ in ui.messages), what="the notice")
+    frames = ui.frames
+    wait_until(lambda: ui.frames > frames + 3, what="a few frames after the replay")
+    assert "clamped" not in ui.controls.status_text.content  # nobody touched the target
 
 
 def test_replay_tracks_a_raw_demo(three_recordings) -> None:

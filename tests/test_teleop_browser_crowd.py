@@ -109,10 +109,23 @@ def test_exclude_restore_and_clean_with_a_flagged_demo(tmp_path: Path, page: Pag
         junk = wait_until(lambda: ui.saved and ui.saved[-1], 30.0, "the file to be saved")
         expect(page.get_by_text("Saved but flagged", exact=False).first).to_be_visible()
         wait_until(lambda: ui.library is not None and len(ui.library.raw) == 4, 60.0, "")
+        # The Demo picker opens on the newest usable take, not the junk one just saved, and
+        # reads like the table (who, when, θ and ρ, Ũ; bt_teleop/pickers.py).
+        raw = ui.library.raw  # type: ignore[union-attr]
+        newest_usable = next(t for t in raw if t.demonstrator == "careful2")  # saved last
+        wait_until(lambda: ui.controls.demo_picker.key == newest_usable.key, 30.0, "the default")
+        label = ui.controls.moderate_input.value
+        expect(page.get_by_role("combobox", name="Demo")).to_have_value(label)
+        assert label.split(" · ")[0].endswith("careful2") and "Ũ 0." in label, label
 
         # Clean succeeds with the flagged demo present; it cleans the 3 careful ones.
         page.get_by_role("button", name="Clean", exact=True).click()
         expect(page.get_by_text("Cleaned: 3 demos", exact=False)).to_be_visible(timeout=240_000)
+        # The Replay picker then opens on the cleaned ★ (the cleaned version of the best demo).
+        replay = ui.controls.replay_picker
+        wait_until(lambda: replay.key.startswith("cleaned · "), 60.0, "the cleaned ★")
+        expect(page.get_by_role("combobox", name="Replay")).to_have_value(replay.dropdown.value)
+        assert replay.dropdown.value.startswith("cleaned: ★ careful"), replay.dropdown.value
         assert all(t.kind == "cleaned" for t in ui.library.cleaned)  # type: ignore[union-attr]
 
         # Exclude someone else's demo as the operator, then restore it.
@@ -121,7 +134,7 @@ def test_exclude_restore_and_clean_with_a_flagged_demo(tmp_path: Path, page: Pag
         token.press("Enter")
         wait_until(lambda: ui.takes.operator, 30.0, "the operator token")
         target = next(t for t in ui.library.raw if t.file != junk)  # type: ignore[union-attr]
-        ui.controls.moderate_input.value = target.key
+        ui.controls.choose_demo(target.key)
         exclude = page.get_by_role("button", name="Exclude", exact=True)
         expect(exclude).to_be_enabled()
         exclude.click()

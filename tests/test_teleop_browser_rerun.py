@@ -25,6 +25,7 @@ from playwright.sync_api import Page, expect
 
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.data.tasks import TASKS
+from bt_pipeline.viz.demo_style import name_from_stem
 from bt_teleop.clean_task import clean_task
 from bt_teleop.rerun_clean_log import log_clean_to
 from bt_teleop.rerun_layout import session_blueprint
@@ -101,7 +102,9 @@ def test_the_rerun_link_opens_the_tabs_own_recording(tmp_path: Path, page: Page)
         assert list(state.newest_s) == [mine]  # and no other session's
         assert state.route.endswith(f"recording_id={ui.session_id}")
         paths = probe.entity_paths(mine)
-        assert {"/ee/position", "/joints", f"/demos/{take.stem}"} <= set(paths)
+        # The take is named as the page names it: who and when.
+        assert {"/ee/position", "/joints", f"/demos/{name_from_stem(take.stem)}"} <= set(paths)
+        assert "/legend" in paths
         assert any(v.kind == "3D" and v.visible for v in state.views)
         assert all(not v.reports for v in state.views if v.visible)
         assert errors_in_log(probe) == []

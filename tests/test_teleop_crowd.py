@@ -207,7 +207,7 @@ def test_a_tab_moderates_its_own_demos_and_an_operator_anyones(make_app, tabs, t
         lambda: any(t.excluded for t in ui.library.raw),  # type: ignore[union-attr]
         what="the exclusion in the list",
     )
-    ui.controls.moderate_input.value = key_of[theirs]
+    ui.controls.choose_demo(key_of[theirs])
     assert ui.wait_idle()
     assert ui.controls.exclude_button.disabled and not ui.controls.restore_button.disabled
 
@@ -289,7 +289,9 @@ def _alive(process: psutil.Process) -> bool:
 
 
 def test_the_blueprint_keeps_2d_plane_content_out_of_3d_views() -> None:
-    assert len(_views(session_blueprint())) == 1  # a session starts with the robot view alone
+    # A session starts with the robot view and the legend of its saved demos.
+    kinds = [type(view).__name__ for view in _views(session_blueprint())]
+    assert kinds == ["Spatial3DView", "TextDocumentView"]
     views = _views(session_blueprint(TASKS))
     kinds = {type(view).__name__ for view in views}
     assert "Spatial3DView" in kinds and "Spatial2DView" in kinds

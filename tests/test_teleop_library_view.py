@@ -11,6 +11,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import msgspec
+import numpy as np
 import pytest
 import viser
 
@@ -149,3 +150,39 @@ def test_listed_demos_reaches_the_app_from_bt_teleop(monkeypatch) -> None:
     assert AppOptions().listed_demos == 50
     with pytest.raises(ConfigError, match="--listed-demos"):
         AppOptions(listed_demos=0)
+
+
+def test_the_table_explains_the_star_and_sorts_by_rank_or_utility(tmp_path: Path) -> None:
+    """When the ★ take is not the highest Ũ, one line says why (the shape gate's line, as ``bt
+    score`` prints it); rows sort by rank (★ first) or by Ũ, with each take's rank shown."""
+    from bt_pipeline.clean.selection import rank_takes
+    from bt_teleop.escape import markdown_text
+    from bt_teleop.library import library_markdown
+
+    files = synthetic_task_files(tmp_path, "wiping", 60)
+    library = load_library(tmp_path, "wiping", read=lambda path, kind: files[path])
+    takes = [files[t.file].metrics[0] for t in library.raw]
+    utility, eligible = rank_takes(takes)
+    top = int(np.argmax(utility))
+    assert not eligible[top] and library.best is not None  # the gate overrides Ũ in this set
+    assert library.best_reason.startswith(f"{library.raw[top].demonstrator}'s take")
+    assert f"{library.best.file.name} is the best demo" in library.best_reason
+    by_rank = library_markdown(library, 5, "rank")
+    by_utility = library_markdown(library, 5, "utility")
+    assert "★ " + markdown_text(library.best_reason, 400) in by_rank
+    rows = [line for line in by_rank.splitlines() if line.startswith("| ★")]
+    assert rows and rows[0].split("|")[2].strip() == "1"  # ★ has rank 1
+    first_row = [line for line in by_utility.splitlines() if line.startswith("| ")][1]
+    assert f"{utility[top]:.2f}" in first_row and "★" not in first_row  # highest Ũ, not ★
+    assert sorted(library.ranks) == list(range(1, len(library.raw) + 1))
+    assert library.ranks[library.raw.index(library.best)] == 1
+
+
+def test_sort_rows_reorders_the_table_in_the_tab(server: viser.ViserServer, tmp_path: Path) -> None:
+    controls, _ = controls_with_log(server)
+    library = task_library(tmp_path, 40)
+    controls.show_library(library)
+    assert "by rank" in controls.library_text.content
+    controls._order = "utility"  # what a click on "by Ũ" stores
+    controls._show_table(library)
+    assert "by Ũ" in controls.library_text.content

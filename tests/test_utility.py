@@ -11,16 +11,16 @@ from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.tasks import Task, default_plane
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.score.mi import mutual_information
+from bt_pipeline.score.normalise import METRIC_NAMES, Normaliser, RawMetrics, minmax_normalise
 from bt_pipeline.score.utility import (
-    METRIC_NAMES,
-    Normaliser,
-    RawMetrics,
     ScoreConfig,
-    minmax_normalise,
     normalised_utility,
     raw_metrics,
     score_demos,
     select_best,
+    set_utilities,
+    utilities_against,
+    utility_terms,
 )
 
 N = 300
@@ -226,3 +226,23 @@ def test_demo_positions_are_not_mutated() -> None:
     score_demos(demos)
     for demo, copy in zip(demos, copies, strict=True):
         np.testing.assert_array_equal(demo.positions, copy)
+
+
+def test_demos_scored_against_a_set_read_on_its_scale() -> None:
+    """The one Ũ: a set's own demos read the same against its frozen normaliser as over the set;
+    a copy of member k reads member k's Ũ; a demo better than every member in every metric
+    reads 1 (clipped to the set's range, never above); the four terms sum to Ũ."""
+    rng = np.random.default_rng(7)
+    config = ScoreConfig(beta=0.4)
+    members = [RawMetrics(*(float(v) for v in rng.uniform(0.1, 1.0, 4))) for _ in range(6)]
+    utility, normaliser = set_utilities(members, config)
+    np.testing.assert_array_equal(utilities_against(normaliser, members, config), utility)
+    values = np.stack([m.as_array() for m in members])
+    better = RawMetrics(values[:, 0].max() + 1.0, *(values[:, 1:].min(axis=0) / 2))
+    worse = RawMetrics(values[:, 0].min() / 2, *(values[:, 1:].max(axis=0) + 1.0))
+    others = utilities_against(normaliser, [members[3], better, worse], config)
+    assert others[0] == utility[3]
+    assert others[1] == pytest.approx(1.0) and others[2] == pytest.approx(0.0)
+    terms = utility_terms(normaliser, [*members, better], config)
+    np.testing.assert_allclose(terms.sum(axis=1), [*utility, others[1]], atol=1e-12)
+    assert terms[:, 0].max() <= 1.0 - config.beta + 1e-12  # (1 - β) Ĩ with Ĩ ≤ 1

@@ -18,7 +18,6 @@ import logging
 import sys
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +29,7 @@ from bt_pipeline.clean.selection import span_attrs
 from bt_pipeline.clean.skipping import clean_skipping
 from bt_pipeline.clean.stage2.chunked import chunk_sizes
 from bt_pipeline.clean.stage2.config import EpochStats
+from bt_pipeline.clean.summary import DemoCleanSummary, TaskCleanSummary
 from bt_pipeline.data.carry import carried_masks, carried_obs
 from bt_pipeline.data.demo import Demo, group_by_task
 from bt_pipeline.data.limits import ReadLimits
@@ -37,69 +37,10 @@ from bt_pipeline.data.output_set import OutputSet
 from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.records import DemoRecord, Recording, forward_difference_actions
 from bt_pipeline.data.skipping import read_usable
-from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.execute import ExecutorConfig, iter_jobs, reuse_workers
 
 log = logging.getLogger("bt")
-
-
-@dataclass(frozen=True)
-class DemoCleanSummary:
-    """One demo's line in the summary."""
-
-    file: str
-    demo: str
-    output_demo: str
-    demonstrator: str
-    utility_raw: float
-    utility_cleaned: float
-    shape_loss_raw: float
-    shape_loss_cleaned: float
-    beta_final: float
-
-
-@dataclass(frozen=True)
-class TaskCleanSummary:
-    """What ``bt clean`` did for one task (printed as a table or as JSON)."""
-
-    task: Task
-    best_file: str
-    best_demo: str
-    output: Path
-    rrd: Path | None
-    seconds: float
-    """Wall time for the task, reading to writing [s]."""
-    stage_seconds: dict[str, float]
-    """Split: ``read``, ``score``, ``stage1``, ``stage2``, ``metrics``, ``write`` [s]."""
-    demos: tuple[DemoCleanSummary, ...]
-    notes: tuple[str, ...]
-
-    def to_json(self) -> dict[str, Any]:
-        """The task's entry of the ``bt clean --json`` document."""
-        return {
-            "task": self.task,
-            "best": {"file": self.best_file, "demo": self.best_demo},
-            "output": str(self.output),
-            "rrd": None if self.rrd is None else str(self.rrd),
-            "seconds": self.seconds,
-            "stage_seconds": self.stage_seconds,
-            "demos": [
-                {
-                    "file": d.file,
-                    "demo": d.demo,
-                    "output_demo": d.output_demo,
-                    "demonstrator": d.demonstrator,
-                    "utility_raw": d.utility_raw,
-                    "utility_cleaned": d.utility_cleaned,
-                    "shape_loss_raw": d.shape_loss_raw,
-                    "shape_loss_cleaned": d.shape_loss_cleaned,
-                    "beta_final": d.beta_final,
-                }
-                for d in self.demos
-            ],
-            "notes": list(self.notes),
-        }
 
 
 def output_names(demos: Sequence[Demo]) -> list[str]:
@@ -128,6 +69,7 @@ def cleaned_recording(
         timestamps, uv = result.on_raw_times(i)
         ee_pos = plane.to_world(uv)
         raw, cleaned = result.raw[i], result.cleaned[i]
+        moved = result.moved(i)
         out[name] = DemoRecord(
             ee_pos=ee_pos,
             timestamps=timestamps,
@@ -151,6 +93,8 @@ def cleaned_recording(
                 "loss_smoothness": cleaned.smoothness,
                 "loss_shape": cleaned.shape,
                 "loss_shape_raw": raw.shape,
+                "moved_mean": moved[0],
+                "moved_max": moved[1],
                 "beta_final": float(result.refine.betas[i]),
                 **_span_attrs(result, i),
             },
@@ -400,10 +344,16 @@ def _write_task(
                 shape_loss_raw=result.raw[i].shape,
                 shape_loss_cleaned=result.cleaned[i].shape,
                 beta_final=float(result.refine.betas[i]),
+                moved_mean=result.moved(i)[0],
+                moved_max=result.moved(i)[1],
+                objective_raw=result.raw[i].objective,
+                objective_cleaned=result.cleaned[i].objective,
+                best=i == result.best_index,
             )
             for i, (demo, name) in enumerate(
                 zip(result.demos, output_names(result.demos), strict=True)
             )
         ),
         notes=result.notes,
+        best_reason=result.best_reason,
     )

@@ -149,6 +149,7 @@ def span_demo(demo: Demo, segment: Segment, n_samples: int, preference: Preferen
         duration_s=float(t[-1] - t[0]),
         raw_positions=x,
         raw_times_s=t,
+        created=demo.created,
     )
 
 
@@ -235,9 +236,12 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     N-sample path's bridges across gaps in the raw samples (:func:`_sampled`); a cycle does not
     cover the phases across such a gap (kept samples more than 4 median steps apart with a
     bridge between them), where it would only add a chord (a steady figure-eight's 0.1-0.5 s
-    gaps bent its canonical loop's lobe in by 2-3 cm: docs/quality.md). Phases no cycle covers
-    (an incomplete loop) take the fitted guide's point at that phase. The loop starts at the
-    demo's first phase and is closed (N samples).
+    gaps bent its canonical loop's lobe in by 2-3 cm: docs/quality.md). A demo that stops
+    within a few sampling steps of where it started (one whole loop, sampled up to the step
+    before its start: ``bt synth``'s single loops, the bundled examples) is closed across that
+    last step, as between any two samples. Phases no cycle covers (an incomplete loop) take the
+    fitted guide's point at that phase. The loop starts at the demo's first phase and is
+    closed (N samples).
 
     Returns:
         The loop as a demo of N samples, and whether any bin was filled from the guide.
@@ -259,10 +263,18 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
     keep = (off <= tolerance) & seen & np.concatenate([[True], np.diff(mono) > 1e-9])
     if keep.sum() < 2:
         keep[:] = np.concatenate([[True], np.diff(mono) > 1e-9])
+    kept_loops, kept_x = mono[keep], x[keep]
+    # A loop that ends within a few steps of a whole one (the next sample would be the first
+    # again): the step from its last sample back to its first is a step like any other, not
+    # a missing part for the guide to fill.
+    closing = kept_loops[0] + 1.0 - kept_loops[-1]
+    if kept_loops.size >= 3 and 0.0 < closing <= _GAP_STEPS * float(np.median(np.diff(kept_loops))):
+        kept_loops = np.append(kept_loops, kept_loops[0] + 1.0)
+        kept_x = np.concatenate([kept_x, kept_x[:1]])
     # Each cycle read at the same N − 1 phases (interpolated along the demo), then averaged.
-    cycle = np.arange(math.floor(mono[0]), math.ceil(mono[-1]))[:, None]
+    cycle = np.arange(math.floor(mono[0]), math.ceil(max(mono[-1], kept_loops[-1])))[:, None]
     grid = cycle + (np.arange(bins) + 0.5) / bins  # (cycles, bins), in loops
-    covered = (grid >= mono[keep][0]) & (grid <= mono[keep][-1])
+    covered = (grid >= kept_loops[0]) & (grid <= kept_loops[-1])
     # A cycle does not cover the phases across a gap in the raw samples: kept samples with a
     # bridge between them, more than 4 median steps apart (the interpolation would draw the
     # chord). The other cycles, or the guide, fill them. A hand that only moves fast, or one
@@ -275,7 +287,7 @@ def phase_loop(demo: Demo, segment: Segment) -> tuple[Demo, bool]:
             np.diff(kept) > _GAP_STEPS * float(np.median(np.diff(kept)))
         )
         covered &= ~gap[np.clip(np.searchsorted(kept, grid), 1, kept.size - 1) - 1]
-    values = np.stack([np.interp(grid, mono[keep], x[keep, d]) for d in range(2)], axis=-1)
+    values = np.stack([np.interp(grid, kept_loops, kept_x[:, d]) for d in range(2)], axis=-1)
     counts = covered.sum(axis=0)
     sums = np.einsum("cb,cbd->bd", covered.astype(np.float64), values)
     # Guide points at each bin's phase, in the demo's direction of travel.

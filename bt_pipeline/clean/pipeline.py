@@ -5,7 +5,9 @@ Data flow for one task (pure core, :func:`clean_demos`)::
     demos (M, N, 2) ──selection (segment, θ/ρ, Eqs. 3-8, shape gate)──> spans, best demo
         └─ Stage 1 (Sec. III-B): DMP x^d ─> V_E, x^g ─> x_i^aligned, L4 (Eq. 9)
         └─ Stage 2 (Sec. III-C): LSTM x_i ─> x̂_i, adaptive β from R̄ (Eq. 11)
-        └─ metrics before / after (true KSG, L1-L4, Ũ)
+        └─ metrics before / after (true KSG, L1-L4, Stage 2's objective) and Ũ: raw and
+           cleaned spans read as the ranking reads them, against the raw set's normaliser
+           (the one Ũ: :mod:`bt_pipeline.clean.cleaned_utility`)
 
 I/O at the edges (:mod:`bt_pipeline.clean.driver`): read recordings, group by task, clean each task
 (in parallel with ``workers``), stage ``<task>.cleaned.hdf5`` and ``<task>.rrd`` as each task
@@ -24,15 +26,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bt_pipeline.clean.cleaned_utility import cleaned_utilities, moved_from_raw, on_raw_times
 from bt_pipeline.clean.fan_out import metrics_step, per_demo, retime_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.loop_learn import TaskLoop
-from bt_pipeline.clean.periodic import (
-    PreferenceEstimate,
-    output_on_raw_times,
-    phase_loop,
-    smooth_residual,
-)
+from bt_pipeline.clean.periodic import PreferenceEstimate, phase_loop, smooth_residual
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.selection import select_demos
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
@@ -44,12 +42,7 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_pipeline.execute import ExecutorConfig
-from bt_pipeline.score.utility import (
-    Normaliser,
-    ScoreConfig,
-    TaskScores,
-    normalised_utility,
-)
+from bt_pipeline.score.utility import Normaliser, ScoreConfig, TaskScores, normalised_utility
 
 MIN_EXTENT_M = 1e-3
 """A demo whose bounding box is smaller than this in both directions does not move [m]."""
@@ -115,9 +108,16 @@ class DemoMetrics:
     smoothness: float
     """L3 (Eq. 6)."""
     shape: float
-    """L4 [m] (Eq. 9), against the demo's aligned reference, best phase and direction."""
+    """L4 [m] (Eq. 9): mean distance from the demo's aligned reference x_i^aligned. A cleaned
+    demo of the default variant lies between its raw samples and that reference (a gain per
+    sample), so its L4 is what is left of the way to it: 0 when cleaning followed it fully."""
+    objective: float
+    """Stage 2's objective term Ũ_i (Eq. 8 with L1-L4 on the N samples, Stage 2's frozen
+    normalisers and the demo's final β): what refinement maximises."""
     utility: float
-    """Ũ (Eq. 8) with L1-L4, the raw set's frozen normalisers and the demo's final β."""
+    """Ũ (Eq. 8) as ``bt score`` reads it: the span's ranking metrics against the raw set's
+    normaliser (:func:`bt_pipeline.score.utility.utilities_against`), the same number for a
+    raw demo as ``bt score``, the app's table, the Rerun summaries and ``bt view`` show."""
 
     def as_array(self) -> FloatArray:
         """(MI, L1, L2, L3, L4), the columns of the refinement normaliser."""
@@ -155,6 +155,8 @@ class TaskCleanResult:
     """θ/ρ used for each demo, with whether they were estimated and how confidently."""
     loop: TaskLoop | None = None
     """The loop the demos were measured against (the task's guide or learned from them)."""
+    best_reason: str = ""
+    """Why the best demo is the best when it is not the highest Ũ (the shape gate's line)."""
 
     @property
     def positions(self) -> FloatArray:
@@ -173,10 +175,13 @@ class TaskCleanResult:
         they are: read back from the N-sample grid, a long span lost up to 0.1 mm to chords
         (an expert-like demo 0.2 mm from its truth came back 0.3 mm away).
         """
-        if i == self.best_index and not self.refine.settings.refine_best:
-            positions, times = self.demos[i].raw_samples()
-            return times, positions
-        return output_on_raw_times(self.demos[i], self.positions[i])
+        passed = i == self.best_index and not self.refine.settings.refine_best
+        return on_raw_times(self.demos[i], self.positions[i], passed)
+
+    def moved(self, i: int) -> tuple[float, float]:
+        """How far cleaning moved demo i from its raw samples: (mean, max) distance [m] between
+        each raw sample of its span and the cleaned demo at the same time."""
+        return moved_from_raw(self.demos[i], self.on_raw_times(i)[1])
 
 
 def check_usable(demos: Sequence[Demo]) -> None:
@@ -191,14 +196,19 @@ def check_usable(demos: Sequence[Demo]) -> None:
 
 
 def _with_utility(
-    values: FloatArray, normaliser: Normaliser, weights: Sequence[float], betas: FloatArray
+    values: FloatArray,
+    normaliser: Normaliser,
+    weights: Sequence[float],
+    betas: FloatArray,
+    utility: FloatArray,
 ) -> tuple[DemoMetrics, ...]:
-    """Metric records with Ũ (Eq. 8) from raw values, shape (M, 5), and per-demo β."""
+    """Metric records from raw values, shape (M, 5), with Stage 2's objective (Eq. 8 with its
+    normaliser and per-demo β) and each demo's Ũ, shape (M,)."""
     normalised = normaliser.normalise(values, clip=True)
-    utility = normalised_utility(normalised[:, 0], normalised[:, 1:], weights, betas)
+    objective = normalised_utility(normalised[:, 0], normalised[:, 1:], weights, betas)
     return tuple(
-        DemoMetrics(*(float(v) for v in row), utility=float(u))
-        for row, u in zip(values, utility, strict=True)
+        DemoMetrics(*(float(v) for v in row), objective=float(o), utility=float(u))
+        for row, o, u in zip(values, objective, utility, strict=True)
     )
 
 
@@ -320,8 +330,21 @@ def clean_demos(
     raw_values = np.array([raw for raw, _ in metrics])
     cleaned_values = np.array([cleaned for _, cleaned in metrics])
     weights = refined.settings.weights
-    raw = _with_utility(raw_values, normaliser, weights, refined.betas)
-    cleaned = _with_utility(cleaned_values, normaliser, weights, refined.betas)
+    # The one Ũ (bt score's): each cleaned span read as the ranking reads the raw ones, against
+    # the raw set's normaliser; the raw demos keep the selection's Ũ.
+    utility_cleaned, lowered = cleaned_utilities(
+        demos,
+        refined.refined,
+        None if refined.settings.refine_best else best,
+        segments,
+        scores,
+        options.score,
+        selection.loop.symmetry_axis[0],
+    )
+    utility_raw = np.array([s.utility for s in scores.scores])
+    raw = _with_utility(raw_values, normaliser, weights, refined.betas, utility_raw)
+    cleaned = _with_utility(cleaned_values, normaliser, weights, refined.betas, utility_cleaned)
+    notes += lowered
     seconds["metrics"] = time.perf_counter() - start
     return TaskCleanResult(
         task=demos[0].task,
@@ -336,4 +359,5 @@ def clean_demos(
         segments=segments,
         preferences=preferences,
         loop=selection.loop,
+        best_reason=selection.best_reason,
     )

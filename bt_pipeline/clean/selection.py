@@ -40,6 +40,7 @@ from bt_pipeline.clean.shape_gate import (
     MISFIT_FACTOR,
     eligible,
     gate_best,
+    gate_reason,
     guide_misfit,
 )
 from bt_pipeline.data.demo import Demo
@@ -77,6 +78,9 @@ class Selection:
     """The loop the demos were measured against: the task's guide or learned from them."""
     misfits: tuple[float, ...] = ()
     """The shape gate's misfit of each demo (:func:`~bt_pipeline.clean.shape_gate.guide_misfit`)."""
+    best_reason: str = ""
+    """Why the best demo is the best when it is not the highest Ũ
+    (:func:`~bt_pipeline.clean.shape_gate.gate_reason`); empty when it is."""
 
     def span_json(self, i: int) -> dict[str, Any]:
         """Demo i's :func:`span_attrs` and whether its θ/ρ were estimated."""
@@ -179,14 +183,17 @@ def _select(
     misfits = list(gate) if gate else [t.misfit for _, t in parts]
     factor = LEARNED_MISFIT_FACTOR if task_loop.source == "learned" else MISFIT_FACTOR
     scores = gate_best(by_utility, misfits, factor)
+    reason = ""
     if scores.best_index != by_utility.best_index:
         first, best = by_utility.best_index, scores.best_index
-        notes.append(
-            f"{spans[first].label} has the highest Ũ but follows the task's {task_loop.source} "
-            "loop less closely "
-            f"(median {100 * misfits[first]:.2f} % of its size off, against "
-            f"{100 * misfits[best]:.2f} %): {spans[best].label} is the best demo"
+        reason = gate_reason(
+            spans[first].label,
+            spans[best].label,
+            misfits[first],
+            misfits[best],
+            task_loop.source,
         )
+        notes.append(reason)
     seconds["score"] = time.perf_counter() - start
     return Selection(
         spans,
@@ -198,6 +205,7 @@ def _select(
         seconds,
         task_loop,
         tuple(misfits),
+        reason,
     )
 
 
@@ -245,12 +253,23 @@ def _ranking_inputs(
     axis_deg: float = 0.0,
 ) -> tuple[RawMetrics, TakeScore]:
     """A span demo's Eqs. (3)-(6) on its N samples (Stage 2's normaliser reads them), and its
-    ranking metrics and misfit; L1 mirrors about the task loop's axis, `axis_deg` from the
-    vertical of its frame (:attr:`~bt_pipeline.clean.loop_learn.TaskLoop.symmetry_axis`)."""
+    ranking metrics and misfit (:func:`ranked_metrics`)."""
+    plain, ranked = ranked_metrics(span, segment, config, axis_deg)
+    return plain, TakeScore(ranked, guide_misfit(span, segment, preference))
+
+
+def ranked_metrics(
+    span: Demo, segment: Segment, config: ScoreConfig, axis_deg: float = 0.0
+) -> tuple[RawMetrics, RawMetrics]:
+    """A span demo's Eqs. (3)-(6) on its N samples, and the metrics it is ranked by (its Ũ's
+    inputs: :func:`~bt_pipeline.clean.periodic.ranking_metrics`); L1 mirrors about the task
+    loop's axis, `axis_deg` from the vertical of its frame
+    (:attr:`~bt_pipeline.clean.loop_learn.TaskLoop.symmetry_axis`). A cleaned span (its cleaned
+    samples at the raw times) is read the same way, so its Ũ is on the raw demos' scale."""
     theta = None if span.theta_deg is None else span.theta_deg + axis_deg
     plain = raw_metrics(span.positions, span.actions, theta, config)
     ranked = ranking_metrics(span, segment.cycles, plain, config.alphas, config.derotate, axis_deg)
-    return plain, TakeScore(ranked, guide_misfit(span, segment, preference))
+    return plain, ranked
 
 
 def span_attrs(segment: Segment, preference: PreferenceEstimate) -> dict[str, Any]:

@@ -75,6 +75,24 @@ def eligible(misfits: FloatArray, factor: float = MISFIT_FACTOR) -> np.ndarray:
     return misfits <= factor * float(np.min(misfits)) + MISFIT_FLOOR
 
 
+def gate_reason(first: str, best: str, misfit_first: float, misfit_best: float, loop: str) -> str:
+    """Why `best` is the best demo though `first` has the highest Ũ: the one line ``bt score``,
+    ``bt clean``, the Rerun summaries, ``bt view`` and the app's table show beside the ★.
+
+    Args:
+        first: The demo with the highest Ũ (a label or a name).
+        best: The best demo.
+        misfit_first: `first`'s misfit (:func:`guide_misfit`, a share of the loop's size).
+        misfit_best: `best`'s misfit.
+        loop: What the demos were measured against: ``"guide"`` or ``"learned"``.
+    """
+    return (
+        f"{first} has the highest Ũ but follows the task's {loop} loop less closely "
+        f"(median {100 * misfit_first:.2f} % of its size off, against "
+        f"{100 * misfit_best:.2f} %): {best} is the best demo"
+    )
+
+
 def gate_best(
     scores: TaskScores, misfits: Sequence[float], factor: float = MISFIT_FACTOR
 ) -> TaskScores:

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
+from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, check_usable, clean_demos
+from bt_pipeline.clean.selection import Selection, select_demos
 from bt_pipeline.clean.stage1.extract import run_stage1
 from bt_pipeline.clean.stage2.config import EpochStats
 from bt_pipeline.data.demo import Demo
@@ -45,3 +47,25 @@ def clean_skipping(
         probe,
         strict=options.strict,
     )
+
+
+def select_skipping(
+    demos: Sequence[Demo], allowed: PreferenceRange | None = None, *, strict: bool = False
+) -> tuple[Selection | None, list[str]]:
+    """One task's Ũ and best demo as ``bt score`` computes them, dropping (with a note) each
+    demo that cannot be scored: the selection ``bt clean`` makes, over the same set. ``bt view``
+    reads its Ũ here too, so both show the same number for a demo.
+
+    Returns:
+        The selection (None when no demo can be scored) and the notes: one per dropped demo,
+        then the selection's own (estimated θ/ρ, the ★'s reason).
+    """
+
+    def periodic(kept: list[Demo]) -> Selection:
+        check_usable(kept)
+        return select_demos(kept, allowed=allowed)
+
+    selection, notes = skip_failing(periodic, demos, lambda d: periodic([d]), strict=strict)
+    if selection is not None:
+        notes += list(selection.notes)
+    return selection, notes

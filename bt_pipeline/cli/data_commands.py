@@ -47,9 +47,9 @@ def score(
         rho_max: Largest ρ read from such a demo.
     """
     from bt_pipeline.clean.guide_fit import PreferenceRange
-    from bt_pipeline.clean.pipeline import check_usable
-    from bt_pipeline.clean.selection import Selection, select_demos
-    from bt_pipeline.data.demo import Demo, group_by_task
+    from bt_pipeline.clean.selection import Selection
+    from bt_pipeline.clean.skipping import select_skipping
+    from bt_pipeline.data.demo import group_by_task
     from bt_pipeline.data.limits import ReadLimits
     from bt_pipeline.data.skipping import read_usable, skip_failing
     from bt_pipeline.exceptions import DemoError
@@ -63,24 +63,16 @@ def score(
     results: list[TaskScores] = []
     selections: dict[str, Selection] = {}
     notes = list(usable.notes)
-
-    def periodic(demos: list[Demo]) -> Selection:
-        check_usable(demos)
-        return select_demos(demos, allowed=allowed)
-
     for group in group_by_task(usable.demos).values():
         if whole_demos:
             scores, skipped = skip_failing(
                 score_demos, group, lambda d: score_demos([d]), strict=strict
             )
         else:
-            selection, skipped = skip_failing(
-                periodic, group, lambda d: periodic([d]), strict=strict
-            )
+            selection, skipped = select_skipping(group, allowed, strict=strict)
             scores = None if selection is None else selection.scores
             if selection is not None:
                 selections[selection.scores.task] = selection
-                skipped += list(selection.notes)
         notes += skipped
         if scores is not None:
             results.append(scores)

@@ -98,27 +98,36 @@ def view(
     paths: tyro.conf.Positional[Paths],
     out: Path | None = None,
     serve: bool = False,
-    port: int = 9090,
-    web_port: int = 9091,
+    port: int = 9878,
+    web_port: int = 9092,
     samples: int = 300,
 ) -> None:
     """Scrub demos in time in Rerun: 3-D end-effector paths, the task plane, 2-D view, scores.
 
-    Without --out or --serve, opens the bundled Rerun viewer.
+    Without --out or --serve, opens the bundled Rerun viewer (it needs a display; without one,
+    use --serve and open the printed URL in a browser). A PATH ending in .rrd (bt clean's
+    <task>.rrd) is shown as it is, beside the timeline of the other PATHs.
 
     Args:
-        paths: Format-v1 recordings (raw or cleaned): files, directories or glob patterns.
+        paths: Format-v1 recordings (raw or cleaned) and .rrd files: files, directories or glob
+            patterns.
         out: Write a .rrd file instead of opening a viewer.
-        serve: Serve the web viewer on 127.0.0.1 only (until Ctrl-C); prints the URL.
-        port: gRPC port of --serve.
-        web_port: HTTP port of --serve's web viewer.
+        serve: Serve the web viewer on 127.0.0.1 only (until Ctrl-C); prints the URL. Works
+            without a display.
+        port: gRPC port of --serve (a free one if busy; not Rerun's 9876, where `rerun FILE`
+            looks for a viewer).
+        web_port: HTTP port of --serve's web viewer (a free one if busy).
         samples: N, samples per demo for scoring.
     """
-    from bt_pipeline.viz.view import open_viewer, save_view_rrd, serve_view
+    from bt_pipeline.exceptions import ConfigError
+    from bt_pipeline.viz.view import open_viewer, save_view_rrd, serve_view, split_rrd
 
     require_paths(paths)
     if out is not None:
-        print(save_view_rrd(paths, out, n_samples=samples))
+        rrds, recordings = split_rrd(paths)
+        if rrds:
+            raise ConfigError(f"--out writes recordings' timeline; {rrds[0]} is a Rerun file")
+        print(save_view_rrd(recordings, out, n_samples=samples))
     elif serve:
         serve_view(paths, port=port, web_port=web_port, n_samples=samples)
     else:

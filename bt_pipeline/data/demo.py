@@ -51,6 +51,8 @@ class Demo:
     when the demo was built in memory (then `positions` are the raw samples)."""
     raw_times_s: FloatArray | None = None
     """The recording's own sample times, shape (T,), in [s] on its time base (not re-based)."""
+    created: str | None = None
+    """When it was recorded (ISO 8601, the recording's ``created`` attr), None when unknown."""
 
     def __post_init__(self) -> None:
         positions = np.asarray(self.positions, dtype=np.float64)
@@ -100,6 +102,7 @@ class Demo:
             duration_s=self.duration_s,
             raw_positions=self.raw_positions,
             raw_times_s=self.raw_times_s,
+            created=self.created,
         )
 
     def raw_samples(self) -> tuple[FloatArray, FloatArray]:
@@ -160,6 +163,7 @@ def demos_from_recording(
                 duration_s=float(record.timestamps[-1] - record.timestamps[0]),
                 raw_positions=uv,
                 raw_times_s=np.asarray(record.timestamps, dtype=np.float64),
+                created=record.created,
             )
         )
     return demos

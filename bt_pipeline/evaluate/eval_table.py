@@ -11,6 +11,7 @@ from rich.table import Table
 from bt_pipeline.evaluate.files_conditioned import ConditionedTask, print_conditioned
 from bt_pipeline.evaluate.protocol import TaskEvaluation
 from bt_pipeline.viz.plots import LEARNER_TITLES
+from bt_pipeline.viz.tables import table_console
 
 
 def print_eval_table(
@@ -20,7 +21,7 @@ def print_eval_table(
 ) -> None:
     """One table: task × learner × dataset with R̄, L4, Ũ, training time; Δ on cleaned rows;
     with `conditioned`, the conditioned learners' table and each task's note after it."""
-    console = console or Console(width=max(Console().width, 130))
+    console = console or table_console(130)  # piped: wide, no name cut
     table = Table(
         title="Learners trained on noisy vs cleaned demos (mean ± std over rollouts)",
         title_justify="left",

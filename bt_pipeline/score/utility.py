@@ -32,11 +32,13 @@ from bt_pipeline.score.losses import (
     validate_alphas,
 )
 from bt_pipeline.score.mi import mutual_information
+from bt_pipeline.score.normalise import (
+    Normaliser,
+    RawMetrics,
+    metric_values,
+)
 
 FloatArray = NDArray[np.float64]
-
-METRIC_NAMES: tuple[str, ...] = ("mutual_information", "symmetry", "closure", "smoothness")
-"""Raw metrics in the column order of :meth:`RawMetrics.as_array` and the default normaliser."""
 
 
 @dataclass(frozen=True)
@@ -84,22 +86,6 @@ def validate_weights(weights: Sequence[float]) -> tuple[float, ...]:
     return values
 
 
-def minmax_normalise(values: ArrayLike, delta: float = 1e-12) -> FloatArray:
-    """Min-max normalisation with a δ guard (Eq. 7).
-
-    Args:
-        values: One metric of M demos, shape (M,).
-        delta: Ranges max - min ≤ δ give all zeros.
-
-    Returns:
-        (v - min) / (max - min) in [0, 1], shape (M,); zeros when the range is ≤ δ.
-    """
-    v = _metric_values(values, "values")
-    if v.ndim != 1:
-        raise ConfigError(f"minmax_normalise takes one metric of shape (M,); got {v.shape}")
-    return _normalise(v, np.min(v), np.max(v), delta)  # Eq. (7)
-
-
 def normalised_utility(
     mi_norm: ArrayLike, loss_norms: ArrayLike, weights: Sequence[float], beta: ArrayLike
 ) -> FloatArray:
@@ -114,8 +100,8 @@ def normalised_utility(
     Returns:
         Ũ, shape (M,); in [0, 1] when the normalised inputs are.
     """
-    i_norm = _metric_values(mi_norm, "mi_norm")
-    l_norm = _metric_values(loss_norms, "loss_norms")
+    i_norm = metric_values(mi_norm, "mi_norm")
+    l_norm = metric_values(loss_norms, "loss_norms")
     w = np.asarray(validate_weights(weights))
     b = np.asarray(beta, dtype=np.float64)
     m = i_norm.shape[0]
@@ -129,24 +115,6 @@ def normalised_utility(
     if not np.all(np.isfinite(b) & (b >= 0.0) & (b <= 1.0)):
         raise ConfigError(f"beta must lie in [0, 1]; got {b.tolist()}")
     return (1.0 - b) * i_norm + b * ((1.0 - l_norm) @ w)  # Eq. (8)
-
-
-@dataclass(frozen=True, slots=True)  # one per take in the app's library: no __dict__
-class RawMetrics:
-    """Unnormalised metrics of one demo."""
-
-    mutual_information: float
-    """I(S; A) by KSG-1 [nats] (Eq. 1); higher is better."""
-    symmetry: float
-    """L1 [m] (Eq. 4); lower is better."""
-    closure: float
-    """L2 [m] (Eq. 5); lower is better."""
-    smoothness: float
-    """L3 [m²] (Eq. 6); lower is better."""
-
-    def as_array(self) -> FloatArray:
-        """The metrics in :data:`METRIC_NAMES` order, shape (4,)."""
-        return np.array([self.mutual_information, self.symmetry, self.closure, self.smoothness])
 
 
 def raw_metrics(
@@ -171,110 +139,6 @@ def raw_metrics(
         closure=closure_loss(positions),
         smoothness=smoothness_loss(positions, config.alphas),
     )
-
-
-@dataclass(frozen=True)
-class Normaliser:
-    """Frozen per-metric min-max maps (Eq. 7), fitted on a set of raw demos.
-
-    The refinement stage keeps the (min, max) of the raw set, so the map is fixed and affine:
-    ``normalised = (value - min) * scale`` with ``scale = 1 / (max - min)``, or 0 where
-    max - min ≤ δ (docs/algorithms.md §7 row 7).
-    """
-
-    names: tuple[str, ...]
-    """Metric names, one per column."""
-    min: FloatArray
-    """Minimum of each metric over the fitting set, shape (K,)."""
-    max: FloatArray
-    """Maximum of each metric over the fitting set, shape (K,)."""
-    delta: float = 1e-12
-    """δ of Eq. (7)."""
-
-    def __post_init__(self) -> None:
-        lo = np.array(self.min, dtype=np.float64)
-        hi = np.array(self.max, dtype=np.float64)
-        names = tuple(self.names)
-        if lo.shape != (len(names),) or hi.shape != (len(names),):
-            raise ConfigError(
-                f"normaliser needs min and max of shape ({len(names)},) for metrics {names}; got "
-                f"{lo.shape} and {hi.shape}"
-            )
-        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi >= lo)):
-            raise ConfigError(f"normaliser needs finite min ≤ max; got {lo} and {hi}")
-        if not (math.isfinite(self.delta) and self.delta >= 0.0):
-            raise ConfigError(f"delta must be finite and ≥ 0; got {self.delta!r}")
-        lo.setflags(write=False)
-        hi.setflags(write=False)
-        object.__setattr__(self, "names", names)
-        object.__setattr__(self, "min", lo)
-        object.__setattr__(self, "max", hi)
-
-    @classmethod
-    def from_values(
-        cls, values: ArrayLike, names: Sequence[str] = METRIC_NAMES, delta: float = 1e-12
-    ) -> Normaliser:
-        """Fit on raw metric values, shape (M, K), one row per demo, columns named `names`."""
-        v = _metric_values(values, "values")
-        if v.ndim != 2 or v.shape[0] == 0 or v.shape[1] != len(names):
-            raise ConfigError(
-                f"values must have shape (M, {len(names)}) with M ≥ 1 for metrics "
-                f"{tuple(names)}; got {v.shape}"
-            )
-        return cls(names=tuple(names), min=np.min(v, axis=0), max=np.max(v, axis=0), delta=delta)
-
-    @classmethod
-    def from_raw_metrics(cls, metrics: Sequence[RawMetrics], delta: float = 1e-12) -> Normaliser:
-        """Fit on the raw metrics of M ≥ 1 demos (columns :data:`METRIC_NAMES`)."""
-        if not metrics:
-            raise DemoError("a normaliser needs the metrics of at least one demo")
-        return cls.from_values(np.stack([m.as_array() for m in metrics]), METRIC_NAMES, delta)
-
-    @property
-    def scale(self) -> FloatArray:
-        """1 / (max - min) per metric, 0 where max - min ≤ δ, shape (K,)."""
-        span = self.max - self.min
-        ok = span > self.delta
-        return np.where(ok, 1.0 / np.where(ok, span, 1.0), 0.0)
-
-    def index(self, name: str) -> int:
-        """Column of metric `name`."""
-        if name not in self.names:
-            raise ConfigError(f"unknown metric {name!r}; this normaliser has {self.names}")
-        return self.names.index(name)
-
-    def affine(self, name: str) -> tuple[float, float]:
-        """(offset, scale) of metric `name`: normalised = (value - offset) * scale.
-
-        Plain floats, so the map also applies to torch tensors.
-        """
-        j = self.index(name)
-        return float(self.min[j]), float(self.scale[j])
-
-    def normalise(self, values: ArrayLike, clip: bool = False) -> FloatArray:
-        """Normalise raw values of all metrics, shape (..., K), by the frozen (min, max).
-
-        Args:
-            values: Raw metrics, last axis in :attr:`names` order.
-            clip: Clip to [0, 1] (new values may fall outside the fitting range).
-
-        Returns:
-            Normalised values, same shape; 0 in columns whose range is ≤ δ.
-        """
-        v = _metric_values(values, "values")
-        if v.ndim == 0 or v.shape[-1] != len(self.names):
-            raise ConfigError(
-                f"values must have shape (..., {len(self.names)}) for metrics {self.names}; "
-                f"got {v.shape}"
-            )
-        out = _normalise(v, self.min, self.max, self.delta)
-        return np.clip(out, 0.0, 1.0) if clip else out
-
-    def normalise_metric(self, name: str, values: ArrayLike, clip: bool = False) -> FloatArray:
-        """Normalise raw values of the one metric `name`, any shape."""
-        j = self.index(name)
-        out = _normalise(_metric_values(values, "values"), self.min[j], self.max[j], self.delta)
-        return np.clip(out, 0.0, 1.0) if clip else out
 
 
 @dataclass(frozen=True)
@@ -388,29 +252,42 @@ def set_utilities(
     metrics: Sequence[RawMetrics], config: ScoreConfig
 ) -> tuple[FloatArray, Normaliser]:
     """Ũ of each demo of a set from its raw metrics (Eqs. 7-8, normalised over the set), and
-    the normaliser."""
+    the normaliser.
+
+    This is the one Ũ every view shows: ``bt score``, ``bt clean`` (raw, and cleaned through
+    :func:`utilities_against` with this normaliser), the app's table, the Rerun summaries and
+    ``bt view`` all read a demo's Ũ from here, over the task's current set of demos, so a demo
+    reads the same Ũ everywhere for the same set (docs/teleop.md, "Ũ is relative to the set").
+    """
     normaliser = Normaliser.from_raw_metrics(metrics, config.delta)
-    normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]))
-    utility = normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
-    return utility, normaliser
+    return utilities_against(normaliser, metrics, config), normaliser
+
+
+def utilities_against(
+    normaliser: Normaliser, metrics: Sequence[RawMetrics], config: ScoreConfig
+) -> FloatArray:
+    """Ũ (Eq. 8) of demos measured against a set's frozen normaliser (Eq. 7), shape (M,).
+
+    The set's own demos (:func:`set_utilities`) lie inside its ranges; a demo cleaned from them
+    may not, and each of its metrics is clipped to the set's range (a metric better than every
+    raw demo's counts as the best raw demo's), so Ũ stays in [0, 1] and raw and cleaned demos
+    are read on one scale.
+    """
+    normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]), clip=True)
+    return normalised_utility(normalised[:, 0], normalised[:, 1:], config.weights, config.beta)
+
+
+def utility_terms(
+    normaliser: Normaliser, metrics: Sequence[RawMetrics], config: ScoreConfig
+) -> FloatArray:
+    """The four terms of Ũ (Eq. 8) that :func:`utilities_against` sums, shape (M, 4):
+    (1 - β) Ĩ, then β w_j (1 - L̃_j) for L1-L3; what a change of Ũ is made of."""
+    normalised = normaliser.normalise(np.stack([m.as_array() for m in metrics]), clip=True)
+    beta = config.beta
+    losses = beta * (1.0 - normalised[:, 1:]) * np.asarray(config.weights)
+    return np.concatenate([(1.0 - beta) * normalised[:, :1], losses], axis=1)
 
 
 def select_best(demos: Sequence[Demo], config: ScoreConfig | None = None) -> int:
     """Index of the demo with the highest normalised utility (x_best of paper Step 1)."""
     return score_demos(demos, config).best_index
-
-
-def _normalise(values: FloatArray, lo: ArrayLike, hi: ArrayLike, delta: float) -> FloatArray:
-    """(values - lo) / (hi - lo) where hi - lo > δ, else 0 (Eq. 7); broadcasts on the last axis."""
-    lo = np.asarray(lo, dtype=np.float64)
-    span = np.asarray(hi, dtype=np.float64) - lo
-    ok = span > delta
-    return np.where(ok, (values - lo) / np.where(ok, span, 1.0), 0.0)
-
-
-def _metric_values(values: ArrayLike, name: str) -> FloatArray:
-    """`values` as a float array; DemoError when any is NaN or infinite."""
-    v = np.asarray(values, dtype=np.float64)
-    if not np.all(np.isfinite(v)):
-        raise DemoError(f"{name} contain NaN or infinite metric values")
-    return v

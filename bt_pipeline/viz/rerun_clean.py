@@ -4,7 +4,7 @@ Data flow (I/O at the edge: the cleaner never imports this module)::
 
     TaskCleanResult ──log_clean_result(rec)──▶ any RecordingStream (file, gRPC, web viewer)
         static:  /<task>/plane/{raw,best,reference,centre,aligned,cleaned,value_map}
-                 /<task>/scores/<metric>/{raw,cleaned}, /<task>/summary
+                 /<task>/scores/<metric>/{raw,cleaned}, /<task>/summary, /<task>/legend
         columns: /<task>/training/{loss,beta/<demo>,reward/<demo>} on the ``epoch`` timeline,
                  /<task>/notes at epoch 0
     clean_blueprint(tasks) ──▶ the layout, declared up front and sent with the recording
@@ -13,46 +13,52 @@ Data flow (I/O at the edge: the cleaner never imports this module)::
 Task coordinates stay in metres. Rerun's 2-D views draw +y downwards (image convention), so
 ``/<task>/plane`` carries a static Transform3D with scale (1, -1, 1): curves appear with +y up,
 as in matplotlib plots, while every logged value (and hover read-out) is in task coordinates.
-docs/rerun.md lists every entity path.
+Demos are named and coloured as everywhere in bt (:mod:`bt_pipeline.viz.demo_style`: who and
+when, one colour each, raw thin and light, cleaned wide and saturated). docs/rerun.md lists every
+entity path.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
-import re
 import uuid
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 
 from bt_pipeline.clean.pipeline import DemoMetrics, TaskCleanResult
 from bt_pipeline.clean.stage2.config import EpochStats
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.data.tasks import Task, parse_task
+from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.viz.rerun_timeline import log_clean_timeline, timeline_views
-from bt_pipeline.viz.rrd import demo_colors, save_rrd
+from bt_pipeline.viz.clean_blueprint import (
+    EPOCH_TIMELINE,
+    METRICS,
+    clean_blueprint,
+    plane_views,
+    task_layout,
+)
+from bt_pipeline.viz.demo_style import (
+    CLEANED_RADIUS_UI,
+    RAW_RADIUS_UI,
+    cleaned_color,
+    demo_colors,
+    demo_names,
+    legend_markdown,
+    raw_color,
+)
+from bt_pipeline.viz.rerun_timeline import log_clean_timeline
+from bt_pipeline.viz.rrd import save_rrd
 
 APP_ID = "bt_clean"
 """Rerun application id of every cleaner recording."""
-EPOCH_TIMELINE = "epoch"
-"""Sequence timeline of the refinement history; epoch k (1-based) is the state after epoch k."""
-METRICS: tuple[tuple[str, str], ...] = (
-    ("utility", "Ũ (Eq. 8)"),
-    ("mutual_information", "I(S; A) [nats]"),
-    ("symmetry", "L1 symmetry [m]"),
-    ("closure", "L2 closure [m]"),
-    ("smoothness", "L3 smoothness"),
-    ("shape", "L4 shape [m]"),
-)
-"""(DemoMetrics attribute, chart title) of each per-demo bar chart."""
 
-_ALIGNED_ALPHA = 110  # Aligned references: the demo's hue, translucent and thin.
+_ALIGNED_ALPHA = 90  # Aligned references: the demo's hue, translucent and thinnest.
+_ALIGNED_RADIUS_UI = 0.5
 _BEST_RGBA = (255, 215, 0, 200)  # Gold halo under the best raw demo (x^d drawn between).
 _REFERENCE_RGBA = (245, 245, 245, 255)
 _RAW_BAR_RGBA = (150, 150, 150, 255)
@@ -63,14 +69,9 @@ _ID_NAMESPACE = uuid.UUID("5b0c1c5e-7a3e-4c58-9c39-0d2b7f3e6a10")
 
 
 def demo_entity_names(demos: Sequence[Demo]) -> tuple[str, ...]:
-    """Entity-path-safe, unique names: the demo names, prefixed by the index if they repeat.
-
-    Characters other than letters, digits, ``_`` and ``-`` become ``_``.
-    """
-    names = [re.sub(r"[^A-Za-z0-9_-]", "_", demo.name) or "demo" for demo in demos]
-    if len(set(names)) < len(names):
-        names = [f"{i}_{name}" for i, name in enumerate(names)]
-    return tuple(names)
+    """Entity-path-safe, unique names as the web app's page names the demos: who and when, e.g.
+    ``alice_2026-12-06_1203`` (:func:`bt_pipeline.viz.demo_style.demo_names`)."""
+    return demo_names(demos)
 
 
 def recording_id(result: TaskCleanResult) -> str:
@@ -101,6 +102,11 @@ def log_clean_result(rec: rr.RecordingStream, result: TaskCleanResult) -> None:
     _log_scores(rec, root, result.raw, result.cleaned)
     _log_training(rec, root, result, names, colors)
     _log_text(rec, root, result, names)
+    rec.log(
+        f"{root}/legend",
+        rr.TextDocument(legend_markdown(names, best=result.best_index), media_type="text/markdown"),
+        static=True,
+    )
     log_clean_timeline(rec, f"{root}/timeline", result)  # the `time` timeline of bt view
 
 
@@ -122,31 +128,6 @@ def log_epoch(rec: rr.RecordingStream, task: Task, stats: EpochStats, names: Seq
         rec.log(f"{root}/beta/{name}", rr.Scalars(float(stats.betas[i])))
         rec.log(f"{root}/reward/{name}", rr.Scalars(float(stats.rewards[i])))
     rec.disable_timeline(EPOCH_TIMELINE)
-
-
-def clean_blueprint(tasks: Iterable[Task]) -> rrb.Blueprint:
-    """The viewer layout for cleaner recordings of `tasks` (one tab per task when several).
-
-    Per task: a 2-D view of raw demos, best demo, x^d, aligned references and V_E; a 2-D view of
-    the cleaned demos over their aligned references; a grid of bar charts (raw vs cleaned per
-    metric); time series of loss, β_i and R̄_i per epoch; the summary table and the notes.
-
-    Raises:
-        UnknownTaskError: An invalid task name (:func:`~bt_pipeline.data.tasks.parse_task`).
-        ConfigError: No tasks.
-    """
-    parsed: list[Task] = [parse_task(str(name)) for name in tasks]
-    if not parsed:
-        raise ConfigError("clean_blueprint needs at least one task")
-    unique: list[Task] = [t for i, t in enumerate(parsed) if t not in parsed[:i]]
-    layouts = [task_layout(t) for t in unique]
-    layouts += [timeline_views(f"/{t}/timeline", f"{t}: raw vs cleaned in time") for t in unique]
-    main = rrb.Tabs(*layouts)
-    return rrb.Blueprint(
-        main,
-        rrb.TimePanel(timeline=EPOCH_TIMELINE, state="collapsed"),
-        rrb.SelectionPanel(state="collapsed"),
-    )
 
 
 def save_clean_rrd(
@@ -240,16 +221,19 @@ def _log_plane(
     )
     for i, (demo, name) in enumerate(zip(result.demos, names, strict=True)):
         rgb = tuple(int(c) for c in colors[i])
-        label = f"{name} ({demo.demonstrator})"
-        rec.log(f"{plane}/raw/{name}", _strip(demo.positions, rgb, 1.0, 30.0, label), static=True)
+        raw = _strip(demo.positions, raw_color(rgb), RAW_RADIUS_UI, 30.0, f"raw {name}")
+        rec.log(f"{plane}/raw/{name}", raw, static=True)
+        aligned = (*rgb, _ALIGNED_ALPHA)
         rec.log(
             f"{plane}/aligned/{name}",
-            _strip(stage1.aligned[i], (*rgb, _ALIGNED_ALPHA), 0.75, 20.0, f"aligned {name}"),
+            _strip(stage1.aligned[i], aligned, _ALIGNED_RADIUS_UI, 20.0, f"aligned {name}"),
             static=True,
         )
         rec.log(
             f"{plane}/cleaned/{name}",
-            _strip(result.positions[i], rgb, 1.25, 30.0, f"cleaned {name}"),
+            _strip(
+                result.positions[i], cleaned_color(rgb), CLEANED_RADIUS_UI, 31.0, f"cleaned {name}"
+            ),
             static=True,
         )
 
@@ -326,24 +310,29 @@ def _log_text(
     """The per-demo summary table (static TextDocument) and the notes (TextLog rows)."""
     stage1, refine = result.stage1, result.refine
     rows = [
-        "| # | demo | demonstrator | θ [deg] | ρ | Ũ raw → cleaned | L4 raw → cleaned [mm] | β |",
-        "|---|---|---|---|---|---|---|---|",
+        "| # | demo | demonstrator | θ [deg] | ρ | Ũ raw → cleaned | L4 raw → off ref. [mm] "
+        "| moved mean / max [mm] | β |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for i, name in enumerate(names):
         raw, cleaned = result.raw[i], result.cleaned[i]
-        star = " (best)" if i == result.best_index else ""
+        star = " ★" if i == result.best_index else ""
         estimated = " (est.)" if stage1.estimated[i] else ""
+        moved_mean, moved_max = result.moved(i)
         rows.append(
             f"| {i} | {name}{star} | {result.demos[i].demonstrator} | "
             f"{stage1.thetas[i]:.1f}{estimated} | {stage1.rhos[i]:.3f} | "
             f"{raw.utility:.3f} → {cleaned.utility:.3f} | "
-            f"{1e3 * raw.shape:.2f} → {1e3 * cleaned.shape:.2f} | {refine.betas[i]:.3f} |"
+            f"{1e3 * raw.shape:.2f} → {1e3 * cleaned.shape:.2f} | "
+            f"{1e3 * moved_mean:.2f} / {1e3 * moved_max:.2f} | {refine.betas[i]:.3f} |"
         )
     timing = ", ".join(f"{stage} {seconds:.2f} s" for stage, seconds in result.seconds.items())
+    safe = result.best_reason.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    reason = f"★ {safe}\n\n" if safe else ""
     text = (
         f"# {result.task}\n\n{len(result.demos)} demos, variant `{refine.variant}`, "
         f"{refine.epochs} epochs; {timing}.\n\nBars: demo i at x = i (raw left, cleaned "
-        f"right).\n\n" + "\n".join(rows) + "\n"
+        f"right).\n\n" + "\n".join(rows) + "\n\n" + reason + SUMMARY_LEGEND + "\n"
     )
     rec.log(f"{root}/summary", rr.TextDocument(text, media_type="text/markdown"), static=True)
     best = result.demos[result.best_index]
@@ -361,57 +350,24 @@ def _log_text(
     )
 
 
-def plane_views(task: Task) -> tuple[rrb.Spatial2DView, rrb.Spatial2DView]:
-    """A task's two 2-D views: raw demos, best, x^d, aligned references, V_E; cleaned demos."""
-    root = f"/{task}"
-    plane = f"{root}/plane"
-    return (
-        rrb.Spatial2DView(
-            name=f"{task}: raw demos, x^d, aligned references, V_E",
-            origin=root,
-            contents=[
-                f"{plane}/{part}"
-                for part in ("value_map", "raw/**", "best", "reference", "centre", "aligned/**")
-            ],
-        ),
-        rrb.Spatial2DView(
-            name=f"{task}: cleaned demos over aligned references",
-            origin=root,
-            contents=[f"{plane}/cleaned/**", f"{plane}/aligned/**", f"{plane}/centre"],
-        ),
-    )
+SUMMARY_LEGEND = (
+    "Ũ: over the task's raw demos, as `bt score` reads them (cleaned: against their scale). "
+    "L4 raw: the raw demo's mean distance from its aligned reference (Eq. 9); off ref.: the "
+    "cleaned demo's (0 when cleaning followed the reference fully). Moved: distance between "
+    "each raw sample and the cleaned demo at the same time."
+)
+"""Under the summary table: what its columns measure (as under ``bt clean``'s table)."""
 
 
-def task_layout(task: Task) -> rrb.Container:
-    """One task's views."""
-    root = f"/{task}"
-    curves = rrb.Horizontal(*plane_views(task))
-    bars = rrb.Grid(
-        *(
-            rrb.BarChartView(
-                name=f"{title}: raw | cleaned",
-                origin=f"{root}/scores/{metric}",
-                plot_legend=rrb.PlotLegend(visible=False),
-            )
-            for metric, title in METRICS
-        ),
-        grid_columns=3,
-        name=f"{task}: scores, raw (grey) vs cleaned (green)",
-    )
-    training = rrb.Vertical(
-        rrb.TimeSeriesView(name="loss −mean Ũ", origin=f"{root}/training/loss"),
-        rrb.TimeSeriesView(name="β_i", origin=f"{root}/training/beta"),
-        rrb.TimeSeriesView(name="R̄_i (Eq. 11)", origin=f"{root}/training/reward"),
-    )
-    text = rrb.Horizontal(
-        rrb.TextDocumentView(name="summary", origin=f"{root}/summary"),
-        rrb.TextLogView(name="notes", origin=f"{root}/notes"),
-        column_shares=[3, 2],
-    )
-    return rrb.Vertical(
-        curves,
-        rrb.Horizontal(bars, training, column_shares=[3, 2]),
-        text,
-        row_shares=[5, 4, 3],
-        name=task,
-    )
+__all__ = [
+    "APP_ID",
+    "EPOCH_TIMELINE",
+    "METRICS",
+    "SUMMARY_LEGEND",
+    "clean_blueprint",
+    "log_clean_result",
+    "log_epoch",
+    "plane_views",
+    "save_clean_rrd",
+    "task_layout",
+]

@@ -4,15 +4,18 @@ Shared by ``bt view`` (:mod:`bt_pipeline.viz.view`) and ``bt clean``'s .rrd (raw
 side by side). Entity layout under a root such as ``/<task>/timeline``::
 
     <root>/world                      static: Transform3D (identity), the task plane (Mesh3D)
-    <root>/world/<group>/<demo>/path  static: the whole 3-D path, thin and translucent
+    <root>/world/<group>/<demo>/path  static: the whole 3-D path
     <root>/world/<group>/<demo>/ee    Points3D on ``time`` (seconds from the demo's start)
     <root>/plane/<group>/<demo>/path  static: the whole 2-D path in task coordinates [m]
     <root>/plane/<group>/<demo>/ee    Points2D on ``time``
     <root>/scores/utility             static BarChart of Ũ, one bar per demo (groups in order)
+    <root>/legend                     static TextDocument: each demo's colour and name
 
-``<group>`` is e.g. ``raw`` or ``cleaned``; ``<demo>`` is one entity per demo. Whole
-trajectories are sent as columns (``send_columns``), one row per sample, so the viewer's time
-slider moves every demo's end effector at once.
+``<group>`` is e.g. ``raw`` or ``cleaned``; ``<demo>`` is one entity per demo, named as the web
+app's page names it (who and when, :mod:`bt_pipeline.viz.demo_style`). A raw path is thin and
+lighter, a cleaned one wide in the demo's full colour. Whole trajectories are sent as columns
+(``send_columns``), one row per sample, so the viewer's time slider moves every demo's end
+effector at once.
 """
 
 from __future__ import annotations
@@ -28,7 +31,15 @@ import rerun.blueprint as rrb
 
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.records import FloatArray
-from bt_pipeline.viz.rrd import demo_colors
+from bt_pipeline.viz.demo_style import (
+    CLEANED_RADIUS_UI,
+    RAW_RADIUS_UI,
+    cleaned_color,
+    demo_color,
+    demo_names,
+    legend_markdown,
+    raw_color,
+)
 
 if TYPE_CHECKING:  # the cleaner's types only: `bt view` must not import torch
     from bt_pipeline.clean.pipeline import TaskCleanResult
@@ -51,9 +62,16 @@ class TimelineDemo:
     timestamps: FloatArray
     """Sample times, shape (T,), in [s] (shifted to start at 0)."""
     color: tuple[int, int, int]
-    """RGB of the demo."""
+    """RGB of the demo (its hue: raw drawn lighter, cleaned in the full colour)."""
     utility: float | None = None
     """Ũ (Eq. 8), or None when not scored."""
+    cleaned: bool = False
+    """A cleaned demo: drawn wide in its full colour (a raw one thin and lighter)."""
+    best: bool = False
+    """The task's best demo (★ in the scores table)."""
+    best_reason: str = ""
+    """On the best demo: why it is the best though another has a higher Ũ (the shape gate's
+    line, as ``bt score`` prints it), shown under the scores table; empty otherwise."""
 
 
 def entity_name(text: str) -> str:
@@ -62,24 +80,35 @@ def entity_name(text: str) -> str:
 
 
 def log_timeline(
-    rec: rr.RecordingStream, root: str, plane: TaskPlane, demos: Sequence[TimelineDemo]
+    rec: rr.RecordingStream,
+    root: str,
+    plane: TaskPlane,
+    demos: Sequence[TimelineDemo],
+    legend: str | None = None,
 ) -> None:
-    """Log `demos` under `root` (layout in the module docstring)."""
+    """Log `demos` under `root` (layout in the module docstring); `legend`: the Markdown of
+    ``<root>/legend`` (:func:`bt_pipeline.viz.demo_style.legend_markdown`)."""
     rec.log(f"{root}/plane", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)  # +v up
     rec.log(f"{root}/world/task_plane", _plane_mesh(plane, demos), static=True)
     for demo in demos:
         name = f"{entity_name(demo.group)}/{entity_name(demo.name)}"
         uv = plane.to_plane(demo.ee_pos)
         t = np.asarray(demo.timestamps, dtype=np.float64) - float(demo.timestamps[0])
-        faint = (*demo.color, 110)
+        if demo.cleaned:
+            color, radius = cleaned_color(demo.color), rr.Radius.ui_points(CLEANED_RADIUS_UI)
+        else:
+            color, radius = raw_color(demo.color), rr.Radius.ui_points(RAW_RADIUS_UI)
+        label = f"{demo.name} ({'cleaned' if demo.cleaned else 'raw'})"
         rec.log(
             f"{root}/world/{name}/path",
-            rr.LineStrips3D([demo.ee_pos.astype(np.float32)], colors=[faint], radii=0.001),
+            rr.LineStrips3D(
+                [demo.ee_pos.astype(np.float32)], colors=[color], radii=radius, labels=[label]
+            ),
             static=True,
         )
         rec.log(
             f"{root}/plane/{name}/path",
-            rr.LineStrips2D([uv.astype(np.float32)], colors=[faint], radii=0.001),
+            rr.LineStrips2D([uv.astype(np.float32)], colors=[color], radii=radius, labels=[label]),
             static=True,
         )
         index = [rr.TimeColumn(TIME_TIMELINE, duration=t)]
@@ -97,9 +126,15 @@ def log_timeline(
             point = rr.Points3D if kind == "world" else rr.Points2D
             rec.log(
                 f"{root}/{kind}/{name}/ee",
-                point.from_fields(colors=[demo.color], radii=0.006, labels=[demo.name]),
+                point.from_fields(colors=[color], radii=0.006, labels=[demo.name]),
                 static=True,
             )
+    if legend is not None:
+        rec.log(
+            f"{root}/legend",
+            rr.TextDocument(legend, media_type=rr.MediaType.MARKDOWN),
+            static=True,
+        )
     scored = [d for d in demos if d.utility is not None]
     if scored:
         rec.log(
@@ -107,14 +142,21 @@ def log_timeline(
             rr.BarChart(np.array([d.utility for d in scored], dtype=np.float64)),
             static=True,
         )
-        rows = "\n".join(
-            f"| {i} | {_md(d.group)} | {_md(d.name)} | {d.utility:.3f} |"
+    if demos:
+        rows = [
+            f"| {i} | {_md(d.group)} | {_md(d.name)}{' ★' if d.best else ''} | {d.utility:.3f} |"
             for i, d in enumerate(scored)
-        )
+        ]
+        # Flagged, excluded or unscorable demos: listed, not ranked (as bt score lists them).
+        rows += [f"| – | {_md(d.group)} | {_md(d.name)} | – |" for d in demos if d.utility is None]
+        reasons = "".join(f"\n★ {_md(d.best_reason)}\n" for d in scored if d.best_reason)
         rec.log(
             f"{root}/scores/table",
             rr.TextDocument(
-                f"| bar | group | demo | Ũ |\n|---|---|---|---|\n{rows}\n",
+                "| bar | group | demo | Ũ |\n|---|---|---|---|\n" + "\n".join(rows) + "\n"
+                f"{reasons}\nŨ is relative to the task's raw demos shown here (a cleaned "
+                "demo's: on their scale), as bt score reads them; – not scored (flagged, "
+                "excluded or no loop).\n",
                 media_type=rr.MediaType.MARKDOWN,
             ),
             static=True,
@@ -129,6 +171,7 @@ def timeline_views(root: str, title: str) -> rrb.Container:
         rrb.Vertical(
             rrb.BarChartView(name=f"{title}: Ũ per demo", origin=f"{root}/scores/utility"),
             rrb.TextDocumentView(name=f"{title}: scores", origin=f"{root}/scores/table"),
+            rrb.TextDocumentView(name=f"{title}: legend", origin=f"{root}/legend"),
         ),
         column_shares=[3, 3, 2],
         name=title,
@@ -156,27 +199,31 @@ def _md(text: str) -> str:
 
 
 def log_clean_timeline(rec: rr.RecordingStream, root: str, result: TaskCleanResult) -> None:
-    """Each demo twice under `root`, raw (grey) and cleaned (its colour), on one time axis.
+    """Each demo twice under `root`, raw (thin, lighter) and cleaned (wide, its full colour),
+    on one time axis, with a legend.
 
     Both have the pipeline's N samples spread over the demo's recorded duration.
     """
     plane = result.demos[result.best_index].plane
-    colors = demo_colors(len(result.demos))
+    names = demo_names(result.demos)
     demos = []
     for group, paths, metrics in (
         ("raw", [d.positions for d in result.demos], result.raw),
         ("cleaned", list(result.positions), result.cleaned),
     ):
         for k, (demo, uv, metric) in enumerate(zip(result.demos, paths, metrics, strict=True)):
-            rgb = tuple(int(c) for c in colors[k]) if group == "cleaned" else (150, 150, 150)
+            is_best = group == "raw" and k == result.best_index
             demos.append(
                 TimelineDemo(
-                    name=f"{k}_{demo.name}",
+                    name=names[k],
                     group=group,
                     ee_pos=plane.to_world(uv),
                     timestamps=np.linspace(0.0, demo.duration_s, len(uv)),
-                    color=(rgb[0], rgb[1], rgb[2]),
+                    color=demo_color(k),
                     utility=float(metric.utility),
+                    cleaned=group == "cleaned",
+                    best=is_best,
+                    best_reason=result.best_reason if is_best else "",
                 )
             )
-    log_timeline(rec, root, plane, demos)
+    log_timeline(rec, root, plane, demos, legend_markdown(names, best=result.best_index))

@@ -1,4 +1,5 @@
-"""Shared Rerun helpers: an atomic, deterministic .rrd writer and the per-demo palette."""
+"""An atomic, deterministic .rrd writer shared by every bt recording (the per-demo palette and
+names are in :mod:`bt_pipeline.viz.demo_style`)."""
 
 from __future__ import annotations
 
@@ -6,15 +7,11 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from bt_pipeline.data.atomic import remove_stale_temps, temp_name
 from bt_pipeline.exceptions import ConfigError
-
-_TAB10 = "1f77b4 ff7f0e 2ca02c d62728 9467bd 8c564b e377c2 7f7f7f bcbd22 17becf"
-_PALETTE = np.array([list(bytes.fromhex(c)) for c in _TAB10.split()], dtype=np.uint8)  # (10, 3)
 
 
 def save_rrd(
@@ -59,8 +56,3 @@ def save_rrd(
         tmp.unlink(missing_ok=True)
         raise
     return path
-
-
-def demo_colors(n_demos: int) -> np.ndarray:
-    """One RGB colour per demo (tab10, cycled), shape (M, 3), uint8."""
-    return _PALETTE[np.arange(n_demos) % len(_PALETTE)]

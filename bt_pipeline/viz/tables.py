@@ -12,8 +12,8 @@ from rich.markup import escape
 from rich.table import Table
 
 if TYPE_CHECKING:
-    from bt_pipeline.clean.driver import TaskCleanSummary
     from bt_pipeline.clean.selection import Selection
+    from bt_pipeline.clean.summary import TaskCleanSummary
     from bt_pipeline.data.demo import Demo
     from bt_pipeline.score.utility import TaskScores
 
@@ -21,12 +21,27 @@ Flagged = Sequence[tuple["Demo", tuple[str, ...]]]
 """Flagged demos and their flags (listed with ⚠, never ranked)."""
 
 
-def _console() -> Console:
-    """A stdout console at least 120 columns wide, even when stdout is a pipe."""
+PIPED_WIDTH = 1000
+"""Columns of a table printed to a pipe or a file: wide enough that no name is cut."""
+
+
+def table_console(min_width: int = 120) -> Console:
+    """The stdout console every bt table prints to.
+
+    In a terminal: its width, at least `min_width` columns. Piped or redirected (not a
+    terminal): :data:`PIPED_WIDTH` columns, so rich never cuts a file name to ``newcomer_…``
+    and rows that differ only at the end of their names stay apart for grep and scripts.
+    """
     console = Console()
-    if console.width < 120:
-        console = Console(width=120)
+    if not console.is_terminal:
+        return Console(width=PIPED_WIDTH)
+    if console.width < min_width:
+        return Console(width=min_width)
     return console
+
+
+def _console() -> Console:
+    return table_console()
 
 
 def _short(file: str, demo: str) -> str:
@@ -73,10 +88,12 @@ def score_json(
             tasks.append({"task": task, "best": None, "demos": [], "flagged": []})
     for result in results:
         best = result.best.demo
+        selection = selections.get(result.task)
         tasks.append(
             {
                 "task": result.task,
                 "best": {"file": best.file, "demo": best.name},
+                "best_reason": "" if selection is None else selection.best_reason,
                 "demos": [
                     {
                         "file": s.demo.file,
@@ -173,6 +190,8 @@ def print_score_tables(
                     "–",
                 )
         console.print(table)
+        if selection is not None and selection.best_reason:
+            console.print(f"★ {selection.best_reason}", markup=False)
     scored = {result.task for result in results}
     for demo, flags in flagged:
         if demo.task not in scored:
@@ -181,8 +200,10 @@ def print_score_tables(
                 "no unflagged demo to rank",
                 markup=False,
             )
+    reasons = {s.best_reason for s in selections.values()}
     for note in notes:
-        console.print(f"note: {note}", markup=False)
+        if note not in reasons:
+            console.print(f"note: {note}", markup=False)
 
 
 def clean_json(summaries: Sequence[TaskCleanSummary]) -> dict[str, Any]:
@@ -193,30 +214,49 @@ def clean_json(summaries: Sequence[TaskCleanSummary]) -> dict[str, Any]:
 def print_clean_summary(
     summaries: Sequence[TaskCleanSummary], console: Console | None = None
 ) -> None:
-    """One table per cleaned task: Ũ and L4 before and after, β, and the output files."""
+    """One table per cleaned task: Ũ before and after (as ``bt score`` reads it), the distance
+    to the aligned reference before and after, how far cleaning moved each demo, β, the files.
+    """
     console = console or _console()
     for summary in summaries:
         table = Table(
             title=(
-                f"{summary.task}: best = {summary.best_file}:{summary.best_demo}, "
+                f"{summary.task}: best = {summary.best_file}:{summary.best_demo} ★, "
                 f"{summary.seconds:.1f} s → {summary.output}"
             ),
+            caption=CLEAN_CAPTION,
+            caption_justify="left",
             title_justify="left",
         )
-        for column in ("demo", "demonstrator"):
+        for column in ("", "demo", "demonstrator"):
             table.add_column(column)
-        for column in ("Ũ raw", "Ũ cleaned", "L4 raw [mm]", "L4 cleaned [mm]", "β final"):
+        columns = ("Ũ raw", "Ũ cleaned", "L4 raw [mm]", "off ref. [mm]", "moved [mm]", "β final")
+        for column in columns:
             table.add_column(escape(column), justify="right")
         for demo in summary.demos:
             table.add_row(
+                "★" if demo.best else "",
                 _short(demo.file, demo.demo),
                 demo.demonstrator,
                 f"{demo.utility_raw:.3f}",
                 f"{demo.utility_cleaned:.3f}",
                 f"{1e3 * demo.shape_loss_raw:.2f}",
                 f"{1e3 * demo.shape_loss_cleaned:.2f}",
+                f"{1e3 * demo.moved_mean:.2f} / {1e3 * demo.moved_max:.2f}",
                 f"{demo.beta_final:.2f}",
             )
         console.print(table)
+        if summary.best_reason:
+            console.print(f"★ {summary.best_reason}", markup=False)
         for note in summary.notes:
-            console.print(f"note: {note}")
+            if note != summary.best_reason:
+                console.print(f"note: {note}", markup=False)
+
+
+CLEAN_CAPTION = (
+    "Ũ: over the task's demos, as bt score reads them (cleaned: against the raw set's scale). "
+    "L4 raw: mean distance of the raw demo from its aligned reference x_i^aligned (Eq. 9); "
+    "off ref.: the cleaned demo's (0 when cleaning followed the reference fully). "
+    "moved: mean / max distance between each raw sample and the cleaned demo at the same time."
+)
+"""Under ``bt clean``'s table: what its columns measure."""
