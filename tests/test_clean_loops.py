@@ -216,3 +216,19 @@ def test_a_majority_sharing_one_bias_does_not_outvote_the_demo_that_traced_the_g
     raw = distance_to_truth(demos[e].positions, crowd.demos[e].truth)
     cleaned = distance_to_truth(result.positions[e], crowd.demos[e].truth)
     assert cleaned <= 1.5 * raw + 2e-4
+
+
+def test_a_single_loop_expert_keeps_its_whole_loop_against_a_lopsided_consensus() -> None:
+    """A varied wiping guide (another aspect) whose consensus comes from lopsided and drifting
+    multi-loop demos: the expert-like demo draws one loop after an approach, and against that
+    consensus only 0.7 of it was kept, the rest of its loop taken from the consensus (46 x its
+    raw error, and every naive demo cleaned towards a lopsided loop). Its span is now sought
+    against its own loop too: it keeps its whole loop, and the naive demos come out closer to
+    their truth than raw."""
+    synth = make_human_set("wiping", 4, 4, shape=draw_set_loop("varied", 4, "wiping"))
+    result = clean_demos(demos_from_recording(synth.recording), FAST)
+    assert result.best_index == synth.expert_index
+    assert result.segments[synth.expert_index].cycles >= 0.95
+    naive, expert = _ratios(synth, result)
+    assert expert <= 1.1, expert
+    assert max(naive) < 1.0, naive

@@ -39,17 +39,19 @@ against before the best demo is known, so the loop is learned from every demo fi
 6. **The best demo's loop.** Selection then picks the best demo against that loop; its own
    loop, with its stated θ/ρ removed (the paper's x^g) or, when hidden, turned and scaled onto
    the consensus, replaces the consensus, and the demos are segmented and scored again against
-   it (:func:`best_demo_loop`), as the paper takes the canonical shape from the best demo. Its
-   loop is read between its returns when its path holds 2 loops or more or is the loop alone
-   (at most 1.1 loops of path: no approach); otherwise off its kept span, in the phase of its
-   fit (:mod:`bt_pipeline.clean.span_loop`: a single loop with an approach closes at one point,
-   where the approach may join it). A guide is replaced the same way when the best demo closes
-   a loop of its own of which less than 0.9 was found on the guide (an arch whose return runs
-   5 mm from the guide's, θ/ρ given: half the expert's loop was cut, 99.6 x its raw error). The
-   consensus of a set whose demos draw one loop each leans to its lopsided demos (a loop drawn
-   bigger on one side still closes; a drifting or incomplete one does not): in a 20-demo
-   single-loop wiping set of an oval (seed 0, θ/ρ given) its scale was 15 % off, the expert's
-   own loop 0.4 %.
+   it (:mod:`bt_pipeline.clean.best_loop`), as the paper takes the canonical shape from the best
+   demo. Its loop is read between its returns when its path holds 2 loops or more or is the
+   loop alone (at most 1.1 loops of path: no approach); otherwise off its kept span, in the
+   phase of its fit (:mod:`bt_pipeline.clean.span_loop`: a single loop with an approach closes
+   at one point, where the approach may join it), and when that span holds under 0.95 of a
+   loop, off the span found against its own returns' loop if that holds more (a consensus that
+   leans to lopsided demos cut an expert's single loop to 0.7). A guide is replaced the same
+   way when the best demo closes a loop of its own of which less than 0.9 was found on the
+   guide (an arch whose return runs 5 mm from the guide's, θ/ρ given: half the expert's loop
+   was cut, 99.6 x its raw error). The consensus of a set whose demos draw one loop each leans
+   to its lopsided demos (a loop drawn bigger on one side still closes; a drifting or
+   incomplete one does not): in a 20-demo single-loop wiping set of an oval (seed 0, θ/ρ
+   given) its scale was 15 % off, the expert's own loop 0.4 %.
 """
 
 from __future__ import annotations
@@ -77,8 +79,6 @@ from bt_pipeline.clean.loop_align import (
     symmetry_order,
 )
 from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
-from bt_pipeline.clean.segment import Segment
-from bt_pipeline.clean.span_loop import span_loop
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.tasks import has_guide
@@ -94,15 +94,12 @@ GUIDE_TRACED = 0.02
 """Or when some demo's own loop lies within this share of the guide, whatever the consensus: it
 traced the guide (the loosest expert of shared-bias weaving crowds 0-9 lies 1.6 % off), and a
 majority that shares one bias (the wrong lobe of an eight) must not outvote it."""
-_HARMONICS = 12  # Harmonics of a learned loop.
+HARMONICS = 12  # Harmonics of a learned loop.
 _MAX_PAIRWISE = 40  # Loops compared pairwise for the medoid.
 _OUTLIER = 3.0  # Loops farther than this many median distances from the medoid are left out,
 _OUTLIER_FLOOR = 0.05  # and never those within this share of the size.
-_REPEATS = 2.0  # The best demo's own loop replaces the consensus when it holds this many loops,
-_ALONE = 1.1  # or at most this many (its path is the loop alone: no approach to join it).
-# A guide is replaced when less than this share of the best demo's loop is found on it.
-_GUIDE_SHORT = 0.9
-_TIE = 0.03  # Alignments this close to the best are ties: the one that turns least wins.
+REPEATS = 2.0  # A demo's own loop is read between its returns when its path holds this many.
+TIE = 0.03  # Alignments this close to the best are ties: the one that turns least wins.
 
 LoopSource = Literal["guide", "learned"]
 
@@ -167,7 +164,7 @@ class TaskLoop:
         out = {}
         for label, loop in self.own.items():
             w_mean = complex(loop[:, 0].mean(), loop[:, 1].mean())
-            a = align(z, centred_complex(loop), _TIE)[0]  # template ≈ a · demo (centred)
+            a = align(z, centred_complex(loop), TIE)[0]  # template ≈ a · demo (centred)
             pref = 1.0 / a
             t = w_mean - pref * z_mean
             size = abs(pref) * self.loop.size_m
@@ -220,7 +217,7 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
     # Loops from demos that repeat them (two or more) are read between two returns, inside the
     # periodic part; a single loop closes at one point, where an approach may join it and
     # bring a piece of itself along. The repeated ones build the consensus when there are two.
-    repeated = [k for k, i in enumerate(used) if repeats[demos[i].label] >= _REPEATS]
+    repeated = [k for k, i in enumerate(used) if repeats[demos[i].label] >= REPEATS]
     pool = repeated if len(repeated) >= 2 else list(range(len(loops)))
     consensus, chosen = _consensus([loops[k] for k in pool])
     members = [pool[k] for k in chosen]
@@ -233,7 +230,7 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
             "left out of the task's learned loop"
         )
     points = np.stack([np.real(consensus), np.imag(consensus)], axis=1)
-    learned = LoopShape.from_points(points, _HARMONICS, f"{task} loop learned from {len(kept)}")
+    learned = LoopShape.from_points(points, HARMONICS, f"{task} loop learned from {len(kept)}")
     learned = learned.transformed(translation=-learned.centre)
     misfit = math.nan
     if guided:
@@ -293,53 +290,6 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
     )
 
 
-def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoop | None:
-    """The learned loop replaced by the best demo's own loop, in the same frame (step 6).
-
-    The consensus of noisy demos is a rough shape; the paper's canonical shape is the best
-    demo's (Sec. III-B). Once selection has picked it, its own loop, low-passed to 12
-    harmonics and turned and scaled onto the consensus (so the frame stays), is the template
-    the demos are measured against again: read between its returns when its path holds 2
-    loops or more, or is the loop alone (at most 1.1 loops of path: no approach), and otherwise
-    off its kept span (:func:`~bt_pipeline.clean.span_loop.span_loop`: a single loop with an
-    approach closes at one point, where the approach may join it). A guide is replaced the same
-    way when the best demo closes a loop of its own but less than 90 % of it was found on the
-    guide (a loop close to the guide, but not it: an arch of another return depth). None
-    otherwise, or when no loop of the best demo can be read.
-    """
-    loop = task_loop.own.get(demo.label)
-    repeats = task_loop.repeats.get(demo.label, 0.0)
-    notes = task_loop.notes
-    if task_loop.source == "guide":
-        if loop is None or segment.cycles >= _GUIDE_SHORT:
-            return None
-        notes += (
-            f"{demo.label}, the best demo, closes a loop of its own but only {segment.cycles:.2f} "
-            f"of it lies on the {demo.task} guide: its own loop is used instead",
-        )
-    elif loop is None or _ALONE < repeats < _REPEATS:
-        # A single loop with an approach closes where the approach may join it: read it off
-        # the kept span instead, in the phase of its fit.
-        loop = span_loop(*demo.raw_samples(), segment, LOOP_POINTS)
-        if loop is None:
-            return None
-    shape = LoopShape.from_points(loop, _HARMONICS)
-    current = centred_complex(task_loop.loop.points(LOOP_POINTS))
-    a, _, flipped, _ = align(current, centred_complex(shape.points(LOOP_POINTS)), _TIE)
-    shape = shape.reversed() if flipped else shape
-    if demo.theta_deg is not None and demo.rho is not None:
-        # Its stated θ/ρ removed: the paper's x^g = R(−θ_best)(x^d − c) / ρ_best (Sec. III-B).
-        shape = shape.transformed(-demo.theta_deg, 1.0 / demo.rho)
-    else:
-        shape = shape.transformed(math.degrees(math.atan2(a.imag, a.real)), abs(a))
-    shape = shape.transformed(translation=-shape.centre)
-    label = f"{demo.task} loop of its best demo, {demo.label}"
-    framed = LoopShape(shape.coefficients, label)
-    return dataclasses.replace(
-        task_loop, loop=framed, source="learned", best=demo.label, notes=notes
-    )
-
-
 def _guide_distance(loop: np.ndarray, guide: LoopShape, drawn: np.ndarray, demo: Demo) -> float:
     """How far a demo's own loop (centred complex) lies from the guide (step 4): from its
     best similarity of the guide (`drawn`, its signature), or from the guide turned and scaled
@@ -371,7 +321,7 @@ def _consensus(loops: list[np.ndarray]) -> tuple[np.ndarray, list[int]]:
     reference = loops[pool[int(np.argmin(spread))]]
     members: list[int] = []
     for _ in range(2):
-        fits = [align(reference, z, _TIE) for z in loops]
+        fits = [align(reference, z, TIE) for z in loops]
         d = np.array([f[3] for f in fits])
         cut = max(_OUTLIER * float(np.median(d)), _OUTLIER_FLOOR)
         members = [k for k in range(m) if d[k] <= cut] or [int(np.argmin(d))]
@@ -388,7 +338,7 @@ def _frame(
     z = centred_complex(learned.points(LOOP_POINTS))
     thetas, log_rhos, given = [], [], []
     for demo, loop in zip(demos, loops, strict=True):
-        a = align(z, loop, _TIE)[0]  # a * demo ≈ learned: the demo is learned / a.
+        a = align(z, loop, TIE)[0]  # a * demo ≈ learned: the demo is learned / a.
         pref = 1.0 / a
         thetas.append(math.degrees(math.atan2(pref.imag, pref.real)))
         log_rhos.append(math.log(abs(pref)))
@@ -411,10 +361,12 @@ def _frame(
 
 __all__ = [
     "GUIDE_MISFIT",
+    "HARMONICS",
+    "REPEATS",
+    "TIE",
     "LoopSource",
     "TaskLoop",
     "arc_points",
-    "best_demo_loop",
     "learn_task_loop",
     "loop_signature",
 ]

@@ -24,9 +24,10 @@ from typing import Any
 
 import numpy as np
 
+from bt_pipeline.clean.best_loop import best_demo_loop
 from bt_pipeline.clean.fan_out import per_demo, segment_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
-from bt_pipeline.clean.loop_learn import TaskLoop, best_demo_loop, learn_task_loop
+from bt_pipeline.clean.loop_learn import TaskLoop, learn_task_loop
 from bt_pipeline.clean.periodic import (
     UNCERTAIN,
     PreferenceEstimate,

@@ -17,7 +17,7 @@ that the samples trace in that phase:
 - fitted twice, the second time with the phase tracked along the first fit resampled uniform
   in arc length (the template's own shape errors then do not bend the phase).
 
-Used for the best demo's loop (:func:`~bt_pipeline.clean.loop_learn.best_demo_loop`): the
+Used for the best demo's loop (:func:`~bt_pipeline.clean.best_loop.best_demo_loop`): the
 paper takes the canonical shape from the best demo (Sec. III-B), as a periodic DMP fitted to it
 in its own phase. Measured by ``tests/test_loop_learn.py`` (a single loop read off its span
 against a template stretched 8 %: within 1 % of its true shape) and
