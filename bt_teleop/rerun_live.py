@@ -24,7 +24,7 @@ latency").
 Entities of a session's recording (timeline ``sim_time``, simulation seconds of the session):
 ``/ee/position`` (Points3D) and ``/joints`` (Scalars, fr3_joint1..7), sent as columns;
 ``/demos/<name>`` (static LineStrips3D) when a demo is saved, named as the page names it (who
-and when, e.g. ``alice_2026-12-06_1203``; :mod:`bt_pipeline.viz.demo_style`), one colour each,
+and when, e.g. ``alice_12-06_120301``; :mod:`bt_pipeline.viz.demo_style`), one colour each,
 and ``/legend`` (a TextDocument: each saved demo's colour and name); ``/replay/<raw|cleaned>``
 (LineStrips3D) when a demo is replayed on the robot (raw thin and light, cleaned wide); after
 Clean everything
@@ -166,7 +166,7 @@ class SessionLogger:
     def log_demo(self, stem: str, ee_pos: FloatArray) -> None:
         """Queue a saved demo's end-effector path (T, 3) [m] as ``/demos/<name>`` (static) and
         the legend: `stem` is its file's stem, ``<who>_<UTC stamp>_<hex>``, and ``<name>`` is
-        who and when as the page shows them, e.g. ``alice_2026-12-06_1203`` (unique in the
+        who and when as the page shows them, e.g. ``alice_12-06_120301`` (unique in the
         session: a repeat gets ``_2``); each demo has a colour of its own (save order)."""
         path = np.array(ee_pos, dtype=np.float32)
         with self._lock:
@@ -195,7 +195,8 @@ class SessionLogger:
         self._submit(job)
 
     def log_replay(self, key: str, ee_pos: FloatArray, kind: str) -> None:
-        """Queue a replayed demo's path (T, 3) [m] as ``/replay/<kind>`` (its label: `key`)."""
+        """Queue a replayed demo's path (T, 3) [m] as ``/replay/<kind>``, labelled `key` (the
+        page's name of the demo: its kind, who and when)."""
         path = np.array(ee_pos, dtype=np.float32)
         label = display_text(key, 120)  # see escape.py
         entity = f"replay/{rr.escape_entity_path_part(kind)}"

@@ -5,6 +5,7 @@ flagged demo present. The Rerun link: tests/test_teleop_browser_rerun.py."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -116,7 +117,9 @@ def test_exclude_restore_and_clean_with_a_flagged_demo(tmp_path: Path, page: Pag
         wait_until(lambda: ui.controls.demo_picker.key == newest_usable.key, 30.0, "the default")
         label = ui.controls.moderate_input.value
         expect(page.get_by_role("combobox", name="Demo")).to_have_value(label)
-        assert label.split(" · ")[0].endswith("careful2") and "Ũ 0." in label, label
+        who_when = label.split(" · ")[0]  # who and when, as the table and Rerun name it
+        assert re.fullmatch(r"(★ )?careful2 \d\d-\d\d \d\d:\d\d:\d\d", who_when), label
+        assert "Ũ 0." in label, label
 
         # Clean succeeds with the flagged demo present; it cleans the 3 careful ones.
         page.get_by_role("button", name="Clean", exact=True).click()
