@@ -195,8 +195,9 @@ class SessionLogger:
         self._submit(job)
 
     def log_replay(self, key: str, ee_pos: FloatArray, kind: str) -> None:
-        """Queue a replayed demo's path (T, 3) [m] as ``/replay/<kind>``, labelled `key` (the
-        page's name of the demo: its kind, who and when)."""
+        """Queue a replayed demo's path (T, 3) [m] as ``/replay/<kind>`` (static, as
+        ``/demos``: the last replay of each kind stays drawn), labelled `key` (the page's name
+        of the demo: its kind, who and when)."""
         path = np.array(ee_pos, dtype=np.float32)
         label = display_text(key, 120)  # see escape.py
         entity = f"replay/{rr.escape_entity_path_part(kind)}"
@@ -207,7 +208,9 @@ class SessionLogger:
         strips = rr.LineStrips3D(
             [path], labels=[label], colors=[color], radii=rr.Radius.ui_points(radius)
         )
-        self._submit(lambda rec: rec.log(entity, strips))
+        # Static: logged on the worker thread it had no sim_time, and the robot view shows only
+        # the last TRAIL_S of sim_time, so the viewer never drew a replay.
+        self._submit(lambda rec: rec.log(entity, strips, static=True))
 
     def clean_target(self) -> CleanLogTarget | None:
         """Where a Clean job started by this session logs its result (None: ``off``): the
