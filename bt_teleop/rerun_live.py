@@ -26,7 +26,7 @@ Entities of a session's recording (timeline ``sim_time``, simulation seconds of 
 ``/demos/<name>`` (static LineStrips3D) when a demo is saved, named as the page names it (who
 and when, e.g. ``alice_12-06_120301``; :mod:`bt_pipeline.viz.demo_style`), one colour each,
 and ``/legend`` (a TextDocument: each saved demo's colour and name); ``/replay/<raw|cleaned>``
-(LineStrips3D) when a demo is replayed on the robot (raw thin and light, cleaned wide); after
+(static LineStrips3D) when a demo is replayed on the robot (raw thin and light, cleaned wide); after
 Clean everything
 :func:`bt_pipeline.viz.rerun_clean.log_clean_result` logs under ``/<task>``, plus Stage 1's DMP
 rollouts behind the value map V_E under ``/<task>/plane/rollouts``, sent by the Clean job's own
