@@ -38,10 +38,18 @@ from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.paths import RECORDING_SUFFIXES
 from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import BtError, ConfigError
+from bt_pipeline.viz.demo_style import who_when
 from bt_teleop.cleaning import cleaned_path, task_dir
 from bt_teleop.escape import markdown_text
 from bt_teleop.saved_utility import remember
-from bt_teleop.tracks import FileTracks, ReplayTrack, TrackKind, read_file_tracks
+from bt_teleop.tracks import (
+    FileTracks,
+    ReplayTrack,
+    TrackKind,
+    read_file_tracks,
+    track_when,
+    track_who_when,
+)
 
 if TYPE_CHECKING:
     from bt_pipeline.clean.selection import TakeScore
@@ -280,8 +288,8 @@ def _scored(
 
 
 def _who(track: ReplayTrack) -> str:
-    """A take as the ★ line names it: its demonstrator and its file's name (escaped later)."""
-    return f"{track.demonstrator}'s take {track.file.name}"
+    """A take as the ★ line names it: who and when, as the table does (escaped later)."""
+    return track_who_when(track)
 
 
 def plural(n: int, noun: str) -> str:
@@ -337,7 +345,7 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12, order: RowOrder =
     if not library.raw:
         return f"No {library.task} recordings yet: press **Record**."
     best = library.best
-    rows = ["| | # | who | θ, ρ | s | Ũ | note |", "|---|---|---|---|---|---|---|"]
+    rows = ["| | # | who, when | θ, ρ | s | Ũ | note |", "|---|---|---|---|---|---|---|"]
     for index in _ranked_indices(library, max_rows, order):
         track = library.raw[index]
         mark = ("★" if track is best else "") + ("⚠" if track.flags or track.warnings else "")
@@ -353,7 +361,8 @@ def library_markdown(library: TaskLibrary, max_rows: int = 12, order: RowOrder =
             + [_WARNING_TEXT.get(w, w) for w in track.warnings]
             + unscored
         )
-        who = markdown_text(track.demonstrator, 24)
+        # who and when as the pickers and Rerun name them; the time on a line of its own
+        who = who_when(markdown_text(track.demonstrator, 24), track_when(track), sep="<br>")
         note = markdown_text(note.replace("_", " "), 160)  # flags are a file's text, as names
         rank = library.ranks[index] if index < len(library.ranks) else 0
         number = str(rank) if rank else ""

@@ -4,10 +4,12 @@ A picker used to show bare keys (``raw · Ada-Lovelace_20261206T120315Z_3fa2c1``
 dropdown's width, and opened on whatever came first. Here each offered demo gets a label with
 what tells takes apart, and each picker a default::
 
-    label     [cleaned: | raw:] mark who · when · θ, ρ · Ũ [· note]
+    label     [cleaned: | raw:] mark who when · θ, ρ · Ũ [· note]
               mark ★ the best usable demo (a cleaned demo: cleaned from it), ⚠ flagged or worth
-              a look, ⊘ excluded; when = the take's save time (UTC; a cleaned demo: its raw
-              take's); note = the take checks' flags and warnings, "excluded"
+              a look, ⊘ excluded; who when = who recorded the take and when, as the table and
+              Rerun name it (``Ada Lovelace 12-06 12:03:15``, UTC; a cleaned demo: its raw
+              take's; :func:`bt_teleop.tracks.track_who_when`); note = the take checks' flags
+              and warnings, "excluded"
     default   Demo:   the newest usable take (neither flagged nor excluded), else the newest
               Replay: the cleaned ★ (else the best cleaned demo by Ũ), else the newest usable
                       raw take, else the first offered
@@ -25,14 +27,13 @@ then it keeps that entry (under its new label: Ũ and marks change) while it is 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import viser
 
 from bt_teleop.escape import display_text
 from bt_teleop.library import TaskLibrary
-from bt_teleop.tracks import ReplayTrack
+from bt_teleop.tracks import ReplayTrack, track_who_when
 
 __all__ = ["EMPTY", "NO_DEMOS", "Picker", "PickerOptions", "demo_label", "picker_options"]
 
@@ -81,15 +82,14 @@ def demo_label(
     Args:
         track: A listed demo.
         best: Whether to mark it ★ (the best raw demo, or cleaned from it).
-        saved_ns: When its take was saved [ns since the epoch]; its file's mtime when None.
+        saved_ns: When its take was saved [ns since the epoch], for a file whose name holds no
+            time (:func:`bt_teleop.tracks.track_who_when`); its file's mtime when None.
         kind_prefix: Start with ``raw:`` or ``cleaned:`` (a picker offering both).
     """
     if track.excluded:
         mark = "⊘"
     else:
         mark = ("★" if best else "") + ("⚠" if track.flags or track.warnings else "")
-    when_ns = track.stamp.mtime_ns if saved_ns is None else saved_ns
-    when = time.strftime("%b %d %H:%M:%S", time.gmtime(when_ns / 1e9))
     if math.isnan(track.theta_deg) or math.isnan(track.rho):
         pref = "θ, ρ ?"
     else:
@@ -99,8 +99,8 @@ def demo_label(
     if track.excluded:
         notes.append("excluded")
     head = f"{track.kind}: " if kind_prefix else ""
-    who = display_text(track.demonstrator, 24)
-    parts = [f"{head}{mark} {who}".strip(), when, pref, score]
+    who_when = track_who_when(track, saved_ns)
+    parts = [f"{head}{mark} {who_when}".strip(), pref, score]
     if notes:
         parts.append(display_text(", ".join(notes), 40))
     return display_text(" · ".join(parts), MAX_LABEL_CHARS)

@@ -24,9 +24,9 @@ latency").
 Entities of a session's recording (timeline ``sim_time``, simulation seconds of the session):
 ``/ee/position`` (Points3D) and ``/joints`` (Scalars, fr3_joint1..7), sent as columns;
 ``/demos/<name>`` (static LineStrips3D) when a demo is saved, named as the page names it (who
-and when, e.g. ``alice_2026-12-06_1203``; :mod:`bt_pipeline.viz.demo_style`), one colour each,
+and when, e.g. ``alice_12-06_120301``; :mod:`bt_pipeline.viz.demo_style`), one colour each,
 and ``/legend`` (a TextDocument: each saved demo's colour and name); ``/replay/<raw|cleaned>``
-(LineStrips3D) when a demo is replayed on the robot (raw thin and light, cleaned wide); after
+(static LineStrips3D) when a demo is replayed on the robot (raw thin and light, cleaned wide); after
 Clean everything
 :func:`bt_pipeline.viz.rerun_clean.log_clean_result` logs under ``/<task>``, plus Stage 1's DMP
 rollouts behind the value map V_E under ``/<task>/plane/rollouts``, sent by the Clean job's own
@@ -166,7 +166,7 @@ class SessionLogger:
     def log_demo(self, stem: str, ee_pos: FloatArray) -> None:
         """Queue a saved demo's end-effector path (T, 3) [m] as ``/demos/<name>`` (static) and
         the legend: `stem` is its file's stem, ``<who>_<UTC stamp>_<hex>``, and ``<name>`` is
-        who and when as the page shows them, e.g. ``alice_2026-12-06_1203`` (unique in the
+        who and when as the page shows them, e.g. ``alice_12-06_120301`` (unique in the
         session: a repeat gets ``_2``); each demo has a colour of its own (save order)."""
         path = np.array(ee_pos, dtype=np.float32)
         with self._lock:
@@ -195,7 +195,9 @@ class SessionLogger:
         self._submit(job)
 
     def log_replay(self, key: str, ee_pos: FloatArray, kind: str) -> None:
-        """Queue a replayed demo's path (T, 3) [m] as ``/replay/<kind>`` (its label: `key`)."""
+        """Queue a replayed demo's path (T, 3) [m] as ``/replay/<kind>`` (static, as
+        ``/demos``: the last replay of each kind stays drawn), labelled `key` (the page's name
+        of the demo: its kind, who and when)."""
         path = np.array(ee_pos, dtype=np.float32)
         label = display_text(key, 120)  # see escape.py
         entity = f"replay/{rr.escape_entity_path_part(kind)}"
@@ -206,7 +208,9 @@ class SessionLogger:
         strips = rr.LineStrips3D(
             [path], labels=[label], colors=[color], radii=rr.Radius.ui_points(radius)
         )
-        self._submit(lambda rec: rec.log(entity, strips))
+        # Static: logged on the worker thread it had no sim_time, and the robot view shows only
+        # the last TRAIL_S of sim_time, so the viewer never drew a replay.
+        self._submit(lambda rec: rec.log(entity, strips, static=True))
 
     def clean_target(self) -> CleanLogTarget | None:
         """Where a Clean job started by this session logs its result (None: ``off``): the

@@ -5,6 +5,9 @@
     app_factory(recordings) -> make(**AppOptions overrides) -> TeleopApp   (all stopped on exit)
     tab_factory() -> open_tab(app) -> FakeTab      a raw viser websocket client (closed on exit)
     chromium_page() -> Playwright Page             Debian's headless Chromium, software WebGL
+    open_tab(page, app) -> ClientUI                load the app in a page; the tab's session
+    type_name(page, ui, name)                      type the demonstrator's name in the page
+    record_in_page(page, ui, trace, seconds)       Record, move the target, Stop & save: the file
     wait_until(condition, timeout_s, what)         poll until truthy; TimeoutError otherwise
     circle_uv(t_s)                                 a reachable circle in task-plane coordinates
     reachable(root)                                every object a record holds (memory checks)
@@ -41,6 +44,8 @@ from bt_teleop.app import AppOptions, TeleopApp, start_app
 if TYPE_CHECKING:
     from playwright.sync_api import Page, ViewportSize
 
+    from bt_teleop.ui import ClientUI
+
 __all__ = [
     "CAMERA_MESSAGE",
     "CHROMIUM",
@@ -53,10 +58,13 @@ __all__ = [
     "decode_frame",
     "guide_script",
     "guide_uv",
+    "open_tab",
     "reachable",
+    "record_in_page",
     "shared_dir",
     "synthetic_task_files",
     "tab_factory",
+    "type_name",
     "wait_until",
 ]
 
@@ -210,6 +218,55 @@ def chromium_page(
             yield page
         finally:
             browser.close()
+
+
+def open_tab(page: Page, app: TeleopApp, timeout_s: float = 90.0) -> ClientUI:
+    """Load `app` in `page` until its Record button shows; the new tab's session."""
+    from playwright.sync_api import expect
+
+    before = set(app.sessions())
+    page.goto(app.url, wait_until="commit")
+    record = page.get_by_role("button", name="Record", exact=True)
+    expect(record).to_be_visible(timeout=1e3 * timeout_s)
+    uis = app.wait_for_sessions(len(before) + 1, 60.0)
+    (ui,) = [ui for cid, ui in uis.items() if cid not in before]
+    return ui
+
+
+def type_name(page: Page, ui: ClientUI, name: str) -> None:
+    """Type `name` as the demonstrator in `page` (tab `ui`) and wait until the app has it."""
+    box = page.locator("xpath=//p[normalize-space(.)='Demonstrator']/following::input[1]")
+    box.fill(name)
+    box.press("Enter")
+    wait_until(lambda: ui.controls.name_input.value == name, 30.0, "the name to arrive")
+
+
+def record_in_page(
+    page: Page, ui: ClientUI, trace: Callable[[float], FloatArray] | None, seconds: float = 5.0
+) -> Path:
+    """A take through the page's buttons: Record, then for `seconds` [s] of simulation the
+    target follows `trace` (t [s] -> (u, v) [m] on the task plane, as a drag of the gizmo sets
+    it; None: no motion), then Stop & save; the saved file.
+
+    Raises:
+        TimeoutError: The take did not start or was not saved (a refusal is in ``ui.messages``).
+    """
+    saved = len(ui.saved)
+    page.get_by_role("button", name="Record", exact=True).click()
+    wait_until(lambda: ui.session.recording, 30.0, "the recording to start")
+    start_s = ui.session.status().sim_time_s
+    plane = ui.session.scene.plane
+
+    def moved() -> bool:
+        t_s = ui.session.status().sim_time_s - start_s
+        if trace is not None:
+            ui.session.set_target(plane.to_world(trace(t_s)))
+        return t_s >= seconds
+
+    if trace is not None:
+        wait_until(moved, 60.0 + 10.0 * seconds, "the take to be recorded", poll_s=0.01)
+    page.get_by_role("button", name="Stop & save", exact=True).click()
+    return wait_until(lambda: len(ui.saved) > saved and ui.saved[-1], 30.0, "the take's file")
 
 
 def wait_until(

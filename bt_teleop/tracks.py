@@ -21,12 +21,15 @@ from __future__ import annotations
 import logging
 import os
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 from bt_pipeline.data.records import INFO_FLAGS, DemoRecord, Recording
 from bt_pipeline.data.tasks import Task
 from bt_pipeline.exceptions import BtError, RecordingError
+from bt_pipeline.viz.demo_style import take_time, who_when
+from bt_teleop.escape import display_text
 
 if TYPE_CHECKING:
     from bt_pipeline.clean.selection import TakeScore
@@ -41,6 +44,8 @@ __all__ = [
     "cleaned_key",
     "file_stamp",
     "read_file_tracks",
+    "track_when",
+    "track_who_when",
 ]
 
 TrackKind = Literal["raw", "cleaned"]
@@ -126,6 +131,26 @@ class ReplayTrack:
     def usable(self) -> bool:
         """Neither flagged nor excluded: scored, rankable, cleaned."""
         return not self.flags and not self.excluded
+
+
+def track_when(track: ReplayTrack, saved_ns: int | None = None) -> datetime:
+    """When `track`'s take was recorded (UTC), as the page and Rerun name it: the time in its
+    file's name (the app's ``<who>_<UTC time>_<hex>``; a cleaned demo: its raw take's), else
+    `saved_ns` [ns since the epoch], else its file's modification time."""
+    stem = track.file.stem if track.kind == "raw" else track.source.removeprefix("raw · ")
+    when = take_time(stem.split(" · ")[0])
+    if when is None:
+        when_ns = track.stamp.mtime_ns if saved_ns is None else saved_ns
+        when = datetime.fromtimestamp(when_ns / 1e9, UTC)
+    return when
+
+
+def track_who_when(track: ReplayTrack, saved_ns: int | None = None) -> str:
+    """Who recorded `track` and when, as plain text (the name cut to 24 characters,
+    :func:`bt_teleop.escape.display_text`), as the page shows it (the pickers, the ★ line) and
+    Rerun names it (:func:`bt_pipeline.viz.demo_style.who_when`): ``Ada Lovelace 12-06
+    12:03:15``. `saved_ns`: see :func:`track_when`."""
+    return who_when(display_text(track.demonstrator, 24), track_when(track, saved_ns))
 
 
 @dataclass(frozen=True, slots=True)  # one per take file in the app: no __dict__

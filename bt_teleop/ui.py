@@ -49,6 +49,7 @@ from bt_teleop.rerun_live import SessionLogger
 from bt_teleop.scene import load_scene
 from bt_teleop.session_process import TabSession, open_session
 from bt_teleop.tab_scene import Frame, TabScene
+from bt_teleop.tracks import track_who_when
 from bt_teleop.ui_clean import CleanWatch
 from bt_teleop.ui_context import TaskVersions, UiContext
 from bt_teleop.ui_panels import TabControls, status_markdown
@@ -337,7 +338,8 @@ class ClientUI:
         self.tab_scene.gizmo.position = hold_pose(self.session)  # inside the box: no ⚠ clamped
         if player.result is not None:
             error_mm = 1e3 * player.result.rms_error_m
-            self._notify("Replay done", f"{player.track.key}: tracked within {error_mm:.1f} mm RMS")
+            named = f"{player.track.kind}: {track_who_when(player.track)}"  # as the pickers
+            self._notify("Replay done", f"{named}: tracked within {error_mm:.1f} mm RMS")
 
     # -- commands (worker thread) ---------------------------------------------------------------
 
@@ -392,7 +394,8 @@ class ClientUI:
             self.tab_scene.draw_replay_path(kind, path)
         self.replay = ReplayPlayer(self.session, track, samples)
         self.replay.start()
-        self.logger.log_replay(track.key, samples.positions, track.kind)
+        label = f"{track.kind}: {track_who_when(track)}"  # who and when, as the page
+        self.logger.log_replay(label, samples.positions, track.kind)
 
     def _do_stop_replay(self) -> None:
         if self.replay is not None:

@@ -319,7 +319,7 @@ def test_blueprint_validates_tasks() -> None:
 def test_entity_names_are_who_and_when_unique_and_path_safe(cleaned: Cleaned) -> None:
     demos = cleaned.result.demos
     # As the page names them: who and when (make_d1's demo k was created at 00:0k UTC).
-    expected = tuple(f"{d.demonstrator}_2026-01-01_000{d.name[-1]}" for d in demos)
+    expected = tuple(f"{d.demonstrator}_01-01_000{d.name[-1]}00" for d in demos)
     assert demo_entity_names(demos) == expected
     twice = demo_entity_names([demos[0], demos[0].with_positions(demos[0].positions)])
     assert twice == (expected[0], f"{expected[0]}_2")
@@ -329,7 +329,7 @@ def test_entity_names_are_who_and_when_unique_and_path_safe(cleaned: Cleaned) ->
         for k in range(2)
     ]
     takes = [dataclasses.replace(t, name="demo_0") for t in takes]
-    assert demo_entity_names(takes) == ("ann_2026-12-06_1203", "ann_2026-12-06_1203_2")
+    assert demo_entity_names(takes) == ("ann_12-06_120300", "ann_12-06_120301")  # to the second
     odd = dataclasses.replace(demos[0], demonstrator="<img src=x> 1/a", created=None, file="")
     assert demo_entity_names([odd]) == ("img-src-x-1-a_demo_0",)
 

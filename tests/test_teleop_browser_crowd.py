@@ -5,6 +5,7 @@ flagged demo present. The Rerun link: tests/test_teleop_browser_rerun.py."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -13,14 +14,22 @@ from playwright.sync_api import Page, expect
 
 from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.recording import read_recording
-from bt_teleop.app import TeleopApp
 from bt_teleop.script import run_script
-from bt_teleop.testing import app_factory, chromium_page, guide_script, wait_until
+from bt_teleop.testing import (
+    app_factory,
+    chromium_page,
+    guide_script,
+    open_tab,
+    type_name,
+    wait_until,
+)
 from bt_teleop.ui import ClientUI
 
 PAGE_TIMEOUT_MS = 90_000
 expect.set_options(timeout=PAGE_TIMEOUT_MS)  # software WebGL on a busy machine is slow
 HOSTILE = "<script>alert(1)</script>"
+WHEN = r" \d\d-\d\d \d\d:\d\d:\d\d"
+"""When a take was recorded, after who in a row of the table (UTC, e.g. " 12-06 12:03:15")."""
 
 
 @pytest.fixture
@@ -32,24 +41,6 @@ def page() -> Iterator[Page]:
 def guide_take(root: Path, rho: float, theta_deg: float, name: str) -> Path:
     """A scripted 3 s take along the wiping guide (a careful demonstrator)."""
     return run_script(guide_script(name, theta_deg, rho), root)
-
-
-def open_tab(page: Page, app: TeleopApp) -> ClientUI:
-    before = set(app.sessions())
-    page.goto(app.url, wait_until="commit")
-    expect(page.get_by_role("button", name="Record", exact=True)).to_be_visible(
-        timeout=PAGE_TIMEOUT_MS
-    )
-    uis = app.wait_for_sessions(len(before) + 1, 60.0)
-    (ui,) = [ui for cid, ui in uis.items() if cid not in before]
-    return ui
-
-
-def type_name(page: Page, ui: ClientUI, name: str) -> None:
-    box = page.locator("xpath=//p[normalize-space(.)='Demonstrator']/following::input[1]")
-    box.fill(name)
-    box.press("Enter")
-    wait_until(lambda: ui.controls.name_input.value == name, 30.0, "the name to arrive")
 
 
 def refusal(ui: ClientUI) -> str | None:
@@ -83,10 +74,15 @@ def test_junk_take_flagged_and_a_hostile_name_is_text_in_a_second_tab(tmp_path: 
         second.set_default_timeout(PAGE_TIMEOUT_MS)
         other = open_tab(second, app)
         wait_until(lambda: other.library is not None and len(other.library.raw) == 4, 60.0, "")
-        expect(second.get_by_role("cell", name=HOSTILE[:23] + "…")).to_be_visible()  # as text
+        # as text ("/" escaped too: Playwright reads the pattern as a /.../ literal)
+        hostile = re.escape(HOSTILE[:23] + "…").replace("/", r"\/")
+        hostile_row = re.compile(f"^{hostile}{WHEN}$")
+        expect(second.get_by_role("cell", name=hostile_row)).to_be_visible()
         expect(second.get_by_text("4 demos of wiping, 3 usable", exact=False)).to_be_visible()
         for k in range(3):  # every row survives the name
-            expect(second.get_by_text(f"careful{k}", exact=True)).to_be_visible()
+            expect(
+                second.get_by_role("cell", name=re.compile(f"^careful{k}{WHEN}$"))
+            ).to_be_visible()
         assert second.locator("script", has_text="alert(1)").count() == 0
         assert second.evaluate("document.querySelectorAll('td script, td b, td img').length") == 0
         second.screenshot(path=str(tmp_path / "hostile-table.png"))
@@ -116,7 +112,9 @@ def test_exclude_restore_and_clean_with_a_flagged_demo(tmp_path: Path, page: Pag
         wait_until(lambda: ui.controls.demo_picker.key == newest_usable.key, 30.0, "the default")
         label = ui.controls.moderate_input.value
         expect(page.get_by_role("combobox", name="Demo")).to_have_value(label)
-        assert label.split(" · ")[0].endswith("careful2") and "Ũ 0." in label, label
+        who_when = label.split(" · ")[0]  # who and when, as the table and Rerun name it
+        assert re.fullmatch(r"(★ )?careful2 \d\d-\d\d \d\d:\d\d:\d\d", who_when), label
+        assert "Ũ 0." in label, label
 
         # Clean succeeds with the flagged demo present; it cleans the 3 careful ones.
         page.get_by_role("button", name="Clean", exact=True).click()

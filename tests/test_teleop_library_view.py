@@ -5,6 +5,7 @@ the newest excluded ones, never every take; the counts still cover every take.""
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
@@ -18,6 +19,7 @@ import viser
 from bt_teleop.library import TaskLibrary, load_library
 from bt_teleop.library_view import library_view
 from bt_teleop.testing import synthetic_task_files
+from bt_teleop.tracks import ReplayTrack
 from bt_teleop.ui_panels import TabControls
 
 
@@ -165,8 +167,15 @@ def test_the_table_explains_the_star_and_sorts_by_rank_or_utility(tmp_path: Path
     utility, eligible = rank_takes(takes)
     top = int(np.argmax(utility))
     assert not eligible[top] and library.best is not None  # the gate overrides Ũ in this set
-    assert library.best_reason.startswith(f"{library.raw[top].demonstrator}'s take")
-    assert f"{library.best.file.name} is the best demo" in library.best_reason
+
+    # Takes named by who and when, as the rows and pickers (a synthetic take's file name holds
+    # the time of its mtime).
+    def who_when(track: ReplayTrack) -> str:
+        when = time.strftime("%m-%d %H:%M:%S", time.gmtime(track.stamp.mtime_ns / 1e9))
+        return f"{track.demonstrator} {when}"
+
+    assert library.best_reason.startswith(f"{who_when(library.raw[top])} has the highest Ũ")
+    assert library.best_reason.endswith(f": {who_when(library.best)} is the best demo")
     by_rank = library_markdown(library, 5, "rank")
     by_utility = library_markdown(library, 5, "utility")
     assert "★ " + markdown_text(library.best_reason, 400) in by_rank

@@ -24,7 +24,7 @@ HOSTILE = "\u202eEve\u0007 <b>x</b>" + "z" * 40  # a right-to-left override, a b
 
 
 def library_of(root: Path, n: int, **changes: dict[str, Any]) -> TaskLibrary:
-    """A wiping task of `n` takes (take i saved i s after take 0, Nov 18 11:06:40 UTC on);
+    """A wiping task of `n` takes (take i recorded i s after take 0, 11-18 11:06:40 UTC on);
     `changes` maps ``"i"`` to fields to replace on raw take i."""
     files = synthetic_task_files(root, "wiping", n)
     library = load_library(root, "wiping", read=lambda path, kind: files[path])
@@ -74,12 +74,13 @@ def test_an_entry_reads_like_the_table(tmp_path: Path) -> None:
     options = offered(library, replay=False)
     labels = dict(zip(options.keys, options.labels, strict=True))
     first = labels[library.raw[0].key]
-    assert first.startswith(("★ tab 0 · ", "tab 0 · "))
-    assert "Nov 18 11:06:40" in first and "10°, 1.20" in first  # when, θ and ρ
+    # who and when as the table and Rerun name them (its file name's time), θ and ρ
+    assert first.startswith(("★ tab 0 11-18 11:06:40 · ", "tab 0 11-18 11:06:40 · "))
+    assert "10°, 1.20" in first
     assert f"Ũ {library.raw[0].utility:.2f}" in first
     assert labels[best.key].startswith("★ ")
     assert sum(label.startswith("★") for label in labels.values()) == 1
-    assert labels[library.raw[2].key].startswith("⚠ tab 2 · Nov 18 11:06:42")
+    assert labels[library.raw[2].key].startswith("⚠ tab 2 11-18 11:06:42 · ")
     assert labels[library.raw[2].key].endswith("Ũ – · no motion")
     assert labels[library.raw[3].key].startswith("⊘ tab 3 ")
     assert labels[library.raw[3].key].endswith("excluded")
@@ -99,8 +100,9 @@ def test_replay_entries_say_raw_or_cleaned_and_the_cleaned_best_carries_the_star
     (star,) = [t for t in library.cleaned if t.source == best.key]
     assert labels[star.key].startswith("cleaned: ★ ")
     assert labels[best.key].startswith("raw: ★ ")
-    # a cleaned demo reads its take's save time and its own Ũ (after cleaning)
-    assert "Nov 18 11:06:4" in labels[star.key] and f"Ũ {star.utility:.2f}" in labels[star.key]
+    # a cleaned demo reads its take's who and when and its own Ũ (after cleaning)
+    assert f"{best.demonstrator} 11-18 11:06:4" in labels[star.key]
+    assert f"Ũ {star.utility:.2f}" in labels[star.key]
 
 
 def test_labels_are_unique_and_map_back_to_their_demo(tmp_path: Path) -> None:
@@ -128,10 +130,12 @@ def test_a_name_from_a_browser_is_shown_as_plain_text() -> None:
         utility=0.5,
         kind="raw",
         demonstrator=HOSTILE,
+        file=Path("imported.hdf5"),  # no time in its name: its file's modification time
     )
     label = demo_label(track, best=False)  # type: ignore[arg-type]
     assert "\u202e" not in label and "\u0007" not in label
     assert label.startswith("Eve <b>x</b>zz") and "…" in label  # cut to 24 characters
+    assert "… 11-18 11:06:40 · " in label
     assert len(label) <= 110
 
 

@@ -41,7 +41,7 @@ def test_saved_demos_are_named_who_and_when_each_in_its_colour_with_a_legend(
     path = np.column_stack([np.linspace(0.3, 0.5, 20), np.zeros(20), np.full(20, 0.3)])
     stems = (
         "alice_20261206T120301Z_3fa2c1",
-        "alice_20261206T120355Z_0b1c2d",  # the same minute: named apart
+        "alice_20261206T120301Z_0b1c2d",  # the same second: named apart
         "bob_20261206T121000Z_00ff00",
         "..-x-",  # not an app file name: reduced to a safe part
     )
@@ -51,7 +51,7 @@ def test_saved_demos_are_named_who_and_when_each_in_its_colour_with_a_legend(
     logger.log_replay("raw · alice", path, "raw")
     logger.log_replay("cleaned · alice", path, "cleaned")
     logger.close()
-    names = ["alice_2026-12-06_1203", "alice_2026-12-06_1203_2", "bob_2026-12-06_1210", "x"]
+    names = ["alice_12-06_120301", "alice_12-06_120301_2", "bob_12-06_121000", "x"]
     assert list(logger.demo_names.values()) == names
     entities = _static(rrd)
     demos = sorted(e for e in entities if e.startswith("/demos/"))

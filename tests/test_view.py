@@ -179,7 +179,7 @@ def test_a_cleaned_demo_is_named_and_coloured_as_its_raw_demo_and_drawn_wider(
     chunks = _entities(save_view_rrd([src, out], tmp_path / "view.rrd"))
     colours: dict[str, tuple[int, ...]] = {}
     for k in range(2):
-        group, base = f"person_{k % 2}", f"person_{k % 2}_2025-01-0{k + 1}_1000"
+        group, base = f"person_{k % 2}", f"person_{k % 2}_01-0{k + 1}_100000"
         paths = {
             kind: chunks[f"/wiping/plane/{group}/{base}{suffix}/path"]
             for kind, suffix in (("raw", ""), ("cleaned", "_cleaned"))

@@ -1,11 +1,14 @@
 """How a demo looks in Rerun wherever bt logs it: its name, its colour, its line width, a legend.
 
-Names. A demo is named as the web app's page shows it: who recorded it and when (UTC, to the
-minute), e.g. ``alice_2026-12-06_1203``. Who and when come from the app's file name
-(``<who>_<YYYYmmddTHHMMSSZ>_<hex>.hdf5``, :mod:`bt_teleop.naming`) when it has that form, else
-from the demo's demonstrator and ``created`` attr; a demo with no time is named
-``<who>_<file stem>_<demo>``. A name is an entity path part: letters, digits, ``_`` and ``-``
-only (whatever a browser sent is reduced to them, never used as it came), at most
+Names. A demo is named as the web app's page names it: who recorded it and when (UTC, to the
+second), by one function, :func:`who_when`: the page shows ``Ada Lovelace 12-06 12:03:15``,
+Rerun ``Ada-Lovelace_12-06_120315`` (the same who and when made an entity path part: the name
+reduced to letters, digits, ``_`` and ``-``, the time's space a ``_`` and its colons dropped).
+When is the time in the app's file name (``<who>_<YYYYmmddTHHMMSSZ>_<hex>.hdf5``,
+:mod:`bt_teleop.naming`: when Record was pressed; :func:`take_time`) when it has that form, and
+who the name there; else the demo's demonstrator and ``created`` attr; a demo with no time is
+named ``<who>_<file stem>_<demo>``. A name is an entity path part: letters, digits, ``_`` and
+``-`` only (whatever a browser sent is reduced to them, never used as it came), at most
 :data:`MAX_NAME_CHARS` characters, and unique within its set (a repeat gets ``_2``, ``_3``, ...).
 
 Colours. Demo i of a set gets colour i of tab10 (a qualitative palette, cycled). A raw demo and
@@ -43,7 +46,9 @@ __all__ = [
     "name_from_stem",
     "palette_index",
     "raw_color",
+    "take_time",
     "unique_names",
+    "who_when",
 ]
 
 _TAB10 = "1f77b4 ff7f0e 2ca02c d62728 9467bd 8c564b e377c2 7f7f7f bcbd22 17becf"
@@ -77,24 +82,52 @@ def entity_part(text: str, max_chars: int = MAX_NAME_CHARS) -> str:
     return _NOT_ALLOWED.sub("-", ascii_text).strip("-_")[:max_chars].strip("-_")
 
 
-def _minute(when: datetime) -> str:
+WHEN_FORMAT = "%m-%d %H:%M:%S"
+"""How the page shows when a demo was recorded (UTC): ``12-06 12:03:15``."""
+
+
+def who_when(who: str, when: datetime, *, entity: bool = False, sep: str = " ") -> str:
+    """Who recorded a demo and when, as every view names it (module docstring).
+
+    Args:
+        who: The demonstrator's name (the page: escape it for where it is shown first).
+        when: When the take was recorded (a naive time is taken to be UTC).
+        entity: The Rerun entity path part (``Ada-Lovelace_12-06_120315``) rather than the
+            page's text (``Ada Lovelace 12-06 12:03:15``).
+        sep: The page's text between who and when (e.g. a line break in a table cell).
+    """
     if when.tzinfo is None:
         when = when.replace(tzinfo=UTC)
-    return when.astimezone(UTC).strftime("%Y-%m-%d_%H%M")
+    text = when.astimezone(UTC).strftime(WHEN_FORMAT)
+    if not entity:
+        return f"{who}{sep}{text}"
+    part = entity_part(who, MAX_WHO_CHARS) or ANONYMOUS
+    return f"{part}_{text.replace(' ', '_').replace(':', '')}"
+
+
+def take_time(stem: str) -> datetime | None:
+    """The UTC time in an app file stem (``<who>_<YYYYmmddTHHMMSSZ>_<hex>``), else None."""
+    parsed = _parse_stem(stem)
+    return None if parsed is None else parsed[1]
 
 
 def name_from_stem(stem: str) -> str | None:
-    """``<who>_<YYYY-mm-dd>_<HHMM>`` from an app file stem ``<who>_<UTC stamp>_<hex>``, else
-    None."""
+    """``<who>_<mm-dd>_<HHMMSS>`` (:func:`who_when`) from an app file stem ``<who>_<UTC
+    stamp>_<hex>``, else None."""
+    parsed = _parse_stem(stem)
+    return None if parsed is None else who_when(*parsed, entity=True)
+
+
+def _parse_stem(stem: str) -> tuple[str, datetime] | None:
+    """(who, when) of an app file stem, else None."""
     match = _APP_STEM.match(stem)
     if match is None:
         return None
     try:
-        when = datetime.strptime(match["stamp"], "%Y%m%dT%H%M%SZ")
+        when = datetime.strptime(match["stamp"], "%Y%m%dT%H%M%SZ").replace(tzinfo=UTC)
     except ValueError:
         return None
-    who = entity_part(match["who"], MAX_WHO_CHARS) or ANONYMOUS
-    return f"{who}_{_minute(when)}"
+    return match["who"], when
 
 
 def display_name(demonstrator: str, created: str | None, file: str, demo: str) -> str:
@@ -111,13 +144,15 @@ def display_name(demonstrator: str, created: str | None, file: str, demo: str) -
     if from_file is not None:
         return from_file
     who = entity_part(demonstrator, MAX_WHO_CHARS) or ANONYMOUS
-    when: str | None = None
+    when: datetime | None = None
     if created:
         try:
-            when = _minute(datetime.fromisoformat(created))
+            when = datetime.fromisoformat(created)
         except ValueError:
             when = None
-    tail = when if when is not None else "_".join(p for p in (entity_part(stem), demo) if p)
+    if when is not None:
+        return who_when(who, when, entity=True)
+    tail = "_".join(p for p in (entity_part(stem), demo) if p)
     return entity_part(f"{who}_{tail}") or ANONYMOUS
 
 

@@ -70,7 +70,7 @@ _ID_NAMESPACE = uuid.UUID("5b0c1c5e-7a3e-4c58-9c39-0d2b7f3e6a10")
 
 def demo_entity_names(demos: Sequence[Demo]) -> tuple[str, ...]:
     """Entity-path-safe, unique names as the web app's page names the demos: who and when, e.g.
-    ``alice_2026-12-06_1203`` (:func:`bt_pipeline.viz.demo_style.demo_names`)."""
+    ``alice_12-06_120301`` (:func:`bt_pipeline.viz.demo_style.demo_names`)."""
     return demo_names(demos)
 
 
