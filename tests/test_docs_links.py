@@ -95,9 +95,7 @@ def test_every_relative_link_and_anchor_resolves() -> None:
     files = markdown_files(REPO)
     assert REPO / "README.md" in files and len(files) > 5
     broken = {
-        str(path.relative_to(REPO)): problems
-        for path in files
-        if (problems := broken_links(path))
+        str(path.relative_to(REPO)): problems for path in files if (problems := broken_links(path))
     }
     assert broken == {}
 
@@ -106,7 +104,7 @@ def test_a_missing_file_or_heading_is_reported(tmp_path: Path) -> None:
     (tmp_path / "docs").mkdir()
     (tmp_path / "docs" / "page.md").write_text(
         "# A page\n\n## The task's loop: learned (θ/ρ)\n\n## Speed (`bench_x.py --runs 5`)\n"
-        "\n## Repeated\n\n## Repeated\n\n<a id=\"kept\"></a>\n"
+        '\n## Repeated\n\n## Repeated\n\n<a id="kept"></a>\n'
     )
     (tmp_path / "README.md").write_text(
         "[ok](docs/page.md#the-tasks-loop-learned-θρ) [ok](docs/page.md#speed-bench_xpy---runs-5)"
