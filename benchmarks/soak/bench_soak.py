@@ -14,10 +14,11 @@ Reported:
   ticks minus the tick period, and the distribution of those gaps (p50, p99, p99.9, max), as
   each session keeps them (:mod:`bt_teleop.tick_stats`; read from the session processes, or
   from the sessions in the app's process with ``--in-process``, the baseline);
-* the late ticks attributed (:mod:`soak_late`): for each tick later than ``--late-ms``, what
-  its session process did meanwhile (run-queue wait, collections, requests, the tick's phases:
-  :mod:`bt_teleop.late_ticks`), the app's heap trims, Clean presses and library loads, and the
-  machine's steal time beside it (``--late-log FILE``: every late tick as a JSON line);
+* the late ticks attributed (:mod:`benchmarks.common.soak_late`): for each tick later than
+  ``--late-ms``, what its session process did meanwhile (run-queue wait, collections, requests,
+  the tick's phases: :mod:`bt_teleop.late_ticks`), the app's heap trims, Clean presses and
+  library loads, and the machine's steal time beside it (``--late-log FILE``: every late tick as
+  a JSON line);
 * where the time went (to attribute stalls): the compute time of the ticks themselves, the
   app process's garbage-collector pauses (``gc.callbacks``), the task-library loads every save
   triggers (:func:`bt_teleop.library.load_library` as the tabs' shared loader calls it, timed),
@@ -30,7 +31,8 @@ Reported:
   their slopes over the second half of the run [MiB/min] (flat: about 0), with the machine's
   1-minute load average at the same moments (other jobs share the CPU); and the same per kind
   of process, with its C heap (in use, free) and slopes per quarter of the run
-  (:mod:`soak_memory`; ``--memory-log FILE`` appends every sample as a JSON line);
+  (:mod:`benchmarks.common.soak_memory`; ``--memory-log FILE`` appends every sample as a JSON
+  line);
 * takes saved vs intended (Stop & save presses; files counted on disk at the end);
 * with ``--discard`` the tabs press Discard instead of Stop & save: the same recording work
   without files, library loads or table updates, a control for the memory measured;
