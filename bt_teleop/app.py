@@ -357,8 +357,9 @@ def serve(options: AppOptions | None = None) -> None:
 def freeze_startup_objects() -> None:
     """Leave what the app has loaded so far (modules, the scene, the server: ~190,000 objects)
     out of every later garbage collection (``gc.freeze``). A full collection of the app's
-    process walked them all: 107-131 ms on the idle machine (``benchmarks/bench_app_gc.py``), a
-    544 ms pause in a soak, during which the web server answered no tab. Objects made later
+    process walked them all: 107-131 ms on the idle machine
+    (``benchmarks/teleop/bench_app_gc.py``), a 544 ms pause in a soak, during which the web
+    server answered no tab. Objects made later
     (takes, libraries) are collected as before; the frozen ones live as long as the app."""
     gc.collect()
     gc.freeze()

@@ -57,7 +57,7 @@ class AppOptions:
     Rerun's default 9090."""
     rerun_newest_first: bool = False
     """A Rerun viewer that connects late gets the newest data first (serve mode; off: it did
-    not reach the present sooner in benchmarks/bench_teleop_rerun.py, docs/teleop.md)."""
+    not reach the present sooner in benchmarks/teleop/bench_teleop_rerun.py, docs/teleop.md)."""
     session: SessionConfig = field(default_factory=SessionConfig)
     """Control and recording rates of every session."""
     session_processes: bool = True

@@ -5,7 +5,7 @@ demo per usable take, so it grows with the task. Reading it with
 :func:`~bt_pipeline.data.recording.read_recording` loads every demo's samples only to keep a
 name, a duration and a score of each, and on the app's reader thread that left the process's
 RSS at the high-water mark of the largest such read (+21 MiB for a 400-demo file, not given
-back by ``malloc_trim``: ``benchmarks/bench_read_high_water.py``, docs/security.md). The
+back by ``malloc_trim``: ``benchmarks/soak/bench_read_high_water.py``, docs/security.md). The
 listing needs, per demo, its attributes and its first and last timestamp; this module reads
 only those, with the same checks of what it reads (format, version, task, demo names and count,
 sample counts, attribute types), and builds the same tracks as from the full read

@@ -28,7 +28,7 @@ def forkserver_context() -> Any:
 
     A session child needs nothing of the app's main module, but ``multiprocessing`` makes every
     child import it again (the script's whole import graph: viser, ... for ~80 MiB of private
-    memory per child in benchmarks/bench_soak.py; CPython 3.11's forkserver cannot preload it,
+    memory per child in benchmarks/soak/bench_soak.py; CPython 3.11's forkserver cannot preload it,
     as it asks for a ``main_path`` key the preparation data never has). So the children started
     by :func:`start_child` get preparation data without the main module
     (:func:`_preparation_data`).

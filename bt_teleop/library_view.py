@@ -5,7 +5,7 @@ Every Stop & save makes every tab on the task show the new library: the recordin
 ``table_rows`` demos by Ũ) and two pickers, Replay and Demo (exclude / restore), whose option
 lists viser sends to each browser whenever they change. The pickers used to offer every take
 of the task, so each reload sent every tab two messages listing all of them (about 38 bytes a
-take each: 74 KiB for 1,000 takes, ``benchmarks/bench_save_growth.py``), each a little larger
+take each: 74 KiB for 1,000 takes, ``benchmarks/soak/bench_save_growth.py``), each a little larger
 than the last. That was suspected of fragmenting the app's heap; an A/B soak showed no
 measurable change in the app's memory when bounded (docs/security.md, "What a save costs the
 app"), but what a save sends no longer grows with the task, and a picker of thousands of

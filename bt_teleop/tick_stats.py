@@ -9,7 +9,7 @@
 A *stall* is a gap between two ticks beyond the control period: the loop asked to tick every
 ``1 / control_hz`` seconds and did not. The histograms have fixed 0.1 ms bins up to 2 s (the
 largest value is kept exactly), so a session that runs for hours holds the same few hundred KiB
-(a list of every gap grew ~1 MiB a minute at 8 × 100 Hz in benchmarks/bench_soak.py).
+(a list of every gap grew ~1 MiB a minute at 8 × 100 Hz in benchmarks/soak/bench_soak.py).
 """
 
 from __future__ import annotations

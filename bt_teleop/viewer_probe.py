@@ -11,8 +11,8 @@ The page Rerun's ``--serve-web`` serves keeps the viewer's handle in ``window._h
   for ``GetViewerLogs`` (the viewer's INFO/WARN/ERROR log) and ``GetRecordingSchema`` (the
   entity paths a recording holds).
 
-Used by the browser tests and ``benchmarks/bench_teleop_rerun.py`` to prove what a tab's Rerun
-link shows; the messages are declared with proto-plus (only the fields read here). The wire
+Used by the browser tests and ``benchmarks/teleop/bench_teleop_rerun.py`` to prove what a tab's
+Rerun link shows; the messages are declared with proto-plus (only the fields read here). The wire
 format is Rerun's and may change between releases: rerun-sdk is pinned to 0.41.
 """
 

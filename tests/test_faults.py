@@ -2,7 +2,7 @@
 bt export (both formats) and an app take being saved (bt_pipeline.testing.faults): every output
 complete or absent, an overwritten file old or new, a set from one run, no temp file left after
 the next run's recovery. The big suite (≥ 100 trials at random moments) is
-benchmarks/bench_faults.py."""
+benchmarks/faults/bench_faults.py."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Fuzzing (bt_pipeline.testing.fuzz): seeded mutations of a valid recording through bt score and
 bt clean. Each must exit 0 or 2 with one error line, no traceback, no hang, input unchanged. The
-full suite (≥ 500 mutations) is benchmarks/bench_fuzz.py."""
+full suite (≥ 500 mutations) is benchmarks/faults/bench_fuzz.py."""
 
 from __future__ import annotations
 

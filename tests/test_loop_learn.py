@@ -188,7 +188,7 @@ def test_a_loop_unlike_any_guide_is_learned_close_to_its_true_shape(seed: int) -
     a = align(z_e, z_l, 0.03)[0]
     # Within 6 %: each demo's own loop is read on a path its noise lengthens and its smoothing
     # shrinks; what the cleaner needs is the demos' relative preferences, measured by
-    # benchmarks/bench_foreign_loops.py and bench_clean_human.py --shape.
+    # benchmarks/quality/bench_foreign_loops.py and bench_clean_human.py --shape.
     assert abs(math.degrees(np.angle(a))) < 3.0 and abs(abs(a) - 1.0) < 0.06
 
 

@@ -333,7 +333,7 @@ def test_quick_preset_is_smaller_than_the_full_one() -> None:
 
 def test_bt_reproduce_command_line_runs_in_worker_processes(tmp_path, capsys, monkeypatch) -> None:
     """``bt reproduce --quick --workers 2 --seeds 1`` through the command line, its preset shrunk
-    to TINY's size (the real quick run is timed by benchmarks/bench_reproduce.py)."""
+    to TINY's size (the real quick run is timed by benchmarks/evaluation/bench_reproduce.py)."""
     asked: list[bool] = []
 
     def tiny_preset(quick: bool, **overrides: object) -> ReproduceConfig:

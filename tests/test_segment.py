@@ -237,7 +237,7 @@ def test_pooling_weighs_each_fit_by_how_well_the_whole_loop_follows_it() -> None
     closely (small trimmed residual) but its bulged side lies far off (large 90th-percentile
     misfit); the other's fit is looser but holds the whole loop. Pooling takes the second
     (weighted by the trimmed residual, it took the first; with the misfit, pick-and-place sets of
-    8 went from 77 to 83 % within 5 degrees and 0.05 on benchmarks/bench_preferences.py)."""
+    8 went from 77 to 83 % within 5 degrees and 0.05 on benchmarks/quality/bench_preferences.py)."""
     from bt_pipeline.clean.guide_fit import GuideFit
     from bt_pipeline.clean.periodic import pool_preferences, segment_all
     from bt_pipeline.clean.segment import Segment
@@ -281,7 +281,7 @@ def test_expert_span_ends_are_not_biased_into_the_approach() -> None:
     """The median span end errors of expert-like demos (3 seeds x 3 tasks) are within 0.07 s.
 
     Without the 0.04 s edge trim the smoothed path put both ends about 0.1 s into the approach
-    and the retreat (medians -0.10 s and +0.10 s on benchmarks/bench_segment.py).
+    and the retreat (medians -0.10 s and +0.10 s on benchmarks/quality/bench_segment.py).
     """
     starts, ends = [], []
     for task in ("wiping", "weaving", "pick_and_place"):
@@ -302,7 +302,7 @@ def test_a_loop_that_runs_to_the_recordings_end_keeps_its_last_sample() -> None:
 
     The analysis clock stops short of the last raw time, so the span used to end one sample
     early: the expert-like demo, passed through raw, then lost a sample of its loop (shape
-    ratios up to 1.14 against its truth in benchmarks/bench_clean_human.py --styles single).
+    ratios up to 1.14 against its truth in benchmarks/quality/bench_clean_human.py --styles single).
     """
     t = np.sort(np.random.default_rng(0).uniform(0.0, 6.0, 400))
     phase = 2 * np.pi * t / 6.0
@@ -346,7 +346,7 @@ def test_a_jittery_rest_is_not_taken_for_motion() -> None:
     """A jittery naive demo drawn slowly (wiping, seed 1, demo 0, every time x 2: 15-30 Hz,
     a 4 s rest): its rest's jitter passed 10 mm from the first sample, so the motion seemed to
     start at once and the span took in 6.8 s of rest and approach (timing ratio 3.34 in
-    benchmarks/bench_robustness.py). The rest pose is now the median of the first 0.2 s and
+    benchmarks/quality/bench_robustness.py). The rest pose is now the median of the first 0.2 s and
     "away" is at least 4 x the sample noise."""
     synth = make_human_set("wiping", 8, seed=1)
     demo = synth.demos[0]

@@ -1,42 +1,21 @@
-"""The soak's control loops (benchmarks/soak_control.py): loops that only wake up every period,
-beside the sessions, so that a late tick they shared is told apart as the machine's. A pause of
-a loop's process must show as its stall, at the right moment, and be matched to the late ticks
-it overlapped and to no others."""
+"""The soak's control loops (benchmarks/common/soak_control.py): loops that only wake up every
+period, beside the sessions, so that a late tick they shared is told apart as the machine's. A pause
+of a loop's process must show as its stall, at the right moment, and be matched to the late ticks it
+overlapped and to no others."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
 import signal
-import sys
 import time
-import types
-from pathlib import Path
 
+from benchmarks.common import soak_control, soak_late
 from bt_teleop.late_ticks import LateTick
-
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
-def _benchmark(name: str) -> types.ModuleType:
-    """A module of benchmarks/ (which import each other by their bare names)."""
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-def _soak_control() -> types.ModuleType:
-    return _benchmark("soak_control")
 
 
 def test_a_paused_control_loop_reports_its_stall_and_the_late_ticks_beside_it() -> None:
-    loops = _soak_control().ControlLoops(2, 0.01, 0.05)
+    loops = soak_control.ControlLoops(2, 0.01, 0.05)
     try:
         time.sleep(0.3)
         paused = loops.pids[0]
@@ -60,7 +39,7 @@ def test_a_paused_control_loop_reports_its_stall_and_the_late_ticks_beside_it() 
 
 
 def test_late_ticks_are_the_machines_when_the_control_loops_or_steal_time_explain_them() -> None:
-    control, late = _soak_control(), _benchmark("soak_late")
+    control, late = soak_control, soak_late
     stall = control.ControlStall(loop=0, at_s=100.0, gap_s=0.12, late_s=0.11, runqueue_s=0.0)
     report = control.ControlReport(ticks=1000, largest_late_s=0.11, stalls=(stall,))
     steal = late.StealSampler()

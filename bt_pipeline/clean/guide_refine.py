@@ -5,7 +5,7 @@ Sec. III-A: rotation θ and scale ρ of the guide) by a trimmed ICP: each refit 
 the points that lie closest. That makes it robust (an approach, a retreat, spikes and a bulged
 side fall out), but on a careful hand with a slow wobble of a few mm the kept 60 % are a biased
 share of the loop: the stretches the wobble happened to push outward drop out together, and the
-fit follows the rest. On the second generator's wobbly operators (``benchmarks/
+fit follows the rest. On the second generator's wobbly operators (``benchmarks/quality/
 bench_operator_sets.py --oracle``) bt's ρ was 2-3 × farther from the truth than the
 least-squares similarity with the true correspondences.
 
@@ -21,7 +21,7 @@ inside the loop, and the path the ICP fits is lightly smoothed (σ = 0.03 s), wh
 A lopsided loop's bulge is within that scale too, so an untrimmed fit would be pulled back to the
 compromise that the fit's consensus step (:func:`bt_pipeline.clean.guide_fit._consensus`)
 avoided: a refinement that moves θ by more than 3° or ρ by more than 3 % has left the fit's basin
-and is not taken. Measured on held-apart seeds (8-23; ``benchmarks/bench_guide_fits.py
+and is not taken. Measured on held-apart seeds (8-23; ``benchmarks/quality/bench_guide_fits.py
 --first-seed 8 --seeds 16 --refine-both``), median |Δρ| without → with (wiping, weaving,
 pick-and-place): wobbly operators 0.0117 → 0.0077, 0.0139 → 0.0067, 0.0090 → 0.0077; the steady
 operator 0.0014 → 0.0003, 0.0028 → 0.0003, 0.0027 → 0.0003; human-style demos that are not

@@ -21,7 +21,8 @@ confidence is the share of the demonstrator's total weight that agrees with the 
 cluster's support) times the best agreeing fit's q (for one demo: its q); below 0.5 an estimate
 is reported as uncertain. (Before 2026-12-02 it was the mean q over all the demonstrator's demos
 over a spread term: one lopsided demo among good ones flagged a right estimate uncertain, 56-72 %
-of the right estimates in sets of 8, against 9-25 % now; ``benchmarks/bench_preferences.py``.)
+of the right estimates in sets of 8, against 9-25 % now;
+``benchmarks/quality/bench_preferences.py``.)
 """
 
 from __future__ import annotations

@@ -342,8 +342,8 @@ def _kept_span(
             b = last
     # The span was found on the path smoothed with σ = 0.08 s, which blurs where the hand joins
     # and leaves the loop: it reaches into the approach and the retreat (median 0.09 s at each
-    # end on benchmarks/bench_segment.py). An end that is not the recording's own moves in by
-    # _EDGE_TRIM_S (0.04 s: the median error halves; a full σ cost the naive demos' ratios).
+    # end on benchmarks/quality/bench_segment.py). An end that is not the recording's own moves in
+    # by _EDGE_TRIM_S (0.04 s: the median error halves; a full σ cost the naive demos' ratios).
     trim = round(_EDGE_TRIM_S * _CLOCK_HZ)
     if b - a > 4 * trim:
         a += trim if (a > 0 or not at_start) else 0

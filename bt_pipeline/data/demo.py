@@ -121,8 +121,8 @@ def resample_uniform(values: FloatArray, timestamps: FloatArray, n_samples: int)
     recording (10 Hz, 50 samples a loop) becomes a smooth path rather than a polyline whose
     corners the smoothness loss and the MI's actions read as jerk. With linear resampling, 6-12
     Hz human-style sets chose a lopsided demo as the best in 4 of 9 sets (every one of the
-    pick-and-place sets; benchmarks/bench_robustness.py). Where the grid is coarser, linear, as
-    before (PCHIP there raised the expert-like demos' after/before ratios by up to 0.09).
+    pick-and-place sets; benchmarks/quality/bench_robustness.py). Where the grid is coarser,
+    linear, as before (PCHIP there raised the expert-like demos' after/before ratios by up to 0.09).
 
     Args:
         values: Samples, shape (T, d).

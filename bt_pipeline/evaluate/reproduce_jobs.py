@@ -291,9 +291,9 @@ def run_competence(job: CompetenceJob) -> CompetenceRow:
 
 STEP_COST: dict[LearnerName, float] = {"bc": 1.0, "traj_bc": 1.1, "ileed": 1.4, "node": 14.0}
 """CPU cost of one optimiser step of each learner, relative to BC's. Measured on the full presets
-(``benchmarks/bench_reproduce.py --estimate-full``: BC 9-10 s, Traj-BC 8-12 s, ILEED 8-10 s,
-NODE 22-25 s of CPU per learner job of 1500, 1500, 1200 and 300 steps); it orders the jobs, it
-does not change them."""
+(``benchmarks/evaluation/bench_reproduce.py --estimate-full``: BC 9-10 s, Traj-BC 8-12 s,
+ILEED 8-10 s, NODE 22-25 s of CPU per learner job of 1500, 1500, 1200 and 300 steps); it orders
+the jobs, it does not change them."""
 COMPETENCE_COST = 0.7
 """A competence check's cost as a share of the same learner's job (measured: 6-15 s of CPU)."""
 
