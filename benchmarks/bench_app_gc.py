@@ -17,7 +17,7 @@ from pathlib import Path
 from bench_clean_overheads import median_s  # this folder is on sys.path
 
 from bt_teleop.app import freeze_startup_objects
-from bt_teleop.testing import app_factory
+from bt_teleop.testing.harness import app_factory
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
-"""Stalled and killed session children while tabs record (bt_teleop/session_process.py).
+"""Stalled and killed session children while tabs record (bt_teleop/session/process.py).
 
-N tabs (:class:`bt_teleop.testing.FakeTab`) record takes of 2-4 s back to back through the
+N tabs (:class:`bt_teleop.testing.harness.FakeTab`) record takes of 2-4 s back to back through the
 app's own handles (bench_soak.drive). Meanwhile, every ``--stall-every`` seconds one child,
 in turn, is stopped (SIGSTOP) for ``--stall-s`` seconds, longer than a quick call's 5 s
 timeout (a starved child on a loaded machine), and every ``--kill-every`` seconds one is
@@ -27,9 +27,9 @@ from typing import Any
 
 from bench_soak import drive
 
-from bt_teleop.session_process import SessionProcess
-from bt_teleop.testing import app_factory, tab_factory
-from bt_teleop.ui import ClientUI
+from bt_teleop.session.process import SessionProcess
+from bt_teleop.testing.harness import app_factory, tab_factory
+from bt_teleop.ui.tab import ClientUI
 
 
 class Notices:

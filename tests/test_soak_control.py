@@ -14,7 +14,7 @@ import time
 import types
 from pathlib import Path
 
-from bt_teleop.late_ticks import LateTick
+from bt_teleop.session.late_ticks import LateTick
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 

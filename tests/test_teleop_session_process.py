@@ -1,7 +1,7 @@
-"""A tab's session in a child process (bt_teleop/session_process.py): it moves the arm, records
+"""A tab's session in a child process (bt_teleop/session/process.py): it moves the arm, records
 and saves takes that read back, re-raises the child's errors, survives nothing it should not
 (a killed child is one clear message, never a hang) and leaves no child behind; and
-the tick timing every session keeps (bt_teleop/tick_stats.py)."""
+the tick timing every session keeps (bt_teleop/session/tick_stats.py)."""
 
 from __future__ import annotations
 
@@ -20,13 +20,19 @@ import pytest
 
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import BtError, ConfigError, SessionLostError
-from bt_teleop.native_memory import HeapInfo, heap_info
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session_child import portable_error
-from bt_teleop.session_config import SessionConfig
-from bt_teleop.session_process import SessionProcess, open_session
-from bt_teleop.testing import circle_uv, wait_until
-from bt_teleop.tick_stats import BIN_S, Histogram, TickReport, TimedSession, command_priority
+from bt_teleop.proc.native_memory import HeapInfo, heap_info
+from bt_teleop.session.child import portable_error
+from bt_teleop.session.config import SessionConfig
+from bt_teleop.session.process import SessionProcess, open_session
+from bt_teleop.session.tick_stats import (
+    BIN_S,
+    Histogram,
+    TickReport,
+    TimedSession,
+    command_priority,
+)
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.testing.harness import circle_uv, wait_until
 
 
 @pytest.fixture(scope="module")
@@ -335,7 +341,7 @@ def test_the_thread_serving_a_loop_runs_one_real_time_step_below_it() -> None:
 def test_a_loop_not_permitted_real_time_keeps_the_normal_policy_and_says_how(
     monkeypatch, caplog
 ) -> None:
-    import bt_teleop.tick_stats as tick_stats
+    import bt_teleop.session.tick_stats as tick_stats
 
     def refuse(*args: object) -> None:
         raise PermissionError(1, "Operation not permitted")

@@ -6,7 +6,7 @@ Four writers, each on small data in its own folder (:func:`prepare`):
 * ``synth``: ``bt synth --overwrite`` over an existing file;
 * ``evaluate``: ``bt evaluate --plots --rrd --rollouts-out --json-out`` (quick learners) over a
   previous run's outputs: one set across four folders;
-* ``take``: the app's recorder saving scripted takes (``bt_teleop.script.run_script``);
+* ``take``: the app's recorder saving scripted takes (``bt_teleop.session.script.run_script``);
 * ``export_lerobot``: ``bt export --format lerobot --overwrite`` (two tasks) over a previous
   dataset: a directory tree;
 * ``export_robomimic``: ``bt export --format robomimic --overwrite`` into a folder (one file per
@@ -45,7 +45,7 @@ SCENARIOS = ("clean", "synth", "evaluate", "take", "export_lerobot", "export_rob
 _TAKE_SCRIPT = """
 import sys
 import numpy as np
-from bt_teleop.script import run_script
+from bt_teleop.session.script import run_script
 t = np.linspace(0.0, 1.0, 11)
 rows = np.stack([t, 0.08 * np.cos(2 * np.pi * t), 0.04 * np.sin(2 * np.pi * t)], axis=1)
 for k in range(1000):

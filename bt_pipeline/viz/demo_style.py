@@ -2,7 +2,7 @@
 
 Names. A demo is named as the web app's page shows it: who recorded it and when (UTC, to the
 minute), e.g. ``alice_2026-12-06_1203``. Who and when come from the app's file name
-(``<who>_<YYYYmmddTHHMMSSZ>_<hex>.hdf5``, :mod:`bt_teleop.naming`) when it has that form, else
+(``<who>_<YYYYmmddTHHMMSSZ>_<hex>.hdf5``, :mod:`bt_teleop.takes.naming`) when it has that form, else
 from the demo's demonstrator and ``created`` attr; a demo with no time is named
 ``<who>_<file stem>_<demo>``. A name is an entity path part: letters, digits, ``_`` and ``-``
 only (whatever a browser sent is reduced to them, never used as it came), at most
