@@ -1,5 +1,8 @@
 """kill -9 fault injection: start a writer, kill it at a chosen moment, check what it left.
 
+The writers are bt's commands and the app's recorder, so the harness sits here, above both
+packages (bt_pipeline never imports bt_teleop).
+
 Four writers, each on small data in its own folder (:func:`prepare`):
 
 * ``clean``: ``bt clean IN --out OUT`` over an OUT holding a previous complete run;
