@@ -1,7 +1,7 @@
 """What reading one recording of many demos leaves in a process's memory (a high-water mark).
 
 The app read a task's cleaned file (every usable demo of the task, with its samples) after each
-Clean to list it (``bt_teleop.library.tracks.read_file_tracks(path, "cleaned")``), on its reader
+Clean to list it (``bt_teleop.library.reading.read_file_tracks(path, "cleaned")``), on its reader
 thread. This benchmark writes recordings of N demos (synthetic wiping demos, in a child process so
 the writing leaves nothing here), then reads them on a thread, as the app does, and prints after
 each read the process's RSS and glibc's heap (``mallinfo2``: in use, free but kept), after a
@@ -71,7 +71,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     from bt_pipeline.data.recording import read_recording
-    from bt_teleop.library.tracks import read_file_tracks
+    from bt_teleop.library.reading import read_file_tracks
 
     def read(path: Path) -> None:
         if args.listing:

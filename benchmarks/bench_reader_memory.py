@@ -1,7 +1,7 @@
 """What the app keeps of each take its library reads: files read in the app vs in a reader child.
 
 The app's library loader reads every take saved and scores it on its periodic part
-(:func:`bt_teleop.library.tracks.read_file_tracks`). This benchmark plays the app's side of that
+(:func:`bt_teleop.library.reading.read_file_tracks`). This benchmark plays the app's side of that
 alone: a process (a stand-in for the app) with a :class:`~bt_teleop.library.loader.LibraryLoader`
 into which takes are saved one by one (copies of human-style demos with θ/ρ given, one demo a
 file, as the app saves them); after each, one load of the task, as every tab asks for it; every
@@ -62,7 +62,7 @@ def one_arm(arm: str, pool: list[Path], takes: int, every: int) -> dict[str, obj
     """Save `takes` takes and load the library after each; memory every `every` takes."""
     from bt_teleop.library.loader import LibraryLoader
     from bt_teleop.library.reader_process import ReaderProcess
-    from bt_teleop.library.tracks import read_file_tracks
+    from bt_teleop.library.reading import read_file_tracks
     from bt_teleop.proc.native_memory import trim_heap
 
     reader = ReaderProcess() if arm == "reader" else None

@@ -41,11 +41,12 @@ import viser
 
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_teleop.app_options import AppOptions
-from bt_teleop.clean.runner import CleanRunner, lower_thread_priority
+from bt_teleop.clean.runner import CleanRunner
 from bt_teleop.library.loader import LibraryLoader
 from bt_teleop.library.reader_process import ReaderProcess
-from bt_teleop.library.tracks import read_file_tracks
+from bt_teleop.library.reading import read_file_tracks
 from bt_teleop.proc.native_memory import HeapTrimmer
+from bt_teleop.proc.priority import lower_thread_priority
 from bt_teleop.rerun.live import RerunHub
 from bt_teleop.session.process import start_forkserver
 from bt_teleop.ui.connections import ConnectionWatch, loop_safe_wakeups

@@ -16,7 +16,7 @@ from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.exceptions import RecordingError
 from bt_teleop.library.listing import load_library
 from bt_teleop.library.loader import LibraryLoader
-from bt_teleop.library.tracks import read_file_tracks
+from bt_teleop.library.reading import read_file_tracks
 
 
 def _write(root: Path, name: str, seed: int) -> Path:
@@ -146,7 +146,7 @@ def test_a_load_waiting_for_its_reads_does_not_push_the_next_one_back(tmp_path) 
     """A load slowed by the reader child (its reads wait, the app's thread idles) is followed by
     the next one after min_interval_s, not after duty × its wall time: with the reader child
     sharing the CPU with a Clean job, spacing by wall time made the table lag by minutes."""
-    from bt_teleop.library.tracks import read_file_tracks
+    from bt_teleop.library.reading import read_file_tracks
 
     files = [_write(tmp_path, name, seed) for seed, name in enumerate(("a.hdf5", "b.hdf5"))]
     read = {path: read_file_tracks(path, "raw") for path in files}  # the child's answers

@@ -14,7 +14,8 @@ from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.exceptions import RecordingError
 from bt_teleop.library.cleaned_listing import read_cleaned_listing
-from bt_teleop.library.tracks import _cleaned_tracks, file_stamp, read_file_tracks
+from bt_teleop.library.reading import _cleaned_tracks, read_file_tracks
+from bt_teleop.library.tracks import file_stamp
 
 
 def cleaned_file(path: Path, n: int = 6) -> Path:

@@ -17,7 +17,7 @@ from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.exceptions import RecordingError
 from bt_teleop.library.reader_process import READER_NAME, READER_NICE, ReaderLost, ReaderProcess
-from bt_teleop.library.tracks import read_file_tracks
+from bt_teleop.library.reading import read_file_tracks
 from bt_teleop.testing.harness import wait_until
 
 

@@ -129,7 +129,7 @@ def test_a_clean_job_can_be_cancelled_and_the_task_cleaned_again(recordings) -> 
 
 
 def test_a_clean_job_runs_at_a_lower_cpu_priority_than_the_app(recordings) -> None:
-    from bt_teleop.clean.runner import CLEAN_NICE
+    from bt_teleop.proc.priority import CLEAN_NICE
 
     runner = CleanRunner(recordings, CleanOptions(epochs=100_000, write_rrd=False), processes=True)
     try:

@@ -21,7 +21,8 @@ from bt_pipeline.exceptions import DemoError
 from bt_teleop.clean.runner import cleaned_path
 from bt_teleop.library.listing import library_markdown, load_library
 from bt_teleop.library.loader import LibraryLoader
-from bt_teleop.library.tracks import file_stamp, read_file_tracks
+from bt_teleop.library.reading import read_file_tracks
+from bt_teleop.library.tracks import file_stamp
 from bt_teleop.testing.harness import reachable, shared_dir
 
 TAKES = shared_dir() / "data/browser-takes/wiping"

@@ -4,9 +4,9 @@ Where the files go is in :mod:`bt_teleop.clean.task`: ``<recordings>/.cleaned/``
 purpose, so every directory scan of bt (:func:`bt_pipeline.data.paths.expand_paths`) skips it and
 cleaned demos are never taken for raw input.
 
-A job runs in a spawned process (torch training holds a core; the sessions' control loops keep
-the other) at a lower CPU priority (``nice`` +10, :data:`CLEAN_NICE`), with one thread in the
-app reading its progress queue::
+A job runs in a spawned process (torch training holds a core; the sessions' control loops keep the
+other) at a lower CPU priority (``nice`` +10, :data:`~bt_teleop.proc.priority.CLEAN_NICE`), with one
+thread in the app reading its progress queue::
 
     CleanRunner.start(task, rerun) -> process: read raw demos -> clean_demos(on_epoch -> queue)
                                       -> write <task>.cleaned.hdf5 (+ .rrd)
@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
-import os
 import queue
 import threading
 import time
@@ -40,6 +39,7 @@ from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.clean.task import CLEANED_DIRNAME, clean_task, cleaned_dir, cleaned_path, task_dir
+from bt_teleop.proc.priority import lower_priority
 from bt_teleop.rerun.clean_log import CleanLogTarget, log_clean_to
 
 LOGGER = logging.getLogger("bt.teleop")
@@ -286,36 +286,6 @@ class CleanRunner:
             else:
                 job._update(state="failed", message=str(payload[0]))
                 return
-
-
-CLEAN_NICE = 10
-"""How much lower than the app a clean job's process runs (``nice``): training is batch work,
-and on a busy machine the sessions' control loops must get the CPU first."""
-
-
-def lower_priority(increment: int = CLEAN_NICE) -> None:
-    """Lower the CPU priority by `increment` (``os.nice``; nothing where absent).
-
-    On Linux ``os.nice`` changes the calling thread's nice value only, and threads started
-    afterwards inherit it: call it first in a child process (a clean job, the reader), before
-    any thread starts, and the whole process runs lower.
-    """
-    if hasattr(os, "nice"):
-        try:
-            os.nice(increment)
-        except OSError:  # not permitted here: run at the app's priority
-            LOGGER.debug("could not lower the clean job's priority", exc_info=True)
-
-
-def lower_thread_priority(increment: int = CLEAN_NICE) -> None:
-    """Lower the calling thread's CPU priority by `increment` (Linux keeps a nice value per
-    thread; elsewhere nothing): the app's library loads run below the sessions' control loops."""
-    if hasattr(os, "setpriority") and hasattr(threading, "get_native_id"):
-        tid = threading.get_native_id()
-        try:
-            os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + increment)
-        except OSError:
-            LOGGER.debug("could not lower the thread's priority", exc_info=True)
 
 
 def run_clean_job(

@@ -39,7 +39,8 @@ from bt_pipeline.data.paths import RECORDING_SUFFIXES
 from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import BtError, ConfigError
 from bt_teleop.clean.runner import cleaned_path, task_dir
-from bt_teleop.library.tracks import FileTracks, ReplayTrack, TrackKind, read_file_tracks
+from bt_teleop.library.reading import read_file_tracks
+from bt_teleop.library.tracks import FileTracks, ReplayTrack, TrackKind
 from bt_teleop.takes.escape import markdown_text
 from bt_teleop.takes.saved_utility import remember
 

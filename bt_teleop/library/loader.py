@@ -54,7 +54,8 @@ from bt_pipeline.exceptions import BtError, RecordingError
 from bt_teleop.clean.runner import cleaned_path, task_dir
 from bt_teleop.library.listing import TaskLibrary, load_library
 from bt_teleop.library.reader_process import ReaderLost
-from bt_teleop.library.tracks import FileStamp, FileTracks, TrackKind, file_stamp, read_file_tracks
+from bt_teleop.library.reading import read_file_tracks
+from bt_teleop.library.tracks import FileStamp, FileTracks, TrackKind, file_stamp
 
 __all__ = ["LibraryLoader"]
 
@@ -82,7 +83,7 @@ class LibraryLoader:
             recordings_dir: Root folder of the recordings.
             executor: Where loads run.
             read_file: Reads one file's tracks
-                (:func:`~bt_teleop.library.tracks.read_file_tracks`, or a
+                (:func:`~bt_teleop.library.reading.read_file_tracks`, or a
                 :class:`~bt_teleop.library.reader_process.ReaderProcess`'s ``read``).
             min_interval_s: Least time between the end of a task's load and the next [s].
             duty: The next load also waits `duty` × the CPU time the last load took.

@@ -1,11 +1,11 @@
 """Reading take files for the app's library in a process of its own (:class:`ReaderProcess`).
 
-Every Stop & save makes the library loader (:mod:`bt_teleop.library.loader`) read the new file
-and score its demos on their periodic part (:func:`bt_teleop.library.tracks.read_file_tracks`: HDF5,
-segmentation, guide fits; ~24 ms and a few MiB of short-lived arrays a browser take). Done in
-the app's process, those allocations fragment the app's C heap and fill HDF5's free lists there,
-and the app's memory grew with every take saved (docs/security.md, "Where the native memory
-went"). Here they happen in a child forked from the session forkserver::
+Every Stop & save makes the library loader (:mod:`bt_teleop.library.loader`) read the new file and
+score its demos on their periodic part (:func:`bt_teleop.library.reading.read_file_tracks`: HDF5,
+segmentation, guide fits; ~24 ms and a few MiB of short-lived arrays a browser take). Done in the
+app's process, those allocations fragment the app's C heap and fill HDF5's free lists there, and the
+app's memory grew with every take saved (docs/security.md, "Where the native memory went"). Here
+they happen in a child forked from the forkserver (:mod:`bt_teleop.proc.forkserver`)::
 
     app, reader thread                         reader child (serve_reads)
     ReaderProcess.read(path, kind) --(path, kind)-->  read_file_tracks(path, kind)
@@ -39,12 +39,12 @@ from pathlib import Path
 from typing import Any
 
 from bt_pipeline.exceptions import RecordingError
-from bt_teleop.clean.runner import CLEAN_NICE, lower_priority
-from bt_teleop.library.tracks import FileTracks, TrackKind, read_file_tracks
+from bt_teleop.library.reading import read_file_tracks
+from bt_teleop.library.tracks import FileTracks, TrackKind
+from bt_teleop.proc.child import die_with_parent, libc, portable_error
 from bt_teleop.proc.forkserver import start_child
 from bt_teleop.proc.native_memory import release_free_memory
-from bt_teleop.rerun.proxy import libc
-from bt_teleop.session.child import die_with_parent, portable_error
+from bt_teleop.proc.priority import CLEAN_NICE, lower_priority
 
 __all__ = ["READER_NAME", "READER_NICE", "ReaderLost", "ReaderProcess", "serve_reads"]
 
@@ -55,7 +55,7 @@ _READ_IMPORTS = (
     "bt_pipeline.data.recording",
     "bt_teleop.library.cleaned_listing",
 )
-"""What :func:`~bt_teleop.library.tracks.read_file_tracks` imports when first called."""
+"""What :func:`~bt_teleop.library.reading.read_file_tracks` imports when first called."""
 READER_NAME = "bt-reader"
 """The child's process name (``comm``, as ps and psutil show it)."""
 _PR_SET_NAME = 15  # linux/prctl.h
@@ -89,7 +89,7 @@ class ReaderProcess:
         """Children started so far."""
 
     def read(self, path: Path, kind: TrackKind) -> FileTracks:
-        """`path`'s tracks as :func:`~bt_teleop.library.tracks.read_file_tracks` reads them.
+        """`path`'s tracks as :func:`~bt_teleop.library.reading.read_file_tracks` reads them.
 
         Raises:
             RecordingError: The file cannot be read, or its read took longer than `timeout_s`.

@@ -10,7 +10,7 @@ track it needs (and, for a cleaned demo, its raw source, drawn beside it)::
         same version      -> LRU cache (the last `max_tracks` tracks played) or read
                              /data/<demo>/obs/ee_pos and /timestamps only -> TrackSamples
 
-The whole file was checked when it was listed (:func:`bt_teleop.library.tracks.read_file_tracks`),
+The whole file was checked when it was listed (:func:`bt_teleop.library.reading.read_file_tracks`),
 and its stamp (size, modification time, inode) shows it is still that file; the two datasets read
 are checked again (shapes, finite values, increasing times) all the same. The cache is
 :func:`functools.lru_cache` keyed by (file, demo, stamp), so it never serves another version.

@@ -1,8 +1,10 @@
-"""The ``forkserver`` that forks the session children (:mod:`bt_teleop.session.process`).
+"""The ``forkserver`` that forks the app's children: the session children
+(:mod:`bt_teleop.session.process`) and the library's reader.
 
-It imports MuJoCo, mink and the session code once; each child is forked from it (never from
-the app itself: a plain ``fork`` of the many-threaded app is unsafe), so a child starts in well
-under a second and shares those pages with the others.
+It imports MuJoCo, mink and the session code once (the modules :func:`preload` named: the
+session layer names its child's module); each child is forked from it (never from the app
+itself: a plain ``fork`` of the many-threaded app is unsafe), so a child starts in well under a
+second and shares those pages with the others.
 """
 
 from __future__ import annotations
@@ -15,16 +17,26 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["forkserver_context", "start_child", "start_forkserver"]
+__all__ = ["forkserver_context", "preload", "start_child", "start_forkserver"]
 
 _context_lock = threading.Lock()
 _starting = threading.local()
 """``_starting.session`` is True while this thread starts a session child."""
 _stdlib_preparation_data: Callable[[str], dict[str, Any]] | None = None
+_preload: list[str] = []
+"""Modules the server imports when it starts (:func:`preload`)."""
+
+
+def preload(module: str) -> None:
+    """Have the server import `module` when it starts (no effect once it runs)."""
+    with _context_lock:
+        if module not in _preload:
+            _preload.append(module)
 
 
 def forkserver_context() -> Any:
-    """The forkserver context, its server preloaded with MuJoCo, mink and the session code.
+    """The forkserver context, its server preloaded with MuJoCo, mink and the session code
+    (:func:`preload`).
 
     A session child needs nothing of the app's main module, but ``multiprocessing`` makes every
     child import it again (the script's whole import graph: viser, ... for ~80 MiB of private
@@ -39,7 +51,7 @@ def forkserver_context() -> Any:
             _stdlib_preparation_data = multiprocessing.spawn.get_preparation_data
             multiprocessing.spawn.get_preparation_data = _preparation_data
         context = multiprocessing.get_context("forkserver")
-        context.set_forkserver_preload(["bt_teleop.session.child"])  # no effect once it runs
+        context.set_forkserver_preload(list(_preload))  # no effect once it runs
         return context
 
 

@@ -21,9 +21,6 @@ made each viewer replay every tab's backlog (docs/teleop.md, "Live Rerun latency
 from __future__ import annotations
 
 import concurrent.futures
-import ctypes
-import ctypes.util
-import functools
 import importlib.util
 import logging
 import os
@@ -31,45 +28,21 @@ import shutil
 import signal
 import socket
 import subprocess
-import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
 from bt_pipeline.exceptions import ConfigError
+from bt_teleop.proc.child import die_with_parent_hook
 
-__all__ = ["RerunProxy", "free_port", "libc", "rerun_binary"]
+__all__ = ["RerunProxy", "free_port", "rerun_binary"]
 
 LOGGER = logging.getLogger("bt.teleop")
 START_TIMEOUT_S = 30.0
 """Longest wait for the proxy's gRPC port to answer [s]."""
-_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 _SPAWNER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="bt-rerun-spawner")
 """Starts every child: its one thread lives as long as the app (module doc)."""
-
-
-@functools.cache
-def libc() -> ctypes.CDLL:
-    """The C library, loaded once (``find_library`` runs ``ldconfig`` on every call)."""
-    return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-
-
-def _die_with_parent_hook() -> Callable[[], None] | None:
-    """A ``preexec_fn`` that makes the child get SIGTERM when the spawning thread ends (Linux;
-    None elsewhere). libc is loaded here, in the parent: the hook itself only calls prctl."""
-    if not sys.platform.startswith("linux"):
-        return None
-    c_library = libc()
-    parent = os.getpid()
-
-    def hook() -> None:
-        c_library.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
-        if os.getppid() != parent:  # the parent died before prctl: nobody will stop us
-            os.kill(os.getpid(), signal.SIGTERM)
-
-    return hook
 
 
 def _spawn(command: list[str], log: IO[bytes]) -> subprocess.Popen[bytes]:
@@ -82,7 +55,7 @@ def _spawn(command: list[str], log: IO[bytes]) -> subprocess.Popen[bytes]:
             stdout=log,
             stderr=subprocess.STDOUT,
             start_new_session=True,  # its own process group: close() stops it and its children
-            preexec_fn=_die_with_parent_hook(),
+            preexec_fn=die_with_parent_hook(),
         )
 
     return _SPAWNER.submit(start).result()

@@ -31,31 +31,22 @@ import dataclasses
 import gc
 import logging
 import multiprocessing.connection
-import os
-import pickle
 import signal
 import sys
-import traceback
 from pathlib import Path
 from typing import Any
 
-from bt_pipeline.exceptions import BtError, ConfigError
+from bt_pipeline.exceptions import ConfigError
+from bt_teleop.proc.child import die_with_parent, portable_error
 from bt_teleop.proc.native_memory import hdf5_free_lists, heap_info, release_free_memory
-from bt_teleop.rerun.proxy import libc
+from bt_teleop.proc.priority import command_priority, raise_priority, use_realtime
 from bt_teleop.session.config import SessionConfig
-from bt_teleop.session.tick_stats import (
-    TimedSession,
-    command_priority,
-    raise_priority,
-    use_realtime,
-)
+from bt_teleop.session.tick_stats import TimedSession
 
 __all__ = [
     "CALLS",
     "ONE_WAY",
     "PROCESS_CALLS",
-    "die_with_parent",
-    "portable_error",
     "serve_session",
 ]
 
@@ -79,7 +70,6 @@ PROCESS_CALLS = {
 the number of Python objects' memory blocks; for benchmarks and tests)."""
 ENDS_A_TAKE = frozenset({"stop_and_check", "discard"})
 """Requests after which the child releases free memory (``release_memory_after_take``)."""
-_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def serve_session(
@@ -174,18 +164,6 @@ def _send_reply(
         conn.send(reply)
 
 
-def portable_error(exc: BaseException) -> BaseException:
-    """`exc` ready to send: a bug's error (not a BtError) gets the child's traceback as a note;
-    an error that does not survive pickling is replaced by a BtError with its text."""
-    if not isinstance(exc, BtError):
-        exc.add_note("in the session process:\n" + "".join(traceback.format_exception(exc)))
-    try:
-        pickle.loads(pickle.dumps(exc))
-    except Exception:
-        return BtError(f"{type(exc).__name__}: {exc}")
-    return exc
-
-
 class _Term:
     """SIGTERM: ends the wait for a command at once; a command being served finishes first."""
 
@@ -210,13 +188,3 @@ class _Term:
             return conn.recv()
         finally:
             cls.waiting = False
-
-
-def die_with_parent() -> None:
-    """Get SIGTERM when the forkserver (our parent; it exits with the app) dies (Linux)."""
-    if not sys.platform.startswith("linux"):
-        return
-    parent = os.getppid()
-    libc().prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
-    if os.getppid() != parent:  # it died before prctl
-        raise SystemExit(0)

@@ -36,8 +36,8 @@ class SessionConfig:
     realtime_priority: int = 10
     """When > 0 (1..99), the control loop runs under the real-time policy ``SCHED_RR`` at this
     priority, its process's command thread one step below
-    (:func:`bt_teleop.session.tick_stats.use_realtime`,
-    :func:`bt_teleop.session.tick_stats.command_priority`): the machine's other work then cannot
+    (:func:`bt_teleop.proc.priority.use_realtime`,
+    :func:`bt_teleop.proc.priority.command_priority`): the machine's other work then cannot
     keep them waiting for a CPU. Tried by default, as ros2_control's controller manager does: it
     needs root, CAP_SYS_NICE or ``ulimit -r``, and where not permitted the loop keeps the normal
     policy (logged). 0: never (docs/security.md, "Real-time by default")."""

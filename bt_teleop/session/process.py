@@ -52,6 +52,7 @@ from numpy.typing import ArrayLike
 
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import BtError, ConfigError, SessionBusyError, SessionLostError
+from bt_teleop.proc import forkserver
 from bt_teleop.proc.forkserver import start_child, start_forkserver
 from bt_teleop.session.child import serve_session
 from bt_teleop.session.config import SessionConfig, SessionStatus
@@ -65,6 +66,7 @@ from bt_teleop.sim.workspace import validate_position, validate_quat
 __all__ = ["SessionProcess", "TabSession", "open_session", "start_forkserver"]
 
 LOGGER = logging.getLogger("bt.teleop")
+forkserver.preload(serve_session.__module__)  # the server imports MuJoCo, mink and the session
 START_TIMEOUT_S = 60.0
 """Longest wait for a child to load its scene and answer [s] (Menagerie meshes: seconds)."""
 SAVE_TIMEOUT_S = 60.0

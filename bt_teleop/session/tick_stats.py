@@ -15,7 +15,6 @@ largest value is kept exactly), so a session that runs for hours holds the same 
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 from dataclasses import dataclass
@@ -24,6 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from bt_teleop.proc.priority import raise_priority, use_realtime
 from bt_teleop.session.control_loop import Session
 from bt_teleop.session.late_ticks import LateProbe, LateTick
 
@@ -33,8 +33,6 @@ __all__ = [
     "Histogram",
     "TickReport",
     "TimedSession",
-    "raise_priority",
-    "use_realtime",
 ]
 
 LOGGER = logging.getLogger("bt.teleop")
@@ -119,58 +117,6 @@ class TickReport:
             reports[0].realtime if len({r.realtime for r in reports}) == 1 else None,
             tuple(t for r in reports for t in r.late),
         )
-
-
-def raise_priority(boost: int) -> int | None:
-    """Lower this thread's nice value by `boost` if permitted; its nice value (None: unknown)."""
-    if not hasattr(os, "getpriority"):
-        return None
-    tid = threading.get_native_id()  # Linux: a thread's own nice value
-    nice = os.getpriority(os.PRIO_PROCESS, tid)
-    if boost > 0:
-        try:
-            os.setpriority(os.PRIO_PROCESS, tid, max(-20, nice - boost))
-        except PermissionError:
-            LOGGER.info("control loop priority not raised: not permitted (ulimit -e)")
-    return os.getpriority(os.PRIO_PROCESS, tid)
-
-
-def use_realtime(priority: int, *, quiet: bool = False) -> bool:
-    """Run this thread under ``SCHED_RR`` at `priority` (1..99; 0: keep its policy) if
-    permitted; whether it now runs under a real-time policy (Linux). `quiet`: a refusal is
-    not logged (a session child's command thread: its loop, asking next, says it once).
-
-    A real-time thread runs before every normal one whenever it is runnable, so the machine's
-    other work cannot keep it waiting for a CPU (what nice values only make less likely). The
-    kernel still keeps 5 % of each second for normal threads (``sched_rt_runtime_us``), and the
-    loop sleeps between ticks, so a session takes only the CPU its ticks need. Needs root,
-    CAP_SYS_NICE or a ``ulimit -r`` of at least `priority`; else the policy stays (logged).
-    """
-    if not hasattr(os, "sched_setscheduler"):
-        return False
-    if priority > 0:
-        try:  # pid 0: this thread (Linux)
-            os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
-        except OSError as exc:
-            if not quiet:
-                LOGGER.info(
-                    "control loop not made real-time (SCHED_RR %d): %s; allow it with an "
-                    "rtprio limit (ulimit -r, /etc/security/limits.conf) or CAP_SYS_NICE, or "
-                    "pass --realtime-priority 0",
-                    priority,
-                    exc,
-                )
-    return os.sched_getscheduler(0) in (os.SCHED_RR, os.SCHED_FIFO)
-
-
-def command_priority(loop_priority: int) -> int:
-    """The ``SCHED_RR`` priority of the thread serving a session's requests (0: normal policy).
-
-    One step below its control loop's (at least 1): real-time, so no normal thread holds the
-    GIL the loop needs, and below every session's loop, so the work it does (a take's save)
-    never makes another session's loop wait behind it for ``SCHED_RR``'s 0.1 s quantum.
-    """
-    return max(1, loop_priority - 1) if loop_priority > 0 else 0
 
 
 def _percentile(counts: NDArray[np.int64], max_s: float, q: float) -> float:
