@@ -9,8 +9,8 @@ from rich.console import Console
 from rich.table import Table
 
 from bt_pipeline.evaluate.files_conditioned import ConditionedTask, print_conditioned
+from bt_pipeline.evaluate.plots import LEARNER_TITLES
 from bt_pipeline.evaluate.protocol import TaskEvaluation
-from bt_pipeline.viz.plots import LEARNER_TITLES
 from bt_pipeline.viz.tables import table_console
 
 
