@@ -1,22 +1,32 @@
-"""One teleoperation session: its own simulated FR3, target, IK, recorder and control loop.
+"""The control loop: one teleoperation session's simulated FR3, target, IK and recorder.
 
-Callbacks (a browser tab, a script) only store the latest command under a lock; one fixed-rate
-loop per session consumes it::
+Callbacks only store the latest command; one fixed-rate loop per session consumes it. The data
+flow of one tick (:meth:`Session._tick`, every ``1 / control_hz`` [s] of simulation time)::
 
-    set_target / set_gripper / set_stay_on_plane   (any thread, under _input_lock)
-        |  latest target (p, q), gripper open?, stay on plane?
-        v
-    tick, every 1 / control_hz of simulation time  (under _state_lock)
-        project onto the task plane (optional) -> clamp to the workspace box
-        -> step the command towards it at bounded speed -> IkController.solve
-        -> position actuators (ctrl, with velocity feed-forward) -> mj_step x substeps
-        -> every 1 / record_hz: RecordingSlot.sample_due (ee pose, joints, gripper, mj_getState)
+  browser tab / script / replay (any thread)
+    set_target(p, q) · set_gripper(open) · set_stay_on_plane(on)   validated; the latest kept
+        │                                                            under _input_lock
+  ┌─────▼ tick ───────────────────────────────────────────────────── control thread ──
+  │ read     p, q, gripper open?, stay on plane?                  (_input_lock, briefly)
+  │ target   p ─project onto the task plane (if asked)─▶ Workspace.clamp ─▶ p, clamped?
+  │ ┄┄ under _state_lock ┄┄
+  │ slew     command ─one bounded step towards (p, q): ≤ max_speed · dt, ≤ max_turn · dt
+  │ IK       IkController.solve(command) ─▶ q_arm (7,), v_arm (7,), ok   (mink QP, daqp)
+  │ actuate  ctrl[arm] = q_arm + (kv/kp) · v_arm;  ctrl[gripper] = open or closed
+  │ physics  mj_step × substeps (unstable ─▶ reset to the ready pose); mj_kinematics
+  │ record   every 1 / record_hz: RecordingSlot.sample_due ─▶ one DemoRecorder sample
+  │          (ee pose, joints, gripper, clamped?, mj_getState)
+  └──┬──────────────────────────────────────────────────────────────────────────────
+     ▼
+  status() · trail()   snapshots under the locks (any thread): the tab's 3-D view, Rerun
+  stop_and_check()     the samples leave the slot under _state_lock; the take checks and the
+                       file write run after it (session/recording.py, takes/recorder.py)
 
-The loop runs in a background thread at real time (:meth:`Session.start`) or synchronously as
-fast as possible (:meth:`Session.step_for`), with the same tick. The recording lifecycle (start,
-samples, save, the ``incomplete`` flag of a closed tab's demo) is in
-:mod:`bt_teleop.session.recording`; saving writes outside the state lock, so disk I/O never
-stalls the loop.
+The loop runs in a thread of its own at real time (:meth:`Session.start`; a late tick is caught
+up, a lag beyond ``max_lag_s`` dropped) or synchronously as fast as possible
+(:meth:`Session.step_for`), with the same tick. In the app each session runs in a child process
+of its own (:mod:`bt_teleop.session.process`), its ticks timed
+(:mod:`bt_teleop.session.tick_stats`).
 """
 
 # mujoco ships compiled bindings without type stubs, so pyright cannot see MjModel, mj_step,
