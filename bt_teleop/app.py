@@ -11,13 +11,14 @@
                               the socket is closed (REFUSED_CLOSE_S later; at once when more
                               than max_sessions refused sockets are still open)
         ConnectionWatch    -> a tab that sends nothing for idle_timeout_s (and is not recording)
-                              is told, then closed (bt_teleop/connections.py)
+                              is told, then closed (bt_teleop/ui/connections.py)
         on_client_disconnect -> ClientUI.close(): a recording in progress is saved flagged
                                 incomplete (or discarded: save_incomplete=False)
       shared by the tabs: CleanRunner (one clean job at a time, in a process),
                           RerunHub (live viewer / .rrd files / off),
                           a one-thread executor for loading a task's library, whose files
-                          are read and scored in a reader child (bt_teleop/reader_process.py)
+                          are read and scored in a reader child
+                          (bt_teleop/library/reader_process.py)
 
 Stopping closes every tab the same way a closed tab is closed, then stops viser, the clean job,
 Rerun's gRPC server, the executor and the reader child.
@@ -40,16 +41,17 @@ import viser
 
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_teleop.app_options import AppOptions
-from bt_teleop.cleaning import CleanRunner, lower_thread_priority
-from bt_teleop.connections import ConnectionWatch, loop_safe_wakeups
-from bt_teleop.library_loader import LibraryLoader
-from bt_teleop.native_memory import HeapTrimmer
-from bt_teleop.reader_process import ReaderProcess
-from bt_teleop.rerun_live import RerunHub
-from bt_teleop.session_process import start_forkserver
-from bt_teleop.tracks import read_file_tracks
-from bt_teleop.ui import ClientUI
-from bt_teleop.ui_context import TaskVersions, UiContext
+from bt_teleop.clean.runner import CleanRunner
+from bt_teleop.library.loader import LibraryLoader
+from bt_teleop.library.reader_process import ReaderProcess
+from bt_teleop.library.reading import read_file_tracks
+from bt_teleop.proc.native_memory import HeapTrimmer
+from bt_teleop.proc.priority import lower_thread_priority
+from bt_teleop.rerun.live import RerunHub
+from bt_teleop.session.process import start_forkserver
+from bt_teleop.ui.connections import ConnectionWatch, loop_safe_wakeups
+from bt_teleop.ui.context import TaskVersions, UiContext
+from bt_teleop.ui.tab import ClientUI
 
 LOGGER = logging.getLogger("bt.teleop")
 CAMERA_POSITION = (1.1, -0.85, 0.7)
@@ -120,7 +122,8 @@ class TeleopApp:
             thread_name_prefix="bt-read",
             initializer=lower_thread_priority if options.session_processes else None,
         )
-        # Files are read and scored in a child when the sessions are (bt_teleop/reader_process.py)
+        # Files are read and scored in a child when the sessions are
+        # (bt_teleop/library/reader_process.py)
         self.reader = ReaderProcess() if options.session_processes else None
         if self.reader is not None:  # its imports run while the first tab connects
             self._background.submit(self.reader.start)
@@ -154,7 +157,7 @@ class TeleopApp:
         self.connections = ConnectionWatch(
             self.server, options.idle_timeout_s, busy=self._busy, notify=self._notify_idle
         )
-        loop_safe_wakeups(self.server._websock_server.get_message_buffer())  # see connections.py
+        loop_safe_wakeups(self.server._websock_server.get_message_buffer())  # see ui/connections.py
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
         self.heap_trimmer = HeapTrimmer(options.trim_heap_every_s)

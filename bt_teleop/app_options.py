@@ -8,10 +8,10 @@ from pathlib import Path
 
 from bt_pipeline.data.tasks import GuidedTask, parse_guided_task
 from bt_pipeline.exceptions import ConfigError
-from bt_teleop.library_view import DEFAULT_LISTED
-from bt_teleop.rerun_live import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, RERUN_MODES, RerunMode
-from bt_teleop.scene import Robot, parse_robot
-from bt_teleop.session import SessionConfig
+from bt_teleop.library.view import DEFAULT_LISTED
+from bt_teleop.rerun.live import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, RERUN_MODES, RerunMode
+from bt_teleop.session.control_loop import SessionConfig
+from bt_teleop.sim.scene import Robot, parse_robot
 
 __all__ = ["AppOptions"]
 
@@ -62,10 +62,11 @@ class AppOptions:
     """Control and recording rates of every session."""
     session_processes: bool = True
     """Run each tab's simulation (control loop, IK, recorder) in a child process of its own,
-    one GIL per loop (bt_teleop/session_process.py); False: in the app's process."""
+    one GIL per loop (bt_teleop/session/process.py); False: in the app's process."""
     trim_heap_every_s: float = 60.0
     """Give the C heap's free pages back to the system this often [s] (``inf``: never); the
-    app's threads fragment glibc's arenas (docs/security.md, soak; bt_teleop/native_memory.py)."""
+    app's threads fragment glibc's arenas (docs/security.md, soak;
+    bt_teleop/proc/native_memory.py)."""
     listed_demos: int = DEFAULT_LISTED
     """Newest takes of a task that each tab's Demo and Replay pickers offer (besides the table's
     demos): what a save sends every tab stays bounded however many takes the task has."""

@@ -28,7 +28,7 @@ import tyro
 from PIL import Image
 from playwright.sync_api import Page, ViewportSize, expect
 
-from bt_teleop.testing import (
+from bt_teleop.testing.harness import (
     app_factory,
     chromium_page,
     circle_uv,
@@ -38,7 +38,7 @@ from bt_teleop.testing import (
     type_name,
     wait_until,
 )
-from bt_teleop.viewer_probe import ViewerProbe, ViewerState
+from bt_teleop.testing.viewer_probe import ViewerProbe, ViewerState
 
 PLACED = ("alice_", "bob_", "carol_", "dave_")
 """The real browser takes the task folder starts with (tests/test_teleop_browser_session.py)."""

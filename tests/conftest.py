@@ -6,7 +6,8 @@
 * ``write_example_file(directory, name="example.hdf5", **make_recording_kwargs)`` writes one to
   ``directory / name`` and returns the path.
 * ``make_app(**AppOptions overrides)`` starts a teleop app recording under ``tmp_path``, and
-  ``tabs(app)`` opens a simulated tab on it (:mod:`bt_teleop.testing`); all closed at the end.
+  ``tabs(app)`` opens a simulated tab on it (:mod:`bt_teleop.testing.harness`); all closed at the
+  end.
 """
 
 from __future__ import annotations
@@ -117,7 +118,8 @@ def write_example_file() -> Callable[..., Path]:
 @pytest.fixture
 def make_app(tmp_path: Path) -> Iterator[Callable[..., Any]]:
     """Teleop apps recording under ``tmp_path / "recordings"`` (stopped at the end)."""
-    from bt_teleop.testing import app_factory  # teleop tests only: no viser import elsewhere
+    # teleop tests only: no viser import elsewhere
+    from bt_teleop.testing.harness import app_factory
 
     with app_factory(tmp_path / "recordings") as make:
         yield make
@@ -126,7 +128,7 @@ def make_app(tmp_path: Path) -> Iterator[Callable[..., Any]]:
 @pytest.fixture
 def tabs() -> Iterator[Callable[..., Any]]:
     """``tabs(app)`` opens a simulated browser tab on a teleop app (closed at the end)."""
-    from bt_teleop.testing import tab_factory
+    from bt_teleop.testing.harness import tab_factory
 
     with tab_factory() as open_tab:
         yield open_tab

@@ -86,7 +86,7 @@ def test_scripted_operator_three_loops_from_home(tmp_path: Path) -> None:
     """Home pose → drive to the task → 3 loops → stop, recorded through the real session."""
     import json
 
-    from bt_teleop.script import run_script
+    from bt_teleop.session.script import run_script
 
     t = np.arange(0.0, 3 * LOOP_S + 1e-9, 0.1)
     uv = similarity_transform(canonical_shape("wiping", 2 * math.pi * t / LOOP_S), THETA, RHO)

@@ -1,4 +1,4 @@
-"""Idle websockets are closed (bt_teleop/connections.py): a silent tab is told and closed, its
+"""Idle websockets are closed (bt_teleop/ui/connections.py): a silent tab is told and closed, its
 server-side socket and file descriptor go away; a tab that talks, or records, stays."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import pytest
 
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.app import IDLE_TITLE, AppOptions
-from bt_teleop.connections import ConnectionWatch
-from bt_teleop.testing import CAMERA_MESSAGE, FakeTab, wait_until
+from bt_teleop.testing.harness import CAMERA_MESSAGE, FakeTab, wait_until
+from bt_teleop.ui.connections import ConnectionWatch
 
 
 def _closed(tab: FakeTab) -> bool:

@@ -1,5 +1,5 @@
 """kill -9 at chosen moments during bt clean, bt synth --overwrite, bt evaluate (four outputs),
-bt export (both formats) and an app take being saved (bt_pipeline.testing.faults): every output
+bt export (both formats) and an app take being saved (bt_teleop.testing.faults): every output
 complete or absent, an overwritten file old or new, a set from one run, no temp file left after
 the next run's recovery. The big suite (≥ 100 trials at random moments) is
 benchmarks/faults/bench_faults.py."""
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bt_pipeline.data.output_set import STAGING_PREFIX
-from bt_pipeline.testing.faults import check, prepare, run_trial, snapshot
+from bt_teleop.testing.faults import check, prepare, run_trial, snapshot
 
 REPO = Path(__file__).resolve().parents[1]
 DELAYS = np.random.default_rng(10).uniform(0.3, 6.0, size=8)
@@ -65,7 +65,7 @@ def test_a_writer_that_finishes_passes_the_check(tmp_path) -> None:
 
 def test_the_check_finds_an_evaluate_set_mixing_two_runs_or_missing_a_file(tmp_path) -> None:
     from bt_pipeline.data.output_set import OutputSet
-    from bt_pipeline.testing.faults import EVALUATE_OUTPUTS
+    from bt_teleop.testing.faults import EVALUATE_OUTPUTS
 
     folder = tmp_path / "evaluate"
     prepare("synth", tmp_path / "valid")  # a valid recording for the .hdf5 outputs

@@ -1,4 +1,4 @@
-"""Late control ticks are attributed (bt_teleop/late_ticks.py): a gap longer than the period
+"""Late control ticks are attributed (bt_teleop/session/late_ticks.py): a gap longer than the period
 plus ``SessionConfig.late_tick_s`` keeps what overlapped it (the threads' run-queue wait, the
 garbage collections, the command thread's requests, the phases of the tick before), and the
 cause named is the one that covers at least half the lateness."""
@@ -15,12 +15,12 @@ from pathlib import Path
 import pytest
 
 from bt_pipeline.exceptions import ConfigError
-from bt_teleop.late_ticks import LateProbe, LateTick, cause_counts
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session_config import SessionConfig
-from bt_teleop.session_process import SessionProcess
-from bt_teleop.testing import wait_until
-from bt_teleop.tick_stats import TickReport, TimedSession
+from bt_teleop.session.config import SessionConfig
+from bt_teleop.session.late_ticks import LateProbe, LateTick, cause_counts
+from bt_teleop.session.process import SessionProcess
+from bt_teleop.session.tick_stats import TickReport, TimedSession
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.testing.harness import wait_until
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The tabs' shared library loader (bt_teleop/library_loader.py): one queued load per task for
+"""The tabs' shared library loader (bt_teleop/library/loader.py): one queued load per task for
 every tab, files read once and again only when they change, the same library as a fresh load."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import pytest
 from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.exceptions import RecordingError
-from bt_teleop.library import load_library
-from bt_teleop.library_loader import LibraryLoader
-from bt_teleop.tracks import read_file_tracks
+from bt_teleop.library.listing import load_library
+from bt_teleop.library.loader import LibraryLoader
+from bt_teleop.library.reading import read_file_tracks
 
 
 def _write(root: Path, name: str, seed: int) -> Path:
@@ -103,7 +103,7 @@ def test_an_unreadable_file_is_not_read_again_until_it_changes(tmp_path) -> None
 
 def test_loads_of_a_task_are_spaced_by_their_own_duration(tmp_path, monkeypatch) -> None:
     """The next load waits max(min_interval_s, duty × the last load's CPU time) after it ended."""
-    import bt_teleop.library_loader as module
+    import bt_teleop.library.loader as module
 
     _write(tmp_path, "a.hdf5", 0)
     now = [100.0]
@@ -146,7 +146,7 @@ def test_a_load_waiting_for_its_reads_does_not_push_the_next_one_back(tmp_path) 
     """A load slowed by the reader child (its reads wait, the app's thread idles) is followed by
     the next one after min_interval_s, not after duty × its wall time: with the reader child
     sharing the CPU with a Clean job, spacing by wall time made the table lag by minutes."""
-    from bt_teleop.tracks import read_file_tracks
+    from bt_teleop.library.reading import read_file_tracks
 
     files = [_write(tmp_path, name, seed) for seed, name in enumerate(("a.hdf5", "b.hdf5"))]
     read = {path: read_file_tracks(path, "raw") for path in files}  # the child's answers
@@ -188,7 +188,7 @@ def test_a_load_reuses_the_tracks_of_unchanged_demos(tmp_path) -> None:
     allocations do not grow with the takes that did not change); the library equals a fresh
     load, also after an exclusion."""
     from bt_pipeline.data.moderation import exclude
-    from bt_teleop.testing import synthetic_task_files
+    from bt_teleop.testing.harness import synthetic_task_files
 
     files = synthetic_task_files(tmp_path, "wiping", 200)
     first = load_library(tmp_path, "wiping", read=lambda path, kind: files[path])
@@ -207,8 +207,8 @@ def test_a_load_reuses_the_tracks_of_unchanged_demos(tmp_path) -> None:
 
 def test_task_files_lists_what_expand_paths_lists(tmp_path) -> None:
     from bt_pipeline.data.paths import expand_paths
-    from bt_teleop.library import task_files
-    from bt_teleop.testing import synthetic_task_files
+    from bt_teleop.library.listing import task_files
+    from bt_teleop.testing.harness import synthetic_task_files
 
     synthetic_task_files(tmp_path, "wiping", 30)
     folder = tmp_path / "wiping"
@@ -224,8 +224,8 @@ def test_the_best_take_is_the_one_bt_clean_takes(tmp_path) -> None:
     shape gate of ``bt clean`` and ``bt score``), not the highest Ũ overall; the table lists
     those takes first."""
     from bt_pipeline.clean.selection import rank_takes
-    from bt_teleop.library import ranked
-    from bt_teleop.testing import synthetic_task_files
+    from bt_teleop.library.listing import ranked
+    from bt_teleop.testing.harness import synthetic_task_files
 
     files = synthetic_task_files(tmp_path, "wiping", 60)
     library = load_library(tmp_path, "wiping", read=lambda path, kind: files[path])

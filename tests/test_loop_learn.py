@@ -11,7 +11,6 @@ import math
 import numpy as np
 import pytest
 
-from bt_pipeline.clean.guide_fit import arc_length_resample
 from bt_pipeline.clean.loop_align import align, loop_signature, stated_distance
 from bt_pipeline.clean.loop_learn import learn_task_loop
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
@@ -20,7 +19,7 @@ from bt_pipeline.clean.segment import segment_demo
 from bt_pipeline.clean.selection import select_demos
 from bt_pipeline.clean.span_loop import span_loop
 from bt_pipeline.data.demo import Demo, demos_from_recording
-from bt_pipeline.data.loop_shape import LoopShape
+from bt_pipeline.data.loop_shape import LoopShape, arc_length_resample
 from bt_pipeline.data.random_loops import draw_set_loop
 from bt_pipeline.data.shapes import canonical_loop
 from bt_pipeline.data.synth import make_demo_set

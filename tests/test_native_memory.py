@@ -1,4 +1,4 @@
-"""The C heap (bt_teleop/native_memory.py): mallinfo2 sees what native code allocates,
+"""The C heap (bt_teleop/proc/native_memory.py): mallinfo2 sees what native code allocates,
 malloc_trim gives the free pages of a fragmented heap back, and the app trims its heap
 periodically (the soak's app process grew by fragmenting glibc's arenas: docs/security.md);
 HDF5's free lists hold what h5py's writes freed until they are released."""
@@ -14,14 +14,14 @@ import pytest
 
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.app import AppOptions
-from bt_teleop.native_memory import (
+from bt_teleop.proc.native_memory import (
     HeapTrimmer,
     hdf5_free_lists,
     heap_info,
     release_hdf5_free_lists,
     trim_heap,
 )
-from bt_teleop.testing import app_factory, wait_until
+from bt_teleop.testing.harness import app_factory, wait_until
 
 MIB = 2**20
 glibc = pytest.mark.skipif(heap_info() is None, reason="needs glibc's mallinfo2")

@@ -11,7 +11,7 @@ import signal
 import time
 
 from benchmarks.common import soak_control, soak_late
-from bt_teleop.late_ticks import LateTick
+from bt_teleop.session.late_ticks import LateTick
 
 
 def test_a_paused_control_loop_reports_its_stall_and_the_late_ticks_beside_it() -> None:

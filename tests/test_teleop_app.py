@@ -1,6 +1,6 @@
 """The teleop web app without a browser: server, one session per tab, files, Clean, replay, Rerun.
 
-Tabs are simulated by :class:`bt_teleop.testing.FakeTab`, a raw viser websocket client that
+Tabs are simulated by :class:`bt_teleop.testing.harness.FakeTab`, a raw viser websocket client that
 behaves like a tab. GUI actions are driven through the same handles the browser drives
 (setting a handle's value runs its callbacks).
 """
@@ -23,18 +23,18 @@ from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import ConfigError
 from bt_teleop.app import AppOptions, TeleopApp
-from bt_teleop.cleaning import CleanRunner, cleaned_path
-from bt_teleop.replay import load_library, replay_sync
-from bt_teleop.rerun_clean_log import CleanLogTarget
-from bt_teleop.rerun_live import RerunHub, SessionLogger
-from bt_teleop.script import run_script
-from bt_teleop.session import Session
-from bt_teleop.session_process import SessionProcess
-from bt_teleop.testing import guide_script, wait_until
-from bt_teleop.tick_stats import TimedSession
-from bt_teleop.track_samples import TrackReader
-from bt_teleop.ui import ClientUI
-from bt_teleop.viewer import Trail, guide_loop_world
+from bt_teleop.clean.runner import CleanRunner, cleaned_path
+from bt_teleop.library.replay import load_library, replay_sync
+from bt_teleop.library.track_samples import TrackReader
+from bt_teleop.rerun.clean_log import CleanLogTarget
+from bt_teleop.rerun.live import RerunHub, SessionLogger
+from bt_teleop.session.control_loop import Session
+from bt_teleop.session.process import SessionProcess
+from bt_teleop.session.script import run_script
+from bt_teleop.session.tick_stats import TimedSession
+from bt_teleop.testing.harness import guide_script, wait_until
+from bt_teleop.ui.tab import ClientUI
+from bt_teleop.ui.viewer import Trail, guide_loop_world
 
 
 def only_session(app: TeleopApp) -> ClientUI:
@@ -52,12 +52,12 @@ def record(ui: ClientUI, seconds: float) -> Path:
     return ui.saved[-1]
 
 
-SPAWNER_PREFIX = "bt-rerun-spawner"  # bt_teleop/rerun_proxy.py: _SPAWNER
+SPAWNER_PREFIX = "bt-rerun-spawner"  # bt_teleop/rerun/proxy.py: _SPAWNER
 
 
 def bt_threads() -> list[str]:
     """bt's live threads, but the Rerun spawner: it lives as long as the process by design (the
-    children it starts get SIGTERM when it ends; bt_teleop/rerun_proxy.py), so a test run that
+    children it starts get SIGTERM when it ends; bt_teleop/rerun/proxy.py), so a test run that
     started Rerun earlier (test_teleop_crowd.py) must not fail this one."""
     return [
         t.name
@@ -299,7 +299,7 @@ def test_replay_tracks_a_raw_demo(three_recordings) -> None:
 
 
 def test_guide_lies_on_the_task_plane_and_follows_theta_and_rho() -> None:
-    from bt_teleop.scene import load_scene
+    from bt_teleop.sim.scene import load_scene
 
     scene = load_scene("weaving")
     base = guide_loop_world(scene, 0.0, 1.0)

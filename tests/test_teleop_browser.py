@@ -21,8 +21,8 @@ from playwright.sync_api import Page, expect
 
 from bt_pipeline.data.recording import read_recording
 from bt_teleop.app import TeleopApp
-from bt_teleop.testing import app_factory, chromium_page, wait_until
-from bt_teleop.ui import ClientUI
+from bt_teleop.testing.harness import app_factory, chromium_page, wait_until
+from bt_teleop.ui.tab import ClientUI
 
 PAGE_TIMEOUT_MS = 90_000
 

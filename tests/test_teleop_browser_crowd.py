@@ -14,8 +14,8 @@ from playwright.sync_api import Page, expect
 
 from bt_pipeline.data.moderation import is_excluded
 from bt_pipeline.data.recording import read_recording
-from bt_teleop.script import run_script
-from bt_teleop.testing import (
+from bt_teleop.session.script import run_script
+from bt_teleop.testing.harness import (
     app_factory,
     chromium_page,
     guide_script,
@@ -23,7 +23,7 @@ from bt_teleop.testing import (
     type_name,
     wait_until,
 )
-from bt_teleop.ui import ClientUI
+from bt_teleop.ui.tab import ClientUI
 
 PAGE_TIMEOUT_MS = 90_000
 expect.set_options(timeout=PAGE_TIMEOUT_MS)  # software WebGL on a busy machine is slow
@@ -106,7 +106,7 @@ def test_exclude_restore_and_clean_with_a_flagged_demo(tmp_path: Path, page: Pag
         expect(page.get_by_text("Saved but flagged", exact=False).first).to_be_visible()
         wait_until(lambda: ui.library is not None and len(ui.library.raw) == 4, 60.0, "")
         # The Demo picker opens on the newest usable take, not the junk one just saved, and
-        # reads like the table (who, when, θ and ρ, Ũ; bt_teleop/pickers.py).
+        # reads like the table (who, when, θ and ρ, Ũ; bt_teleop/library/pickers.py).
         raw = ui.library.raw  # type: ignore[union-attr]
         newest_usable = next(t for t in raw if t.demonstrator == "careful2")  # saved last
         wait_until(lambda: ui.controls.demo_picker.key == newest_usable.key, 30.0, "the default")

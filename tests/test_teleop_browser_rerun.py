@@ -1,6 +1,6 @@
 """The live Rerun view in a real browser: Rerun's own web viewer, in Debian's headless Chromium
 (as tests/test_teleop_browser.py), read through its viewer-control API
-(:class:`bt_teleop.viewer_probe.ViewerProbe`), not through pixels.
+(:class:`bt_teleop.testing.viewer_probe.ViewerProbe`), not through pixels.
 
 * A tab's link opens the viewer on that tab's own recording, holding its robot states and its
   saved take, while another session streams too.
@@ -26,13 +26,19 @@ from playwright.sync_api import Page, expect
 from bt_pipeline.clean.pipeline import CleanOptions
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.viz.demo_style import name_from_stem
-from bt_teleop.clean_task import clean_task
-from bt_teleop.rerun_clean_log import log_clean_to
-from bt_teleop.rerun_layout import session_blueprint
-from bt_teleop.rerun_live import RerunHub
-from bt_teleop.script import run_script
-from bt_teleop.testing import app_factory, chromium_page, guide_script, tab_factory, wait_until
-from bt_teleop.viewer_probe import ViewerProbe, ViewerState
+from bt_teleop.clean.task import clean_task
+from bt_teleop.rerun.blueprint import session_blueprint
+from bt_teleop.rerun.clean_log import log_clean_to
+from bt_teleop.rerun.live import RerunHub
+from bt_teleop.session.script import run_script
+from bt_teleop.testing.harness import (
+    app_factory,
+    chromium_page,
+    guide_script,
+    tab_factory,
+    wait_until,
+)
+from bt_teleop.testing.viewer_probe import ViewerProbe, ViewerState
 
 VIEWER_TIMEOUT_S = 240.0
 """Longest wait for the web viewer to start and receive a session [s] (loaded 2-core CI)."""

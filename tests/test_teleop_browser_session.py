@@ -34,7 +34,7 @@ from typing import Any
 from playwright.sync_api import Page, expect
 from rerun.chunk import RrdReader
 
-from bt_teleop.testing import (
+from bt_teleop.testing.harness import (
     app_factory,
     chromium_page,
     circle_uv,

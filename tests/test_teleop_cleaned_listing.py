@@ -1,5 +1,6 @@
-"""A cleaned file is listed from its attributes, without its samples (bt_teleop/cleaned_listing.py):
-the same tracks as from a full read, and a broken file is a RecordingError naming what broke."""
+"""A cleaned file is listed from its attributes, without its samples
+(bt_teleop/library/cleaned_listing.py): the same tracks as from a full read, and a broken file is
+a RecordingError naming what broke."""
 
 from __future__ import annotations
 
@@ -12,8 +13,9 @@ import pytest
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.exceptions import RecordingError
-from bt_teleop.cleaned_listing import read_cleaned_listing
-from bt_teleop.tracks import _cleaned_tracks, file_stamp, read_file_tracks
+from bt_teleop.library.cleaned_listing import read_cleaned_listing
+from bt_teleop.library.reading import _cleaned_tracks, read_file_tracks
+from bt_teleop.library.tracks import file_stamp
 
 
 def cleaned_file(path: Path, n: int = 6) -> Path:

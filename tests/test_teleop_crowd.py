@@ -19,15 +19,15 @@ from bt_pipeline.data.recording import read_recording
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError, DemoError
 from bt_teleop.app import TeleopApp
-from bt_teleop.cleaning import clean_task
-from bt_teleop.library import library_markdown, load_library
-from bt_teleop.rerun_clean_log import log_clean_to
-from bt_teleop.rerun_layout import session_blueprint
-from bt_teleop.rerun_live import RerunHub, SessionLogger
-from bt_teleop.script import run_script
-from bt_teleop.testing import FakeTab, guide_script, wait_until
-from bt_teleop.ui import ClientUI
-from bt_teleop.ui_panels import NO_DEMOS
+from bt_teleop.clean.runner import clean_task
+from bt_teleop.library.listing import library_markdown, load_library
+from bt_teleop.rerun.blueprint import session_blueprint
+from bt_teleop.rerun.clean_log import log_clean_to
+from bt_teleop.rerun.live import RerunHub, SessionLogger
+from bt_teleop.session.script import run_script
+from bt_teleop.testing.harness import FakeTab, guide_script, wait_until
+from bt_teleop.ui.panels import NO_DEMOS
+from bt_teleop.ui.tab import ClientUI
 
 TOKEN = "operator-secret-1"
 
@@ -239,7 +239,7 @@ def test_small_things_of_the_page(make_app, tabs, tmp_path) -> None:
     wait_until(lambda: ui.library is not None and len(ui.library.raw) == 1, what="library")
     assert "1 demo of wiping" in c.library_text.content and "1 demos" not in c.library_text.content
     assert not c.play_button.disabled
-    from bt_teleop.cleaning import CleanProgress
+    from bt_teleop.clean.runner import CleanProgress
 
     starting = CleanProgress("wiping", "running", 0, 10, "reading")
 

@@ -1,4 +1,4 @@
-"""bt_teleop.escape: hostile text from a browser renders as the characters typed, nowhere as
+"""bt_teleop.takes.escape: hostile text from a browser renders as the characters typed, nowhere as
 markup. Checked by rendering with a CommonMark + GFM renderer that passes raw HTML through (as
 viser's page does): no tag survives, every table keeps its rows and columns."""
 
@@ -10,7 +10,7 @@ import re
 import pytest
 from markdown_it import MarkdownIt
 
-from bt_teleop.escape import breakable, display_text, html_text, markdown_text
+from bt_teleop.takes.escape import breakable, display_text, html_text, markdown_text
 
 HOSTILE = [
     "<script>alert(1)</script>",

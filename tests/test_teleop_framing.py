@@ -1,4 +1,4 @@
-"""bt_teleop.framing: each task's default camera faces the side of the task plane the robot
+"""bt_teleop.ui.framing: each task's default camera faces the side of the task plane the robot
 works on and keeps the whole guide in view; the gizmo's axes are the task plane's axes, and its
 handles show in that view beside the tool, left of the control panel, large enough to grab."""
 
@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bt_teleop.framing import CameraView, default_view, plane_wxyz
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session import Session
-from bt_teleop.tab_scene import GIZMO_SCALE_M
-from bt_teleop.testing import VIEWPORT
-from bt_teleop.viewer import guide_loop_world
+from bt_teleop.session.control_loop import Session
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.testing.harness import VIEWPORT
+from bt_teleop.ui.framing import CameraView, default_view, plane_wxyz
+from bt_teleop.ui.tab_scene import GIZMO_SCALE_M
+from bt_teleop.ui.viewer import guide_loop_world
 
 TASKS = ("wiping", "weaving", "pick_and_place")
 
@@ -60,7 +60,7 @@ PANEL_PX = 340
 """The control panel covers this much of the page's right side [px] (viser's default width)."""
 MIN_HANDLE_PX = 24
 """Smallest side [px] of the square a person grabs to drag in the task plane."""
-VISIBLE_GROUPS = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)  # geoms the page draws (viewer.py)
+VISIBLE_GROUPS = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)  # geoms the page draws (ui/viewer.py)
 
 
 def gizmo_axes(scene: SceneModel) -> tuple[np.ndarray, np.ndarray]:

@@ -13,9 +13,9 @@ import pytest
 
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError
-from bt_teleop import ik as ik_module
-from bt_teleop.ik import IkController, IkSettings
-from bt_teleop.scene import ARM_JOINTS, SceneModel, load_scene
+from bt_teleop.sim import ik as ik_module
+from bt_teleop.sim.ik import IkController, IkSettings
+from bt_teleop.sim.scene import ARM_JOINTS, SceneModel, load_scene
 
 
 @pytest.fixture(scope="module")

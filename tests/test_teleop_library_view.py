@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 import viser
 
-from bt_teleop.library import TaskLibrary, load_library
-from bt_teleop.library_view import library_view
-from bt_teleop.testing import synthetic_task_files
-from bt_teleop.tracks import ReplayTrack
-from bt_teleop.ui_panels import TabControls
+from bt_teleop.library.listing import TaskLibrary, load_library
+from bt_teleop.library.tracks import ReplayTrack
+from bt_teleop.library.view import library_view
+from bt_teleop.testing.harness import synthetic_task_files
+from bt_teleop.ui.panels import TabControls
 
 
 def task_library(root: Path, n: int, excluded: tuple[int, ...] = ()) -> TaskLibrary:
@@ -158,8 +158,8 @@ def test_the_table_explains_the_star_and_sorts_by_rank_or_utility(tmp_path: Path
     """When the ★ take is not the highest Ũ, one line says why (the shape gate's line, as ``bt
     score`` prints it); rows sort by rank (★ first) or by Ũ, with each take's rank shown."""
     from bt_pipeline.clean.selection import rank_takes
-    from bt_teleop.escape import markdown_text
-    from bt_teleop.library import library_markdown
+    from bt_teleop.library.listing import library_markdown
+    from bt_teleop.takes.escape import markdown_text
 
     files = synthetic_task_files(tmp_path, "wiping", 60)
     library = load_library(tmp_path, "wiping", read=lambda path, kind: files[path])

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bt_teleop.motion_hint import IDLE_HINT_S, motion_hint, still_for_s
-from bt_teleop.scene import load_scene
-from bt_teleop.session import Session
-from bt_teleop.testing import guide_uv, wait_until
-from bt_teleop.ui_panels import status_markdown
+from bt_teleop.session.control_loop import Session
+from bt_teleop.sim.scene import load_scene
+from bt_teleop.testing.harness import guide_uv, wait_until
+from bt_teleop.ui.motion_hint import IDLE_HINT_S, motion_hint, still_for_s
+from bt_teleop.ui.panels import status_markdown
 
 HINT = "drag the gizmo's handle to move the robot"
 PERIOD_S = 0.02  # 50 Hz, the recorder's rate

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bt_pipeline.exceptions import ConfigError, UnknownTaskError
-from bt_teleop.naming import (
+from bt_teleop.takes.naming import (
     MAX_NAME_CHARS,
     clean_demonstrator,
     demo_path,
@@ -91,9 +91,9 @@ def test_clean_demonstrator_keeps_free_text_printable() -> None:
 def test_the_app_keeps_to_its_three_tasks(tmp_path: Path, task: str) -> None:
     """Files may name any task; the app has scenes and folders for the three guided ones only."""
     from bt_teleop.app_options import AppOptions
-    from bt_teleop.clean_task import cleaned_path, task_dir
-    from bt_teleop.scene import load_scene
-    from bt_teleop.script import parse_script
+    from bt_teleop.clean.task import cleaned_path, task_dir
+    from bt_teleop.session.script import parse_script
+    from bt_teleop.sim.scene import load_scene
 
     valid = "valid tasks are wiping, weaving, pick_and_place"
     with pytest.raises(UnknownTaskError, match=valid):

@@ -14,11 +14,11 @@ from typing import Any
 import pytest
 import viser
 
-from bt_teleop.library import TaskLibrary, load_library
-from bt_teleop.library_view import library_view
-from bt_teleop.pickers import NO_DEMOS, PickerOptions, demo_label, picker_options
-from bt_teleop.testing import synthetic_task_files
-from bt_teleop.ui_panels import TabControls
+from bt_teleop.library.listing import TaskLibrary, load_library
+from bt_teleop.library.pickers import NO_DEMOS, PickerOptions, demo_label, picker_options
+from bt_teleop.library.view import library_view
+from bt_teleop.testing.harness import synthetic_task_files
+from bt_teleop.ui.panels import TabControls
 
 HOSTILE = "\u202eEve\u0007 <b>x</b>" + "z" * 40  # a right-to-left override, a bell, markup
 

@@ -1,4 +1,4 @@
-"""The app's reader child (bt_teleop/reader_process.py): the same tracks as a read in the
+"""The app's reader child (bt_teleop/library/reader_process.py): the same tracks as a read in the
 app's process, errors that name the file, and a read that hangs or a child that dies never
 blocking the next read."""
 
@@ -16,9 +16,9 @@ import pytest
 from bt_pipeline.data.recording import write_recording
 from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.exceptions import RecordingError
-from bt_teleop.reader_process import READER_NAME, READER_NICE, ReaderLost, ReaderProcess
-from bt_teleop.testing import wait_until
-from bt_teleop.tracks import read_file_tracks
+from bt_teleop.library.reader_process import READER_NAME, READER_NICE, ReaderLost, ReaderProcess
+from bt_teleop.library.reading import read_file_tracks
+from bt_teleop.testing.harness import wait_until
 
 
 @pytest.fixture(scope="module")

@@ -17,8 +17,8 @@ import pytest
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.data.records import MIN_SAMPLES
 from bt_pipeline.exceptions import ConfigError, RecordingError
-from bt_teleop.recorder import STATE_SIGNATURE, DemoInfo, DemoRecorder, env_args, save_demo
-from bt_teleop.scene import SceneModel, load_scene
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.takes.recorder import STATE_SIGNATURE, DemoInfo, DemoRecorder, env_args, save_demo
 
 WHEN = datetime(2025, 6, 1, 12, 0, 0, tzinfo=UTC)
 

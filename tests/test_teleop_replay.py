@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 import viser
 
-from bt_teleop.replay import ReplayPlayer, hold_pose, replay_sync
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session import Session
-from bt_teleop.tab_scene import CLEANED_RGB, RAW_RGB, TabScene
-from bt_teleop.testing import circle_uv, wait_until
-from bt_teleop.track_samples import TrackSamples
-from bt_teleop.ui_panels import PATHS_LEGEND, status_markdown
-from bt_teleop.viewer import dashed_segments, segments
+from bt_teleop.library.replay import ReplayPlayer, hold_pose, replay_sync
+from bt_teleop.library.track_samples import TrackSamples
+from bt_teleop.session.control_loop import Session
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.testing.harness import circle_uv, wait_until
+from bt_teleop.ui.panels import PATHS_LEGEND, status_markdown
+from bt_teleop.ui.tab_scene import CLEANED_RGB, RAW_RGB, TabScene
+from bt_teleop.ui.viewer import dashed_segments, segments
 
 CLAMPED = "target clamped"
 

@@ -1,4 +1,4 @@
-"""bt_teleop.rerun_live: saved demos named and coloured as the page shows them, with a legend;
+"""bt_teleop.rerun.live: saved demos named and coloured as the page shows them, with a legend;
 the app's Rerun servers off the ports a user's ``rerun FILE`` looks at."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from bt_teleop.app_options import AppOptions
-from bt_teleop.rerun_live import RerunHub, SessionLogger
+from bt_teleop.rerun.live import RerunHub, SessionLogger
 
 RERUN_DEFAULT_PORTS = {9876, 9090}
 """Where ``rerun FILE`` looks for a running viewer (gRPC) and ``--web-viewer`` serves."""

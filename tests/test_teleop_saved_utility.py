@@ -1,4 +1,4 @@
-"""The page marks a Ũ that moved since its take was saved (bt_teleop/saved_utility.py): Ũ is
+"""The page marks a Ũ that moved since its take was saved (bt_teleop/takes/saved_utility.py): Ũ is
 relative to the task's current set, so a take saved later can move the others' Ũ."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from bt_teleop.library import RELATIVE_NOTE, library_markdown, load_library
-from bt_teleop.saved_utility import SAVED_NAME, read_saved, remember
-from bt_teleop.testing import shared_dir
+from bt_teleop.library.listing import RELATIVE_NOTE, library_markdown, load_library
+from bt_teleop.takes.saved_utility import SAVED_NAME, read_saved, remember
+from bt_teleop.testing.harness import shared_dir
 
 TAKES = shared_dir() / "data/browser-takes/wiping"
 
@@ -65,7 +65,7 @@ def test_the_kept_values_are_written_once_and_follow_the_listing(tmp_path: Path)
 def test_a_folder_that_cannot_be_written_keeps_the_marks_in_memory(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import bt_teleop.saved_utility as saved_utility
+    import bt_teleop.takes.saved_utility as saved_utility
 
     def refuse(path: Path, text: str) -> None:
         raise PermissionError(13, "Permission denied", str(path))

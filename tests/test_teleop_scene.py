@@ -16,9 +16,9 @@ import pytest
 from bt_pipeline.data.shapes import canonical_shape
 from bt_pipeline.data.tasks import TASKS, Task, default_plane
 from bt_pipeline.exceptions import ConfigError, UnknownTaskError
-from bt_teleop.recorder import RHO_RANGE, THETA_RANGE_DEG
-from bt_teleop.scene import ARM_JOINTS, EE_SITE, load_scene, robot_model
-from bt_teleop.viewer import guide_loop_world
+from bt_teleop.sim.scene import ARM_JOINTS, EE_SITE, load_scene, robot_model
+from bt_teleop.takes.recorder import RHO_RANGE, THETA_RANGE_DEG
+from bt_teleop.ui.viewer import guide_loop_world
 
 SHARED_MENAGERIE = Path(__file__).resolve().parents[2] / "shared" / "menagerie"
 

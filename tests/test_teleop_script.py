@@ -18,9 +18,9 @@ import pytest
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.data.shapes import canonical_shape
 from bt_pipeline.exceptions import ConfigError, UnknownTaskError
-from bt_teleop.recorder import STATE_SIGNATURE
-from bt_teleop.scene import load_scene
-from bt_teleop.script import load_script, parse_script, run_script
+from bt_teleop.session.script import load_script, parse_script, run_script
+from bt_teleop.sim.scene import load_scene
+from bt_teleop.takes.recorder import STATE_SIGNATURE
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "scripts"
 

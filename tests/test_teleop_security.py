@@ -23,12 +23,12 @@ from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.testing.sockets import is_loopback_address, listening
 from bt_teleop import app as app_module
 from bt_teleop.app import AppOptions, is_loopback, start_app
-from bt_teleop.cleaning import CleanRunner
-from bt_teleop.reader_process import READER_NAME
-from bt_teleop.recorder import DemoInfo
-from bt_teleop.script import run_script
-from bt_teleop.testing import FakeTab, wait_until
-from bt_teleop.ui import ClientUI
+from bt_teleop.clean.runner import CleanRunner
+from bt_teleop.library.reader_process import READER_NAME
+from bt_teleop.session.script import run_script
+from bt_teleop.takes.recorder import DemoInfo
+from bt_teleop.testing.harness import FakeTab, wait_until
+from bt_teleop.ui.tab import ClientUI
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -129,7 +129,7 @@ def test_a_clean_job_can_be_cancelled_and_the_task_cleaned_again(recordings) -> 
 
 
 def test_a_clean_job_runs_at_a_lower_cpu_priority_than_the_app(recordings) -> None:
-    from bt_teleop.cleaning import CLEAN_NICE
+    from bt_teleop.proc.priority import CLEAN_NICE
 
     runner = CleanRunner(recordings, CleanOptions(epochs=100_000, write_rrd=False), processes=True)
     try:
@@ -177,7 +177,7 @@ def _start_bt_teleop(tmp_path: Path, *flags: str, **popen: Any) -> tuple[subproc
 def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
     """All listening sockets of `bt teleop` (defaults, Rerun serving) and its children; and
     when the app is killed with SIGKILL (it cannot stop them), its children die too: Rerun's
-    and a tab's session process (bt_teleop/session_process.py)."""
+    and a tab's session process (bt_teleop/session/process.py)."""
     process, port = _start_bt_teleop(tmp_path)
     tab: FakeTab | None = None
     try:
@@ -257,7 +257,7 @@ def test_a_tab_thread_never_sets_viser_message_events_off_their_loop(make_app, t
     loop-side set that viser schedules next."""
     import asyncio
 
-    from bt_teleop.connections import LoopSafeEvent
+    from bt_teleop.ui.connections import LoopSafeEvent
 
     app = make_app()
     tabs(app)

@@ -19,11 +19,11 @@ from bt_pipeline.data.recording import read_recording
 from bt_pipeline.data.records import MIN_SAMPLES
 from bt_pipeline.data.tasks import TASKS
 from bt_pipeline.exceptions import ConfigError, RecordingError
-from bt_teleop import ik as ik_module
-from bt_teleop.recorder import STATE_SIGNATURE
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session import Session, SessionConfig
-from bt_teleop.testing import circle_uv
+from bt_teleop.session.control_loop import Session, SessionConfig
+from bt_teleop.sim import ik as ik_module
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.takes.recorder import STATE_SIGNATURE
+from bt_teleop.testing.harness import circle_uv
 
 RADIUS_M = 0.06
 PERIOD_S = 4.0

@@ -1,7 +1,7 @@
-"""A tab's session in a child process (bt_teleop/session_process.py): it moves the arm, records
+"""A tab's session in a child process (bt_teleop/session/process.py): it moves the arm, records
 and saves takes that read back, re-raises the child's errors, survives nothing it should not
 (a killed child is one clear message, never a hang) and leaves no child behind; and
-the tick timing every session keeps (bt_teleop/tick_stats.py)."""
+the tick timing every session keeps (bt_teleop/session/tick_stats.py)."""
 
 from __future__ import annotations
 
@@ -20,13 +20,14 @@ import pytest
 
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import BtError, ConfigError, SessionLostError
-from bt_teleop.native_memory import HeapInfo, heap_info
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session_child import portable_error
-from bt_teleop.session_config import SessionConfig
-from bt_teleop.session_process import SessionProcess, open_session
-from bt_teleop.testing import circle_uv, wait_until
-from bt_teleop.tick_stats import BIN_S, Histogram, TickReport, TimedSession, command_priority
+from bt_teleop.proc.child import portable_error
+from bt_teleop.proc.native_memory import HeapInfo, heap_info
+from bt_teleop.proc.priority import command_priority
+from bt_teleop.session.config import SessionConfig
+from bt_teleop.session.process import SessionProcess, open_session
+from bt_teleop.session.tick_stats import BIN_S, Histogram, TickReport, TimedSession
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.testing.harness import circle_uv, wait_until
 
 
 @pytest.fixture(scope="module")
@@ -316,7 +317,7 @@ def test_the_child_s_threads_run_real_time_when_asked_and_permitted(
         # the loop and the command thread that shares its GIL: both, or neither
         assert policies == ({os.SCHED_RR} if expected else {os.SCHED_OTHER})
         # the loop alone at the priority asked; the thread serving it one step below, so a
-        # take's save never queues another session's loop (tick_stats.command_priority)
+        # take's save never queues another session's loop (proc/priority.py command_priority)
         n = len(tids)
         assert levels == ([priority - 1] * (n - 1) + [priority] if expected else [0] * n)
     assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the app's own threads are untouched
@@ -335,20 +336,20 @@ def test_the_thread_serving_a_loop_runs_one_real_time_step_below_it() -> None:
 def test_a_loop_not_permitted_real_time_keeps_the_normal_policy_and_says_how(
     monkeypatch, caplog
 ) -> None:
-    import bt_teleop.tick_stats as tick_stats
+    import bt_teleop.proc.priority as priority
 
     def refuse(*args: object) -> None:
         raise PermissionError(1, "Operation not permitted")
 
     result: list[bool] = []
-    monkeypatch.setattr(tick_stats.os, "sched_setscheduler", refuse)
-    with caplog.at_level(logging.INFO, logger=tick_stats.LOGGER.name):
-        thread = threading.Thread(target=lambda: result.append(tick_stats.use_realtime(10)))
+    monkeypatch.setattr(priority.os, "sched_setscheduler", refuse)
+    with caplog.at_level(logging.INFO, logger=priority.LOGGER.name):
+        thread = threading.Thread(target=lambda: result.append(priority.use_realtime(10)))
         thread.start()
         thread.join()
     assert result == [False]  # the default priority, refused: the loop runs on, not real-time
     assert "ulimit -r" in caplog.text and "--realtime-priority 0" in caplog.text
     caplog.clear()
-    with caplog.at_level(logging.INFO, logger=tick_stats.LOGGER.name):
-        assert tick_stats.use_realtime(9, quiet=True) is False  # the command thread's call
+    with caplog.at_level(logging.INFO, logger=priority.LOGGER.name):
+        assert priority.use_realtime(9, quiet=True) is False  # the command thread's call
     assert caplog.text == ""  # one line per child: its loop's

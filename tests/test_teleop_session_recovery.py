@@ -1,5 +1,5 @@
 """A session child that is slow is not lost, and a lost one is replaced
-(bt_teleop/session_process.py, session_pipe.py, session_recovery.py, ui_takes.py).
+(bt_teleop/session/process.py, pipe.py, recovery.py; bt_teleop/ui/takes.py).
 
 A child stopped (SIGSTOP) longer than the quick-call timeout stays, its late replies are never
 taken for another call's, and commands sent meanwhile never block; a child that died or
@@ -21,13 +21,13 @@ import pytest
 
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import ConfigError, SessionLostError
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session_config import SessionStatus
-from bt_teleop.session_pipe import BUSY_WARNING
-from bt_teleop.session_process import SessionProcess
-from bt_teleop.testing import circle_uv, wait_until
-from bt_teleop.tick_stats import TickReport
-from bt_teleop.ui import ClientUI
+from bt_teleop.session.config import SessionStatus
+from bt_teleop.session.pipe import BUSY_WARNING
+from bt_teleop.session.process import SessionProcess
+from bt_teleop.session.tick_stats import TickReport
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.testing.harness import circle_uv, wait_until
+from bt_teleop.ui.tab import ClientUI
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Take checks (bt_teleop.take_checks) on real browser takes and on takes with the features of
+"""Take checks (bt_teleop.takes.checks) on real browser takes and on takes with the features of
 real use: an approach from the home pose, pauses, uneven sample times, a loop drawn off-size or
 of another shape than the guide.
 
@@ -22,8 +22,8 @@ from bt_pipeline.data.records import INFO_FLAGS, DemoRecord, Recording
 from bt_pipeline.data.shapes import canonical_loop, similarity_transform
 from bt_pipeline.data.tasks import default_plane
 from bt_pipeline.exceptions import ConfigError
-from bt_teleop.take_checks import TakeCheck, TakeCheckConfig, check_take, guide_misfit
-from bt_teleop.testing import shared_dir
+from bt_teleop.takes.checks import TakeCheck, TakeCheckConfig, check_take, guide_misfit
+from bt_teleop.testing.harness import shared_dir
 
 TAKES = shared_dir() / "data/browser-takes/wiping"
 GOOD = ("alice_", "bob_", "carol_", "dave_")
@@ -250,7 +250,7 @@ def test_the_soak_drivers_guide_trace_passes_the_checks_and_a_circle_is_off_the_
     take of 1.2 loops of it passes every check. The circle the soak drew before closes a loop of
     its own: once flagged ``incomplete`` and skipped, it is now kept with the remark
     ``off_guide``."""
-    from bt_teleop.testing import circle_uv, guide_uv
+    from bt_teleop.testing.harness import circle_uv, guide_uv
 
     plane = default_plane("wiping")
     times = np.arange(0.0, 4.8, 1.0 / 50.0)
@@ -315,7 +315,7 @@ def test_takes_off_the_guide_are_scored_and_cleaned(tmp_path: Path) -> None:
 def test_the_listing_shows_off_the_guide_as_a_usable_take(tmp_path: Path) -> None:
     from markdown_it import MarkdownIt
 
-    from bt_teleop.library import library_markdown, load_library
+    from bt_teleop.library.listing import library_markdown, load_library
 
     write_circle_takes(tmp_path / "rec" / "wiping")
     library = load_library(tmp_path / "rec", "wiping")
@@ -334,10 +334,10 @@ def test_a_circle_drawn_in_the_app_is_saved_off_the_guide_and_its_clean_keeps_it
     tmp_path: Path,
 ) -> None:
     """Through the scripted operator (IK, simulation, recorder, the checks on save) and the
-    page's Clean (:func:`bt_teleop.clean_task.clean_task`): no take is skipped."""
+    page's Clean (:func:`bt_teleop.clean.task.clean_task`): no take is skipped."""
     from bt_pipeline.clean.pipeline import CleanOptions
-    from bt_teleop.clean_task import clean_task
-    from bt_teleop.script import run_script
+    from bt_teleop.clean.task import clean_task
+    from bt_teleop.session.script import run_script
 
     root = tmp_path / "rec"
     times = np.linspace(0.0, 10.0, 121)

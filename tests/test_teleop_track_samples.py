@@ -1,6 +1,6 @@
-"""Play reads a track's samples from its file (bt_teleop/track_samples.py): the same samples as
-the file holds, a bounded number kept, and a clear message when the file is gone or changed
-since the list was built, also in a tab (no crash, the list reloads)."""
+"""Play reads a track's samples from its file (bt_teleop/library/track_samples.py): the same samples
+as the file holds, a bounded number kept, and a clear message when the file is gone or changed since
+the list was built, also in a tab (no crash, the list reloads)."""
 
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ import pytest
 from bt_pipeline.data.moderation import sidecar_path
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.exceptions import RecordingError
-from bt_teleop.library import load_library
-from bt_teleop.replay import read_replay
-from bt_teleop.testing import wait_until
-from bt_teleop.track_samples import TrackReader
+from bt_teleop.library.listing import load_library
+from bt_teleop.library.replay import read_replay
+from bt_teleop.library.track_samples import TrackReader
+from bt_teleop.testing.harness import wait_until
 from tests.test_teleop_tracks import takes, write_cleaned  # noqa: F401 (a fixture)
 
 

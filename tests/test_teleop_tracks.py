@@ -1,6 +1,6 @@
-"""What the app keeps per take (bt_teleop/tracks.py): the listing of real browser takes, with no
-samples anywhere in a library or in the shared loader's cache, and scores equal to scoring the
-files' usable demos from scratch (bt_pipeline.score.utility.score_demos)."""
+"""What the app keeps per take (bt_teleop/library/tracks.py): the listing of real browser takes,
+with no samples anywhere in a library or in the shared loader's cache, and scores equal to scoring
+the files' usable demos from scratch (bt_pipeline.score.utility.score_demos)."""
 
 from __future__ import annotations
 
@@ -18,11 +18,12 @@ from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.moderation import exclude
 from bt_pipeline.data.recording import read_recording, write_recording
 from bt_pipeline.exceptions import DemoError
-from bt_teleop.cleaning import cleaned_path
-from bt_teleop.library import library_markdown, load_library
-from bt_teleop.library_loader import LibraryLoader
-from bt_teleop.testing import reachable, shared_dir
-from bt_teleop.tracks import file_stamp, read_file_tracks
+from bt_teleop.clean.runner import cleaned_path
+from bt_teleop.library.listing import library_markdown, load_library
+from bt_teleop.library.loader import LibraryLoader
+from bt_teleop.library.reading import read_file_tracks
+from bt_teleop.library.tracks import file_stamp
+from bt_teleop.testing.harness import reachable, shared_dir
 
 TAKES = shared_dir() / "data/browser-takes/wiping"
 

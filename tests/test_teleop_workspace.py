@@ -7,7 +7,7 @@ import pytest
 
 from bt_pipeline.data.tasks import TASKS, Task, default_plane
 from bt_pipeline.exceptions import ConfigError
-from bt_teleop.workspace import (
+from bt_teleop.sim.workspace import (
     Workspace,
     project_onto_plane,
     slew_toward,

@@ -24,8 +24,8 @@ from bt_pipeline.cli import main
 from bt_pipeline.data.paths import expand_paths
 from bt_pipeline.data.recording import read_recording
 from bt_pipeline.viz.view import view_demos
-from bt_teleop.library import load_library
-from bt_teleop.testing import shared_dir
+from bt_teleop.library.listing import load_library
+from bt_teleop.testing.harness import shared_dir
 
 TAKES = shared_dir() / "data/browser-takes/wiping"
 

@@ -1,13 +1,13 @@
-"""bt_teleop.viewer_probe without a browser: the state and answers a page would give, encoded as
-Rerun's viewer control protobuf, are decoded into the probe's records. (In a browser, against
-Rerun's real web viewer: tests/test_teleop_browser_rerun.py.)"""
+"""bt_teleop.testing.viewer_probe without a browser: the state and answers a page would give,
+encoded as Rerun's viewer control protobuf, are decoded into the probe's records. (In a browser,
+against Rerun's real web viewer: tests/test_teleop_browser_rerun.py.)"""
 
 from __future__ import annotations
 
 import base64
 from typing import Any
 
-from bt_teleop import viewer_probe as vp
+from bt_teleop.testing import viewer_probe as vp
 
 
 class FakePage:

@@ -143,7 +143,7 @@ def run_loop(period_s: float, late_s: float, stop: threading.Event) -> dict[str,
 
 
 def main() -> None:
-    from bt_teleop.tick_stats import raise_priority, use_realtime
+    from bt_teleop.proc.priority import raise_priority, use_realtime
 
     period_s, late_s = float(sys.argv[1]), float(sys.argv[2])
     boost, realtime = int(sys.argv[3]), int(sys.argv[4])

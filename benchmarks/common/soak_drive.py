@@ -7,8 +7,8 @@ import time
 
 import numpy as np
 
-from bt_teleop.testing import circle_uv, guide_uv
-from bt_teleop.ui import ClientUI
+from bt_teleop.testing.harness import circle_uv, guide_uv
+from bt_teleop.ui.tab import ClientUI
 
 
 def drive(

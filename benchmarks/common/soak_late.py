@@ -1,4 +1,5 @@
-"""The late control ticks of a soak run, attributed (bench_soak.py; bt_teleop/late_ticks.py).
+"""The late control ticks of a soak run, attributed (bench_soak.py;
+bt_teleop/session/late_ticks.py).
 
 Each session keeps, for every tick later than ``SessionConfig.late_tick_s`` (``--late-ms``),
 what overlapped its gap in its own process: the control thread's run-queue wait and CPU time,
@@ -21,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common.soak_control import ControlReport
-from bt_teleop.late_ticks import LateTick, cause_counts
+from bt_teleop.session.late_ticks import LateTick, cause_counts
 
 AIM_S = 0.05
 """Issue 10's aim: no tick later than this beyond the period [s]."""

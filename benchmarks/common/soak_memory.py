@@ -8,7 +8,7 @@ session children, clean jobs, others such as multiprocessing's resource tracker)
 * PSS by kind of mapping, from ``/proc/<pid>/smaps``: ``[heap]`` (glibc's main arena, grown by
   brk), anonymous mappings (the threads' malloc arenas, large mmapped blocks, Python's obmalloc
   arenas, thread stacks) and file-backed mappings (code, data of shared libraries);
-* the C heap as glibc's ``mallinfo2`` sees it (:mod:`bt_teleop.native_memory`): bytes in use
+* the C heap as glibc's ``mallinfo2`` sees it (:mod:`bt_teleop.proc.native_memory`): bytes in use
   and bytes free but kept (fragmentation), for the app (in process) and the session children
   (asked over their pipe);
 * for the app, Python's small-object allocator (``sys._debugmallocstats``): the memory of its
@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import psutil
 
-from bt_teleop.native_memory import HeapInfo, heap_info
+from bt_teleop.proc.native_memory import HeapInfo, heap_info
 
 KINDS = ("app", "forkserver", "session", "reader", "clean", "other")
 """Kinds of the app's process tree (the benchmark's tab process, ``soak_tabs.py``, and its
@@ -59,7 +59,9 @@ def kind_of(
         return "app"
     if process.pid in session_pids:
         return "session"
-    if process.pid == reader_pid:  # the library's reader child (bt_teleop/reader_process.py)
+    if (
+        process.pid == reader_pid
+    ):  # the library's reader child (bt_teleop/library/reader_process.py)
         return "reader"
     command = " ".join(process.cmdline())
     if "soak_tabs.py" in command:  # the benchmark's browsers, not the app

@@ -17,7 +17,7 @@ import sys
 
 
 class TabsProcess:
-    """N :class:`bt_teleop.testing.FakeTab` tabs on `port`, in a child process."""
+    """N :class:`bt_teleop.testing.harness.FakeTab` tabs on `port`, in a child process."""
 
     def __init__(self, port: int, n: int) -> None:
         self._child = subprocess.Popen(
@@ -39,7 +39,7 @@ class TabsProcess:
 
 
 def main() -> None:
-    from bt_teleop.testing import FakeTab
+    from bt_teleop.testing.harness import FakeTab
 
     port, n = int(sys.argv[1]), int(sys.argv[2])
     tabs = [FakeTab(port, decode=False) for _ in range(n)]

@@ -1,6 +1,6 @@
 """Fault injection: ≥ 100 kill -9 trials at random moments during six writers, with counts.
 
-Writers (bt_pipeline.testing.faults): ``bt clean`` (over a previous run's outputs), ``bt synth
+Writers (bt_teleop.testing.faults): ``bt clean`` (over a previous run's outputs), ``bt synth
 --overwrite``, ``bt evaluate`` with four outputs (``--plots``, ``--rrd``, ``--rollouts-out``,
 ``--json-out``: one set, over a previous run's), the app's recorder saving takes, and ``bt
 export --overwrite`` in both formats (a LeRobot dataset tree over a previous one; robomimic files
@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repo root: b
 import numpy as np
 
 from benchmarks.common.paths import REPO
-from bt_pipeline.testing.faults import SCENARIOS, prepare, run_trial
+from bt_teleop.testing.faults import SCENARIOS, prepare, run_trial
 
 
 def main() -> None:

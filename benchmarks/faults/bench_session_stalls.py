@@ -1,13 +1,13 @@
-"""Stalled and killed session children while tabs record (bt_teleop/session_process.py).
+"""Stalled and killed session children while tabs record (bt_teleop/session/process.py).
 
-N tabs (:class:`bt_teleop.testing.FakeTab`) record takes of 2-4 s back to back through the app's own
-handles (:func:`benchmarks.common.soak_drive.drive`). Meanwhile, every ``--stall-every`` seconds one
-child, in turn, is stopped (SIGSTOP) for ``--stall-s`` seconds, longer than a quick call's 5 s
-timeout (a starved child on a loaded machine), and every ``--kill-every`` seconds one is killed
-(SIGKILL). Reported: takes intended, saved and reported lost (a take is intended when its driver
-presses Stop & save; one whose child was killed under it cannot be saved and must be reported in the
-tab's notice, never dropped silently), children replaced, the stalls that made a session lost (aim:
-0), and the tabs' "Not done" notices.
+N tabs (:class:`bt_teleop.testing.harness.FakeTab`) record takes of 2-4 s back to back through the
+app's own handles (:func:`benchmarks.common.soak_drive.drive`). Meanwhile, every ``--stall-every``
+seconds one child, in turn, is stopped (SIGSTOP) for ``--stall-s`` seconds, longer than a quick
+call's 5 s timeout (a starved child on a loaded machine), and every ``--kill-every`` seconds one is
+killed (SIGKILL). Reported: takes intended, saved and reported lost (a take is intended when its
+driver presses Stop & save; one whose child was killed under it cannot be saved and must be reported
+in the tab's notice, never dropped silently), children replaced, the stalls that made a session lost
+(aim: 0), and the tabs' "Not done" notices.
 
 Run::
 
@@ -29,9 +29,9 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repo root: benchmarks.common
 
 from benchmarks.common.soak_drive import drive
-from bt_teleop.session_process import SessionProcess
-from bt_teleop.testing import app_factory, tab_factory
-from bt_teleop.ui import ClientUI
+from bt_teleop.session.process import SessionProcess
+from bt_teleop.testing.harness import app_factory, tab_factory
+from bt_teleop.ui.tab import ClientUI
 
 
 class Notices:

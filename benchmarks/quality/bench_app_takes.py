@@ -2,7 +2,7 @@
 
 The human-style generator (``bench_clean_human.py``) draws its defects and its truth itself.
 This benchmark checks the cleaner on data made another way: each take is recorded by
-:func:`bt_teleop.script.run_script` through the real session (mink IK on the light FR3, the
+:func:`bt_teleop.session.script.run_script` through the real session (mink IK on the light FR3, the
 simulation, the recorder at 50 Hz), as the app records a browser's gizmo drags, so the robot's
 lag, speed limits and dynamics are in the data. The scripted operator (this file, independent of
 ``bt_pipeline.data.synth_human``) moves the target from a rest 4-8 cm off the loop to the loop,
@@ -52,8 +52,8 @@ from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.shapes import canonical_shape, similarity_transform
 from bt_pipeline.data.synth_truth import ratios_against
 from bt_pipeline.data.tasks import TASKS, parse_task
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.script import run_script
+from bt_teleop.session.script import run_script
+from bt_teleop.sim.scene import SceneModel, load_scene
 
 _HZ = 50.0  # Waypoint rate of the scripts [Hz].
 _MAX_DRAWS = 2000  # Draws of a take's preference and path before giving up.

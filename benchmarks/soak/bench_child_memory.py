@@ -16,11 +16,11 @@ times a second), and samples at each of ``--at`` takes:
   allocator has handed out (``sys.getallocatedblocks``), asked over the pipe;
 
 in three arms: ``child``, a session in a child process as the app makes it
-(:class:`bt_teleop.session_process.SessionProcess`, which releases free memory after each
+(:class:`bt_teleop.session.process.SessionProcess`, which releases free memory after each
 take); ``child-keep``, the same without that release (``release_memory_after_take=False``,
 the code before); ``in-process``, the baseline: the same session in this process
-(:class:`bt_teleop.tick_stats.TimedSession`; this process's memory). Growth is per take, from
-the sample after ``--warmup`` takes; medians over ``--runs`` runs (run r draws its take
+(:class:`bt_teleop.session.tick_stats.TimedSession`; this process's memory). Growth is per take,
+from the sample after ``--warmup`` takes; medians over ``--runs`` runs (run r draws its take
 lengths from seed + r, the same in every arm). Also the wall time of a save and of the
 ``status()`` right after it.
 
@@ -42,12 +42,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repo root: b
 import numpy as np
 
 from benchmarks.common.procfs import KIB, smaps_rollup
-from bt_teleop.native_memory import hdf5_free_lists, heap_info
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session_config import SessionConfig
-from bt_teleop.session_process import SessionProcess, TabSession
-from bt_teleop.testing import circle_uv
-from bt_teleop.tick_stats import TimedSession
+from bt_teleop.proc.native_memory import hdf5_free_lists, heap_info
+from bt_teleop.session.config import SessionConfig
+from bt_teleop.session.process import SessionProcess, TabSession
+from bt_teleop.session.tick_stats import TimedSession
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.testing.harness import circle_uv
 
 WHERE = ("child", "child-keep", "in-process")
 """The arms: a child as the app makes it; a child that keeps what each take freed

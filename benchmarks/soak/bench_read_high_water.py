@@ -1,16 +1,16 @@
 """What reading one recording of many demos leaves in a process's memory (a high-water mark).
 
 The app read a task's cleaned file (every usable demo of the task, with its samples) after each
-Clean to list it (``bt_teleop.tracks.read_file_tracks(path, "cleaned")``), on its reader thread.
-This benchmark writes recordings of N demos (synthetic wiping demos, in a child process so the
-writing leaves nothing here), then reads them on a thread, as the app does, and prints after
+Clean to list it (``bt_teleop.library.reading.read_file_tracks(path, "cleaned")``), on its reader
+thread. This benchmark writes recordings of N demos (synthetic wiping demos, in a child process so
+the writing leaves nothing here), then reads them on a thread, as the app does, and prints after
 each read the process's RSS and glibc's heap (``mallinfo2``: in use, free but kept), after a
 garbage collection and a ``malloc_trim`` (what the app's heap trimmer does every minute):
 
 * ``grow``: files of growing N, one read each (a task that grows between Cleans);
 * ``same``: the largest file read as many times (a task that does not grow);
 * with ``--listing``, each file is listed as the app lists a cleaned file since
-  :mod:`bt_teleop.cleaned_listing` (attributes and two timestamps a demo), not read in full.
+  :mod:`bt_teleop.library.cleaned_listing` (attributes and two timestamps a demo), not read in full.
 
 Bytes, not times: the load of the machine does not change them.
 
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import psutil
 
-from bt_teleop.native_memory import heap_info, trim_heap
+from bt_teleop.proc.native_memory import heap_info, trim_heap
 
 WRITE = (
     "import sys; from bt_pipeline.data.recording import write_recording; "
@@ -65,12 +65,13 @@ def main() -> None:
     parser.add_argument(
         "--listing",
         action="store_true",
-        help="list each file as the app lists a cleaned file now (bt_teleop.cleaned_listing: "
-        "attributes and two timestamps a demo) instead of reading it in full",
+        help="list each file as the app lists a cleaned file now "
+        "(bt_teleop.library.cleaned_listing: attributes and two timestamps a demo) instead of "
+        "reading it in full",
     )
     args = parser.parse_args()
     from bt_pipeline.data.recording import read_recording
-    from bt_teleop.tracks import read_file_tracks
+    from bt_teleop.library.reading import read_file_tracks
 
     def read(path: Path) -> None:
         if args.listing:

@@ -1,16 +1,16 @@
 """What the app keeps of each take its library reads: files read in the app vs in a reader child.
 
 The app's library loader reads every take saved and scores it on its periodic part
-(:func:`bt_teleop.tracks.read_file_tracks`). This benchmark plays the app's side of that alone:
-a process (a stand-in for the app) with a :class:`~bt_teleop.library_loader.LibraryLoader`
+(:func:`bt_teleop.library.reading.read_file_tracks`). This benchmark plays the app's side of that
+alone: a process (a stand-in for the app) with a :class:`~bt_teleop.library.loader.LibraryLoader`
 into which takes are saved one by one (copies of human-style demos with θ/ρ given, one demo a
 file, as the app saves them); after each, one load of the task, as every tab asks for it; every
 20 takes the C heap is trimmed (as the app's ``HeapTrimmer`` does every minute) and the
 process's memory sampled (``/proc/<pid>/smaps_rollup``). Two arms, each run in a fresh process:
 
 * ``in-process``: files read and scored in the app's process (the code before);
-* ``reader``: read and scored in a :class:`~bt_teleop.reader_process.ReaderProcess` child (the
-  app now); the child's own memory is reported beside it (it is replaced after ``max_reads``).
+* ``reader``: read and scored in a :class:`~bt_teleop.library.reader_process.ReaderProcess` child
+  (the app now); the child's own memory is reported beside it (it is replaced after ``max_reads``).
 
 It reports the growth per take of the app stand-in's RSS, anonymous PSS and USS [KiB a take]
 (least squares from the warm-up on), medians over the runs, and the median time of a load::
@@ -63,10 +63,10 @@ def make_pool(folder: Path, seeds: int) -> list[Path]:
 
 def one_arm(arm: str, pool: list[Path], takes: int, every: int) -> dict[str, object]:
     """Save `takes` takes and load the library after each; memory every `every` takes."""
-    from bt_teleop.library_loader import LibraryLoader
-    from bt_teleop.native_memory import trim_heap
-    from bt_teleop.reader_process import ReaderProcess
-    from bt_teleop.tracks import read_file_tracks
+    from bt_teleop.library.loader import LibraryLoader
+    from bt_teleop.library.reader_process import ReaderProcess
+    from bt_teleop.library.reading import read_file_tracks
+    from bt_teleop.proc.native_memory import trim_heap
 
     reader = ReaderProcess() if arm == "reader" else None
     read_file = reader.read if reader is not None else read_file_tracks

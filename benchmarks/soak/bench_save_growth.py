@@ -1,17 +1,17 @@
 """What one Stop & save costs the app as a task's takes grow: the library load, and each tab's view.
 
-Every save bumps the task's version; the shared loader (:mod:`bt_teleop.library_loader`) then
+Every save bumps the task's version; the shared loader (:mod:`bt_teleop.library.loader`) then
 loads the task's library once, and every tab on the task renders it: the recordings table
 (Markdown) and the two pickers (Replay, Demo), whose option lists viser sends to the browser
 in a ``GuiUpdateMessage`` each time they change. This benchmark builds a task of N takes (empty
 files on disk, their tracks served from a cache as the loader's cache serves unchanged files,
 so no HDF5 is read) and measures, for each N:
 
-* the load after one more take was saved (:func:`bt_teleop.library.load_library` with cached
+* the load after one more take was saved (:func:`bt_teleop.library.listing.load_library` with cached
   reads and the last library, as the loader runs it): the bytes Python allocates during it
   (tracemalloc peak) and the new bytes it still holds with the last library alive, beside the
   same load without the last library (the code before the reuse: a new object per take);
-* a tab's view of it (:func:`bt_teleop.library_view.library_view`): the length of the table's
+* a tab's view of it (:func:`bt_teleop.library.view.library_view`): the length of the table's
   Markdown, the number of keys each picker offers, and the size of the messages that carry
   them (msgpack, as viser encodes them), with the view the code before that module built
   (every key of the task in both pickers) beside it;
@@ -32,9 +32,9 @@ from typing import Any
 
 import msgspec
 
-from bt_teleop.library import TaskLibrary, load_library
-from bt_teleop.library_view import DEFAULT_LISTED, library_view
-from bt_teleop.testing import synthetic_task_files
+from bt_teleop.library.listing import TaskLibrary, load_library
+from bt_teleop.library.view import DEFAULT_LISTED, library_view
+from bt_teleop.testing.harness import synthetic_task_files
 
 
 def message_bytes(uuid: str, options: list[str]) -> int:

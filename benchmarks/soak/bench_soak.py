@@ -1,7 +1,7 @@
 """Soak: 8 scripted browser-like sessions on one teleop app for a long time (10 min by default).
 
-Each of the 8 tabs is a real viser websocket client (:class:`bt_teleop.testing.FakeTab`) that
-reads everything the server sends; a driver thread per tab does what a person does, through the
+Each of the 8 tabs is a real viser websocket client (:class:`bt_teleop.testing.harness.FakeTab`)
+that reads everything the server sends; a driver thread per tab does what a person does, through the
 app's own handles: drags the target along the task's guide, a loop every 4 s
 (``session.set_target``, what the gizmo callback calls) at 30 Hz, presses Record, records a
 take of 4-8 s (1-2 loops: it passes the take checks, so the library scores it and Clean cleans
@@ -12,17 +12,17 @@ Reported:
 
 * the largest control-loop stall over all sessions: the longest wall time between two control
   ticks minus the tick period, and the distribution of those gaps (p50, p99, p99.9, max), as
-  each session keeps them (:mod:`bt_teleop.tick_stats`; read from the session processes, or
+  each session keeps them (:mod:`bt_teleop.session.tick_stats`; read from the session processes, or
   from the sessions in the app's process with ``--in-process``, the baseline);
 * the late ticks attributed (:mod:`benchmarks.common.soak_late`): for each tick later than
   ``--late-ms``, what its session process did meanwhile (run-queue wait, collections, requests,
-  the tick's phases: :mod:`bt_teleop.late_ticks`), the app's heap trims, Clean presses and
-  library loads, and the machine's steal time beside it (``--late-log FILE``: every late tick as
+  the tick's phases: :mod:`bt_teleop.session.late_ticks`), the app's heap trims, Clean presses
+  and library loads, and the machine's steal time beside it (``--late-log FILE``: every late tick as
   a JSON line);
 * where the time went (to attribute stalls): the compute time of the ticks themselves, the
   app process's garbage-collector pauses (``gc.callbacks``), the task-library loads every save
-  triggers (:func:`bt_teleop.library.load_library` as the tabs' shared loader calls it, timed),
-  the CPU used in cores by the app and its session processes;
+  triggers (:func:`bt_teleop.library.listing.load_library` as the tabs' shared loader calls it,
+  timed), the CPU used in cores by the app and its session processes;
 * memory every ``--sample-every`` seconds over the app's whole process tree (the session
   processes, the forkserver, clean jobs): the sum of RSS (which counts the pages forked
   children share once per process), of PSS (shared pages split among their users) and of USS,
@@ -86,8 +86,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repo root: b
 import numpy as np
 import psutil
 
-import bt_teleop.library
-import bt_teleop.library_loader
+import bt_teleop.library.listing
+import bt_teleop.library.loader
 from benchmarks.common.soak_control import ControlLoops
 from benchmarks.common.soak_drive import drive
 from benchmarks.common.soak_late import AppEvents, StealSampler, write_log
@@ -97,18 +97,18 @@ from benchmarks.common.soak_tabs import TabsProcess
 from bt_pipeline.data.tasks import parse_guided_task
 from bt_pipeline.exceptions import BtError
 from bt_teleop.app import AppOptions, TeleopApp, freeze_startup_objects
-from bt_teleop.cleaning import task_dir
-from bt_teleop.late_ticks import GcLog
-from bt_teleop.session_config import SessionConfig
-from bt_teleop.session_process import SessionProcess
-from bt_teleop.testing import (
+from bt_teleop.clean.runner import task_dir
+from bt_teleop.session.config import SessionConfig
+from bt_teleop.session.late_ticks import GcLog
+from bt_teleop.session.process import SessionProcess
+from bt_teleop.session.tick_stats import TickReport
+from bt_teleop.testing.harness import (
     app_factory,
     reachable,
     tab_factory,
     wait_until,
 )
-from bt_teleop.tick_stats import TickReport
-from bt_teleop.ui import ClientUI
+from bt_teleop.ui.tab import ClientUI
 
 REFUSALS = ("Not done", "Error")
 """Titles of the notices a tab shows when an action fails."""
@@ -230,19 +230,21 @@ def top_growth(snapshot: tracemalloc.Snapshot, n: int = 25) -> str:
     )
 
 
-def empty_library(recordings_dir: Any, task: str, **_: Any) -> bt_teleop.library.TaskLibrary:
+def empty_library(
+    recordings_dir: Any, task: str, **_: Any
+) -> bt_teleop.library.listing.TaskLibrary:
     """``--library-loads none``: the task's library as if it had no demos (nothing is read)."""
-    return bt_teleop.library.TaskLibrary(parse_guided_task(task), (), ())
+    return bt_teleop.library.listing.TaskLibrary(parse_guided_task(task), (), ())
 
 
 def read_new_files(
     recordings_dir: Any, task: str, read: Any = None, **_: Any
-) -> bt_teleop.library.TaskLibrary:
+) -> bt_teleop.library.listing.TaskLibrary:
     """``--library-loads read-new``: every file of the task through the loader's `read` (so
     each new file is read and scored once, as the app does), then an empty library (nothing
     listed, scored over the task, or shown)."""
     folder = task_dir(recordings_dir, parse_guided_task(task))
-    for path in bt_teleop.library.task_files(folder) if folder.is_dir() else []:
+    for path in bt_teleop.library.listing.task_files(folder) if folder.is_dir() else []:
         try:
             read(path, "raw")
         except BtError:
@@ -350,11 +352,11 @@ def main() -> None:
     process = psutil.Process()
     loads, events = Timed(), AppEvents()
     load = {
-        "full": bt_teleop.library.load_library,
+        "full": bt_teleop.library.listing.load_library,
         "none": empty_library,
         "read-new": read_new_files,
     }[args.library_loads]
-    bt_teleop.library_loader.load_library = loads.wrap(events.wrap("library load", load))
+    bt_teleop.library.loader.load_library = loads.wrap(events.wrap("library load", load))
     tmp = tempfile.mkdtemp(prefix="bt-soak-")
     session_config = SessionConfig(
         priority_boost=args.priority_boost,

@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repo root: b
 
 from benchmarks.common.timing import median_s
 from bt_teleop.app import freeze_startup_objects
-from bt_teleop.testing import app_factory
+from bt_teleop.testing.harness import app_factory
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""What the late-tick probe costs a control tick (bt_teleop/late_ticks.py).
+"""What the late-tick probe costs a control tick (bt_teleop/session/late_ticks.py).
 
 Every session attributes its late ticks by default (``SessionConfig.late_tick_s`` = 50 ms): per
 tick it reads the control thread's and the command thread's schedstat files and times the
@@ -23,10 +23,10 @@ import statistics
 import tempfile
 import time
 
-from bt_teleop.late_ticks import LateProbe
-from bt_teleop.scene import load_scene
-from bt_teleop.session_config import SessionConfig
-from bt_teleop.tick_stats import TimedSession
+from bt_teleop.session.config import SessionConfig
+from bt_teleop.session.late_ticks import LateProbe
+from bt_teleop.session.tick_stats import TimedSession
+from bt_teleop.sim.scene import load_scene
 
 
 def bookkeeping_s(n: int) -> float:

@@ -1,7 +1,7 @@
 """What a session in a child process costs the app: start time and call latency.
 
 A tab asks its session for ``status()`` 30 times a second and sends a target with every gizmo
-drag; in a child process (:class:`bt_teleop.session_process.SessionProcess`) each is a message
+drag; in a child process (:class:`bt_teleop.session.process.SessionProcess`) each is a message
 over a pipe. Measured on sessions running in real time, in this process:
 
 * start: the first child (the forkserver starts and imports MuJoCo and mink), then the median
@@ -10,11 +10,11 @@ over a pipe. Measured on sessions running in real time, in this process:
   child) and of the forkserver;
 * ``status()``, ``trail()`` while recording, and a one-way ``set_target``: median and p99 of
   ``--calls`` calls per run, for a child and for the same session in this process (the
-  baseline, :class:`bt_teleop.tick_stats.TimedSession`), over ``--runs`` runs (medians of the
-  runs' medians), and their ratio;
+  baseline, :class:`bt_teleop.session.tick_stats.TimedSession`), over ``--runs`` runs (medians of
+  the runs' medians), and their ratio;
 * one child alone recording ``--takes`` takes of 2 s back to back, each saved (the save runs
   in the child, beside its control loop): its largest stall and gap percentiles
-  (:mod:`bt_teleop.tick_stats`).
+  (:mod:`bt_teleop.session.tick_stats`).
 
     nice -n 10 .venv/bin/python benchmarks/teleop/bench_session_process.py
 """
@@ -30,10 +30,10 @@ from typing import Any
 import numpy as np
 import psutil
 
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session_process import SessionProcess
-from bt_teleop.testing import circle_uv
-from bt_teleop.tick_stats import TimedSession
+from bt_teleop.session.process import SessionProcess
+from bt_teleop.session.tick_stats import TimedSession
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.testing.harness import circle_uv
 
 
 def timed(call: Callable[[], Any], n: int) -> tuple[float, float]:

@@ -28,7 +28,7 @@ from bt_pipeline.data.demo import Demo, demos_from_recording, load_demos
 from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.exceptions import DemoError
 from bt_pipeline.score.utility import raw_metrics
-from bt_teleop.testing import shared_dir
+from bt_teleop.testing.harness import shared_dir
 
 
 def _demos() -> dict[str, list[Demo]]:

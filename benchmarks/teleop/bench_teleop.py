@@ -31,9 +31,9 @@ import mujoco
 import numpy as np
 import tyro
 
-from bt_teleop.scene import SceneModel, load_scene
-from bt_teleop.session import Session
-from bt_teleop.testing import circle_uv
+from bt_teleop.session.control_loop import Session
+from bt_teleop.sim.scene import SceneModel, load_scene
+from bt_teleop.testing.harness import circle_uv
 
 
 @dataclass(frozen=True)

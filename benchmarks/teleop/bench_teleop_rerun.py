@@ -1,10 +1,10 @@
 """Live Rerun latency of the teleop app in Rerun's web viewer, with 1 and 4 sessions.
 
 The app runs with ``--rerun serve`` (a web viewer and one gRPC proxy per tab, child processes
-bound to 127.0.0.1) and 1 or 4 simulated tabs (:class:`bt_teleop.testing.FakeTab`; each
+bound to 127.0.0.1) and 1 or 4 simulated tabs (:class:`bt_teleop.testing.harness.FakeTab`; each
 session's robot moves on a circle). The viewer is what a user opens: the last tab's link, in
 Debian's headless Chromium (software WebGL), read through the viewer's own state API
-(:class:`bt_teleop.viewer_probe.ViewerProbe`: which recording it shows and the newest
+(:class:`bt_teleop.testing.viewer_probe.ViewerProbe`: which recording it shows and the newest
 ``sim_time`` it holds). Every 0.5 s the benchmark compares that newest time with the session's
 simulation time now (the session runs in real time, so simulation seconds behind are wall
 seconds behind).
@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import tyro
 
-from bt_teleop.testing import app_factory, chromium_page, circle_uv, tab_factory
-from bt_teleop.ui import ClientUI
-from bt_teleop.viewer_probe import ViewerProbe
+from bt_teleop.testing.harness import app_factory, chromium_page, circle_uv, tab_factory
+from bt_teleop.testing.viewer_probe import ViewerProbe
+from bt_teleop.ui.tab import ClientUI
 
 CAUGHT_UP_S = 2.0
 """A viewer shows the present when it holds the session's states up to this close [s]."""

@@ -1,6 +1,6 @@
 """Teleop web app speed: scene updates per second sent to a browser and target-to-page delay.
 
-Server side, with 1 and 4 simulated tabs (:class:`bt_teleop.testing.FakeTab`: raw viser
+Server side, with 1 and 4 simulated tabs (:class:`bt_teleop.testing.harness.FakeTab`: raw viser
 websocket clients that read and count everything):
 
 * scene updates per second per tab: the tab worker's published frames (robot link poses,
@@ -40,7 +40,7 @@ import tyro
 import zstandard
 
 from bt_teleop.app import TeleopApp
-from bt_teleop.testing import (
+from bt_teleop.testing.harness import (
     FakeTab,
     app_factory,
     chromium_page,
@@ -49,7 +49,7 @@ from bt_teleop.testing import (
     tab_factory,
     wait_until,
 )
-from bt_teleop.ui import ClientUI
+from bt_teleop.ui.tab import ClientUI
 
 WATCH_STATUS_JS = """() => {
   window.__bt = [];

@@ -42,7 +42,7 @@ from numpy.typing import ArrayLike
 from scipy.spatial import KDTree
 
 from bt_pipeline.clean.similarity import solve_similarity, transform
-from bt_pipeline.data.loop_shape import LoopShape, as_loop
+from bt_pipeline.data.loop_shape import LoopShape, arc_length_resample, as_loop
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import ConfigError, DemoError
 
@@ -103,16 +103,6 @@ class GuideFit:
     def guide(self, n: int = _GUIDE_POINTS) -> FloatArray:
         """The fitted loop, `n` points of one loop, shape (n, 2), in [m]."""
         return transform(self.loop.points(n), self.theta_deg, self.rho, self.translation)
-
-
-def arc_length_resample(points: FloatArray, n: int) -> FloatArray:
-    """`n` points evenly spaced by arc length along a polyline, shape (n, 2)."""
-    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(steps)])
-    if s[-1] <= 0:
-        return np.repeat(points[:1], n, axis=0)
-    grid = np.linspace(0.0, s[-1], n)
-    return np.stack([np.interp(grid, s, points[:, d]) for d in range(2)], axis=1)
 
 
 def fit_guide(

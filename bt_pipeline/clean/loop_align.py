@@ -15,8 +15,8 @@ import math
 
 import numpy as np
 
-from bt_pipeline.clean.guide_fit import arc_length_resample
 from bt_pipeline.clean.recurrence import LOOP_POINTS
+from bt_pipeline.data.loop_shape import arc_length_resample
 
 _SYMMETRY = 0.03  # A loop with an n-fold symmetry matches itself turned by 360°/n this well.
 

@@ -35,11 +35,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, arc_length_resample
+from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange
 from bt_pipeline.clean.segment import Segment, segment_demo, span_times, track_phase
 from bt_pipeline.clean.stage1.alignment import apply_preference
 from bt_pipeline.data.demo import Demo, resample_uniform
-from bt_pipeline.data.loop_shape import LoopShape
+from bt_pipeline.data.loop_shape import LoopShape, arc_length_resample
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.score.losses import DEFAULT_ALPHAS, smoothness_loss, symmetry_loss
 from bt_pipeline.score.utility import RawMetrics

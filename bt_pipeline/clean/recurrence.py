@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.ndimage import gaussian_filter1d
 
-from bt_pipeline.clean.guide_fit import arc_length_resample
+from bt_pipeline.data.loop_shape import arc_length_resample
 from bt_pipeline.data.records import FloatArray
 
 _CLOCK_HZ = 50.0  # Analysis clock [Hz] (as segment.py).

@@ -66,8 +66,8 @@ def evaluate(
             cleaner's estimate and no demonstrator keeps the unconditioned learners only.
     """
     from bt_pipeline.evaluate.driver import eval_json, evaluate_files, parse_learners, write_outputs
-    from bt_pipeline.evaluate.eval_table import print_eval_table
     from bt_pipeline.evaluate.protocol import EvalConfig
+    from bt_pipeline.viz.eval_table import print_eval_table
 
     if rrd is not None and rrd.suffix != ".rrd":
         raise ConfigError(f"--rrd must end in .rrd; got {rrd}")

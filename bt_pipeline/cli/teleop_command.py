@@ -51,12 +51,12 @@ def teleop(
             CAP_SYS_NICE or ulimit -r (else it is logged and left off). 0: off.
     """
     if script is not None:
-        from bt_teleop.script import run_script
+        from bt_teleop.session.script import run_script
 
         print(run_script(script, recordings))
         return
     from bt_teleop.app import AppOptions, serve
-    from bt_teleop.session_config import SessionConfig
+    from bt_teleop.session.config import SessionConfig
 
     serve(
         AppOptions(

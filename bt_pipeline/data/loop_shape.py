@@ -135,3 +135,13 @@ def as_loop(loop: LoopShape | str) -> LoopShape:
 
 
 __all__ = ["LoopShape", "as_loop"]
+
+
+def arc_length_resample(points: FloatArray, n: int) -> FloatArray:
+    """`n` points evenly spaced by arc length along a polyline, shape (n, 2)."""
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    if s[-1] <= 0:
+        return np.repeat(points[:1], n, axis=0)
+    grid = np.linspace(0.0, s[-1], n)
+    return np.stack([np.interp(grid, s, points[:, d]) for d in range(2)], axis=1)

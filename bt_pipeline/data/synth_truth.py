@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import KDTree
 
-from bt_pipeline.clean.guide_fit import arc_length_resample
+from bt_pipeline.data.loop_shape import arc_length_resample
 from bt_pipeline.data.records import DemoRecord, FloatArray
 
 _SPACING_M = 0.0001  # Densified paths: one point per 0.1 mm of arc length (module doc).

@@ -18,8 +18,8 @@ from matplotlib.figure import Figure
 from bt_pipeline.evaluate.conditioned import TAUS_MM
 from bt_pipeline.evaluate.crowd_jobs import CrowdRun
 from bt_pipeline.evaluate.crowd_sets import CROWD_DATASETS
+from bt_pipeline.evaluate.plots import LEARNER_TITLES, save_figure
 from bt_pipeline.evaluate.stats import wilson
-from bt_pipeline.viz.plots import LEARNER_TITLES, save_figure
 
 _COLORS = {"noisy": "#8c8c8c", "cleaned": "#2ca02c", "best_aligned": "#ff7f0e"}
 _COLORS |= {"truth_shape": "#1f77b4", "truth_timing": "#9ecae1"}

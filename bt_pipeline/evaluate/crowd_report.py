@@ -27,8 +27,8 @@ import numpy as np
 from bt_pipeline.evaluate.conditioned import TAUS_MM
 from bt_pipeline.evaluate.crowd_jobs import CrowdRow, CrowdRun
 from bt_pipeline.evaluate.crowd_sets import CROWD_DATASETS, GATED_DATASETS
+from bt_pipeline.evaluate.plots import LEARNER_TITLES
 from bt_pipeline.evaluate.stats import Verdict, verdict
-from bt_pipeline.viz.plots import LEARNER_TITLES
 
 TAU_MM = 10.0
 """τ of the headline success rate."""

@@ -38,6 +38,7 @@ from bt_pipeline.data.tasks import Task
 from bt_pipeline.evaluate.file_facts import read_annotated
 from bt_pipeline.evaluate.files_conditioned import ConditionedTask, prepare_task, run_conditioned
 from bt_pipeline.evaluate.learners import LearnerName, parse_learner
+from bt_pipeline.evaluate.plots import RewardBar, plot_reward_bars, plot_rollouts
 from bt_pipeline.evaluate.protocol import (
     DATASETS,
     EvalConfig,
@@ -47,7 +48,6 @@ from bt_pipeline.evaluate.protocol import (
 )
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.execute import ExecutorConfig, run_jobs
-from bt_pipeline.viz.plots import RewardBar, plot_reward_bars, plot_rollouts
 
 """Rerun application id of evaluation recordings."""
 ROLLOUT_ENV_NAME = "bt_rollouts"

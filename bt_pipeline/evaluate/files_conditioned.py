@@ -41,11 +41,11 @@ from bt_pipeline.data.tasks import Task
 from bt_pipeline.evaluate.conditioned import DemonstratorLoop, evaluate_conditioned
 from bt_pipeline.evaluate.file_facts import FileFacts, Key, counterparts
 from bt_pipeline.evaluate.learners import LearnerName
+from bt_pipeline.evaluate.plots import LEARNER_TITLES
 from bt_pipeline.evaluate.protocol import DATASETS, check_pair
 from bt_pipeline.exceptions import DemoError
 from bt_pipeline.execute import ExecutorConfig, run_jobs
 from bt_pipeline.score.utility import score_demos
-from bt_pipeline.viz.plots import LEARNER_TITLES
 
 log = logging.getLogger("bt")
 TAU_MM = 10.0

@@ -34,10 +34,10 @@ from bt_pipeline.evaluate.crowd_figures import plot_success_tau, plot_task_rollo
 from bt_pipeline.evaluate.crowd_jobs import CrowdRun, run_crowd
 from bt_pipeline.evaluate.crowd_report import crowd_cells, crowd_json, crowd_section
 from bt_pipeline.evaluate.crowd_sets import CrowdSettings
+from bt_pipeline.evaluate.plots import plot_reward_bars, plot_rollouts
 from bt_pipeline.evaluate.reproduce_jobs import ReproduceConfig, ReproduceRun, run_reproduce
 from bt_pipeline.evaluate.reproduce_report import cells, report_markdown, results_json, reward_bars
 from bt_pipeline.execute import ExecutorConfig
-from bt_pipeline.viz.plots import plot_reward_bars, plot_rollouts
 
 log = logging.getLogger("bt")
 

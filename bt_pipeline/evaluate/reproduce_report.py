@@ -14,6 +14,7 @@ from bt_pipeline.evaluate.cells import (
     verdict_test,
 )
 from bt_pipeline.evaluate.learners import LearnerName
+from bt_pipeline.evaluate.plots import RewardBar
 from bt_pipeline.evaluate.protocol import DATASETS
 from bt_pipeline.evaluate.reproduce_jobs import PAPER_ILEED_D1_GAIN, ReproduceRun, SetName
 from bt_pipeline.evaluate.reproduce_verdicts import (
@@ -22,7 +23,6 @@ from bt_pipeline.evaluate.reproduce_verdicts import (
     verdict_section,
     verdicts_json,
 )
-from bt_pipeline.viz.plots import RewardBar
 
 
 def report_markdown(

@@ -5,10 +5,10 @@ second), by one function, :func:`who_when`: the page shows ``Ada Lovelace 12-06 
 Rerun ``Ada-Lovelace_12-06_120315`` (the same who and when made an entity path part: the name
 reduced to letters, digits, ``_`` and ``-``, the time's space a ``_`` and its colons dropped).
 When is the time in the app's file name (``<who>_<YYYYmmddTHHMMSSZ>_<hex>.hdf5``,
-:mod:`bt_teleop.naming`: when Record was pressed; :func:`take_time`) when it has that form, and
-who the name there; else the demo's demonstrator and ``created`` attr; a demo with no time is
-named ``<who>_<file stem>_<demo>``. A name is an entity path part: letters, digits, ``_`` and
-``-`` only (whatever a browser sent is reduced to them, never used as it came), at most
+:mod:`bt_teleop.takes.naming`: when Record was pressed; :func:`take_time`) when it has that
+form, and who the name there; else the demo's demonstrator and ``created`` attr; a demo with
+no time is named ``<who>_<file stem>_<demo>``. A name is an entity path part: letters, digits,
+``_`` and ``-`` only (whatever a browser sent is reduced to them, never used as it came), at most
 :data:`MAX_NAME_CHARS` characters, and unique within its set (a repeat gets ``_2``, ``_3``, ...).
 
 Colours. Demo i of a set gets colour i of tab10 (a qualitative palette, cycled). A raw demo and

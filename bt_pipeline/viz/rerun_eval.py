@@ -11,13 +11,13 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from bt_pipeline.evaluate.eval_table import markdown_table
+from bt_pipeline.evaluate.plots import LEARNER_TITLES
 from bt_pipeline.evaluate.protocol import (
     DATASETS,
     TaskEvaluation,
 )
 from bt_pipeline.exceptions import ConfigError
-from bt_pipeline.viz.plots import LEARNER_TITLES
+from bt_pipeline.viz.eval_table import markdown_table
 from bt_pipeline.viz.rrd import save_rrd
 
 APP_ID = "bt_evaluate"
