@@ -33,9 +33,7 @@ from bt_pipeline.clean.loop_learn import TaskLoop
 from bt_pipeline.clean.periodic import PreferenceEstimate, phase_loop, smooth_residual
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.selection import select_demos
-from bt_pipeline.clean.stage1.alignment import apply_preference, rotation_matrix
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
-from bt_pipeline.clean.stage1.pivot import pivot_shift, placement_offset
 from bt_pipeline.clean.stage2.chunked import DEFAULT_CHUNK_SIZE, refine_in_chunks
 from bt_pipeline.clean.stage2.config import EpochStats, RefineConfig, RefineResult, Variant
 from bt_pipeline.clean.stage2.scales import refine_normaliser
@@ -214,42 +212,6 @@ def _with_utility(
     )
 
 
-def _shared_centre(
-    stage1: Stage1Result,
-    demos: Sequence[Demo],
-    preferences: Sequence[PreferenceEstimate],
-    positions: FloatArray,
-    fan_out: ExecutorConfig | None,
-    chunk_size: int,
-    movable: bool,
-) -> tuple[Stage1Result, FloatArray]:
-    """x_i^aligned of every demo, about the centre the demos agree on (stage1/pivot.py) when
-    `movable`, else about Stage 1's."""
-    if movable:
-        centre = stage1.centre
-        offsets = [
-            placement_offset(x, apply_preference(stage1.global_shape, p.theta_deg, p.rho, centre))
-            for x, p in zip(positions, preferences, strict=True)
-        ]
-        thetas, rhos = [p.theta_deg for p in preferences], [p.rho for p in preferences]
-        shift = pivot_shift(thetas, rhos, offsets, stage1.best_index)
-        if shift.any():  # x^g = R(−θ_b)(x^d − c)/ρ_b about the moved c (Sec. III-B step 4).
-            b = stage1.best_index
-            moved = rotation_matrix(-float(stage1.thetas[b])) @ shift / float(stage1.rhos[b])
-            stage1 = dataclasses.replace(
-                stage1, centre=centre + shift, global_shape=stage1.global_shape - moved
-            )
-    aligned = per_demo(
-        retime_step,
-        list(zip(demos, preferences, strict=True)),
-        (stage1.global_shape, stage1.centre),
-        executor=fan_out,
-        chunk_size=chunk_size,
-        label=f"align {demos[0].task}",
-    )
-    return stage1, np.stack(aligned)
-
-
 def clean_demos(
     demos: Sequence[Demo],
     options: CleanOptions | None = None,
@@ -310,14 +272,19 @@ def clean_demos(
             f"phases of the canonical motion come from the task's {selection.loop.source} loop"
         )
     stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=1.0)
-    # Every reference turns and scales about one centre c, as in the paper (Sec. III-B): the
-    # best loop's box centre, or where the demos agree it is (stage1/pivot.py); a demo's own
-    # offset from it is not read as its preference (docs/refinement.md step 5).
+    # Every reference sits at the best demo's centre c, as in the paper (Sec. III-B): a demo's
+    # offset from c is not read as its preference (docs/refinement.md step 5).
+    aligned = np.stack(
+        per_demo(
+            retime_step,
+            list(zip(demos, preferences, strict=True)),
+            (stage1.global_shape, stage1.centre),
+            executor=fan_out,
+            chunk_size=k_max,
+            label=f"align {task_label}",
+        )
+    )
     positions = np.stack([demo.positions for demo in demos])
-    # Only a set with no frame of its drawing moves c: a learned loop and a best demo whose
-    # θ/ρ are estimated (the box of a guide or of stated θ/ρ is the drawing's own).
-    movable = selection.loop.source == "learned" and preferences[best].estimated
-    stage1, aligned = _shared_centre(stage1, demos, preferences, positions, fan_out, k_max, movable)
     stage1 = dataclasses.replace(
         stage1,
         aligned=aligned,
