@@ -81,7 +81,8 @@ def test_a_junk_take_is_saved_flagged_says_why_and_can_be_discarded(make_app, ta
 def test_stop_and_save_pressed_right_after_record_saves_a_flagged_take(make_app, tabs) -> None:
     # What a hasty person (and tests/teleop/browser/test_browser_crowd.py) does: Stop & save
     # before the take has the 16 samples a file needs. It was refused ("at least 16 are
-    # needed"), and the take lost; with a starved control loop even a take of seconds could be that short.
+    # needed"), and the take lost; with a starved control loop even a take of seconds could be
+    # that short.
     app = make_app()
     ui = tab_ui(app, tabs, 1)
     ui.controls.record_button.value = True

@@ -1,7 +1,8 @@
 """The crowdsourcing features in a real browser (Debian's headless Chromium, as
 tests/teleop/browser/test_browser.py): a junk take flagged with a visible reason, a hostile name
 typed in one tab shown as text in a second tab, exclude and restore from the page, Clean
-succeeding with a flagged demo present. The Rerun link: tests/teleop/browser/test_browser_rerun.py."""
+succeeding with a flagged demo present. The Rerun link:
+tests/teleop/browser/test_browser_rerun.py."""
 
 from __future__ import annotations
 
