@@ -4,15 +4,15 @@ view, in Debian's headless Chromium (software WebGL; never ``playwright install`
 python examples/make_screenshots.py                 # docs/images/teleop-*.png
 python examples/make_screenshots.py --out /tmp/shots
 
-The session is the one tests/test_teleop_browser_session.py checks: the task folder starts with
-four real browser takes (``../shared/data/browser-takes``, or ``$BT_SHARED_DIR``), the page
+The session is the one tests/teleop/browser/test_browser_session.py checks: the task folder starts
+with four real browser takes (``../shared/data/browser-takes``, or ``$BT_SHARED_DIR``), the page
 records a circle of its own (the target follows it as a drag of the gizmo moves it) and a junk
 take, then Clean runs with the cleaner's default epochs and the cleaned ★ is replayed. The tab's
-Rerun link is then opened in a second page (the app's page frozen meanwhile: software WebGL
-would take the CPU the viewer needs) and shot once the viewer holds the Clean: its robot tab,
-then its wiping tab (clicked in the viewer's tab bar; checked through the viewer's state, not
-its pixels). Images are reduced to a palette of 256 colours so each stays under 300 kB. Takes a
-few minutes on a loaded 2-core machine.
+Rerun link is then opened in a second page (the app's page frozen meanwhile: software WebGL would
+take the CPU the viewer needs) and shot once the viewer holds the Clean: its robot tab, then its
+wiping tab (clicked in the viewer's tab bar; checked through the viewer's state, not its pixels).
+Images are reduced to a palette of 256 colours so each stays under 300 kB. Takes a few minutes on a
+loaded 2-core machine.
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ from bt_teleop.testing.harness import (
 from bt_teleop.testing.viewer_probe import ViewerProbe, ViewerState
 
 PLACED = ("alice_", "bob_", "carol_", "dave_")
-"""The real browser takes the task folder starts with (tests/test_teleop_browser_session.py)."""
+"""The real browser takes the task folder starts with
+(tests/teleop/browser/test_browser_session.py)."""
 PAGE_TIMEOUT_MS = 120_000
 VIEWER_TIMEOUT_S = 300.0
 """Longest wait for Rerun's web viewer to start and hold the Clean [s] (software WebGL)."""

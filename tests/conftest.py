@@ -5,6 +5,7 @@
   plane (or `plane`: tasks without a built-in guide, such as ``"stirring"``, have none).
 * ``write_example_file(directory, name="example.hdf5", **make_recording_kwargs)`` writes one to
   ``directory / name`` and returns the path.
+* ``run(capsys, *args)`` runs ``bt args`` in-process and returns (exit code, stdout, stderr).
 * ``make_app(**AppOptions overrides)`` starts a teleop app recording under ``tmp_path``, and
   ``tabs(app)`` opens a simulated tab on it (:mod:`bt_teleop.testing.harness`); all closed at the
   end.
@@ -97,6 +98,19 @@ def build_recording(
         masks=masks or {},
         attrs=attrs or {},
     )
+
+
+def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    """Run ``bt args`` in-process; return (exit code, stdout, stderr)."""
+    from bt_pipeline.cli import main  # the CLI's imports only where a test runs it
+
+    code = 0
+    try:
+        main(list(args))
+    except SystemExit as exit_:
+        code = int(exit_.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
 
 
 @pytest.fixture

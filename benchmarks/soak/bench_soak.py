@@ -375,7 +375,8 @@ def main() -> None:
     )
     with app_factory(Path(tmp) / "rec") as make, tab_factory() as open_tab:
         # The drivers act through the app's handles, not the websocket, so every tab looks
-        # silent: idle closing (tests/test_connections.py) would end them at the 10-min mark.
+        # silent: idle closing (tests/teleop/ui/test_connections.py) would end them at the
+        # 10-min mark.
         app: TeleopApp = make(
             max_sessions=args.sessions,
             clean_epochs=5,

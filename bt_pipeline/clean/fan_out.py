@@ -11,8 +11,9 @@ with only small task-wide reductions in between, so that goes out as jobs too (i
     (x_i, x̂_i, x_i^aligned, θ_i) ─chunks─▶ demo_metrics each, raw and cleaned (jobs)
 
 Each step is a pure function of one demo, so its results are those of the serial loop, bit for
-bit, whichever executor runs the chunks (tested in tests/test_fan_out.py). Chunks follow
-:func:`~bt_pipeline.clean.stage2.chunked.chunk_sizes` (contiguous, near-equal, at most K).
+bit, whichever executor runs the chunks (tested in tests/pipeline/clean/test_fan_out.py).
+Chunks follow :func:`~bt_pipeline.clean.stage2.chunked.chunk_sizes` (contiguous, near-equal,
+at most K).
 """
 
 from __future__ import annotations

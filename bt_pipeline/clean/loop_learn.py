@@ -23,9 +23,9 @@ against before the best demo is known, so the loop is learned from every demo fi
    loop lies within 4 % (RMS, of its RMS radius) of a similarity of the guide (of the guide
    turned and scaled by its stated θ/ρ, when it states them) and the
    consensus within 12 %: the demos follow it (every guide set of ``bench_clean_human.py`` keeps
-   the guide, ``tests/test_clean_loops.py``; the foreign wiping oval, closest demo 9 % off, does
-   not); or when some demo lies within 2 %, whatever the consensus (a traced guide must not be
-   outvoted by a majority sharing one bias). Otherwise the learned loop is used.
+   the guide, ``tests/pipeline/clean/test_clean_loops.py``; the foreign wiping oval, closest
+   demo 9 % off, does not); or when some demo lies within 2 %, whatever the consensus (a traced
+   guide must not be outvoted by a majority sharing one bias). Otherwise the learned loop is used.
 5. **Frame.** A learned loop's θ = 0, ρ = 1 is the set's: each demo's similarity to the
    consensus is read off its alignment, and the loop is turned and scaled so that these have
    circular-mean θ 0 and geometric-mean ρ 1; when demos state θ/ρ, so that theirs match the

@@ -19,8 +19,8 @@ that the samples trace in that phase:
 
 Used for the best demo's loop (:func:`~bt_pipeline.clean.best_loop.best_demo_loop`): the
 paper takes the canonical shape from the best demo (Sec. III-B), as a periodic DMP fitted to it
-in its own phase. Measured by ``tests/test_loop_learn.py`` (a single loop read off its span
-against a template stretched 8 %: within 1 % of its true shape) and
+in its own phase. Measured by ``tests/pipeline/clean/test_loop_learn.py`` (a single loop read
+off its span against a template stretched 8 %: within 1 % of its true shape) and
 ``benchmarks/quality/bench_clean_human.py --shapes random`` (docs/quality.md).
 """
 

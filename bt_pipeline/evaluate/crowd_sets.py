@@ -95,8 +95,9 @@ class CrowdSettings:
     """Expert-like demos in a shared-bias crowd."""
     quick_learners: bool = True
     """Train the learners' quick presets in the full run too: conditioned on the four D1
-    demonstrators they draw each one's perfect loop within 2 mm (tests/test_oracle.py),
-    and the thousands of trainings then take minutes, not hours."""
+    demonstrators they draw each one's perfect loop within 2 mm
+    (tests/pipeline/evaluate/test_oracle.py), and the thousands of trainings then take minutes,
+    not hours."""
     sweeps: tuple[Crowd, ...] = SWEEPS
     """Sweep and ablation crowds, trained on :data:`GATED_DATASETS` by `sweep_learners`."""
     sweep_learners: tuple[LearnerName, ...] = ("bc", "ileed")

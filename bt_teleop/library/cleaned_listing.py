@@ -9,8 +9,8 @@ back by ``malloc_trim``: ``benchmarks/soak/bench_read_high_water.py``, docs/secu
 listing needs, per demo, its attributes and its first and last timestamp; this module reads
 only those, with the same checks of what it reads (format, version, task, demo names and count,
 sample counts, attribute types), and builds the same tracks as from the full read
-(``tests/test_teleop_cleaned_listing.py``). A demo is read in full, and fully checked, when it
-is played (:mod:`bt_teleop.library.track_samples`).
+(``tests/teleop/library/test_cleaned_listing.py``). A demo is read in full, and fully checked,
+when it is played (:mod:`bt_teleop.library.track_samples`).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ board), and from where the arm hides little of them::
 The gizmo's arrows are the plane's axes u, v and its normal, so dragging along an arrow moves
 along the task. The gizmo sits at the end effector, inside the tool, so its middle is no handle
 (a press there turns the view); its arrows' tips and the square between u and v reach past the
-tool and the arm in each task's default view (``tests/test_teleop_framing.py`` projects them
+tool and the arm in each task's default view (``tests/teleop/ui/test_framing.py`` projects them
 and casts rays at the robot).
 """
 
@@ -36,7 +36,7 @@ VIEW_DISTANCE_M = 0.85
 """Distance of the default camera from the plane origin [m]."""
 VIEW_FOV_RAD = float(np.radians(75.0))
 """Vertical field of view of the default camera [rad] (viser's default, set explicitly: the view
-``tests/test_teleop_framing.py`` projects the gizmo into)."""
+``tests/teleop/ui/test_framing.py`` projects the gizmo into)."""
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays

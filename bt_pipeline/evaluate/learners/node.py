@@ -125,7 +125,7 @@ class _Field(nn.Module):
 
         The phase enters the net detached: dφ/dt = ω is constant, so no parameter's gradient
         passes through φ, and autograd need not carry the cos/sin branch back (the parameter
-        gradients are bit for bit the same; tests/test_learners.py).
+        gradients are bit for bit the same; tests/pipeline/evaluate/learners/test_learners.py).
         """
         features = self.data.features(y[:, :2], y[:, 2].detach(), self.cond)
         rate = self.net(features) * self.ratio + self.offset
@@ -140,9 +140,9 @@ def rk4_grid(
 
     The same tensor operations, in the same order, as ``torchdiffeq.odeint(..., method="rk4")``
     on a grid without interpolation (``rk4_alt_step_func``), so the states and their gradients
-    are bit for bit torchdiffeq's (tests/test_learners.py checks it), without its per-call input
-    checks, solver object and per-evaluation wrappers: a training calls it once per step, with up
-    to 16 solver steps.
+    are bit for bit torchdiffeq's (tests/pipeline/evaluate/learners/test_learners.py checks it),
+    without its per-call input checks, solver object and per-evaluation wrappers: a training
+    calls it once per step, with up to 16 solver steps.
     """
     solution = torch.empty(len(times), *y0.shape, dtype=y0.dtype, device=y0.device)
     solution[0] = y0

@@ -78,7 +78,7 @@ def clip_grad_norm(params: Sequence[torch.Tensor], max_norm: float) -> torch.Ten
     The operations of ``torch.nn.utils.clip_grad_norm_`` (foreach norms, their norm, the clamped
     coefficient max_norm / (norm + 1e-6), a foreach multiply), bit for bit, for parameters of one
     device and dtype, without its per-call grouping and wrappers: on these tiny nets they were
-    ~5 % of a training step (tests/test_learners_training.py checks the equality).
+    ~5 % of a training step (tests/pipeline/evaluate/learners/test_learners.py checks the equality).
     """
     grads = [p.grad for p in params if p.grad is not None]
     if not grads:
