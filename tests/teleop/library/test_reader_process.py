@@ -59,16 +59,20 @@ def test_an_unreadable_file_is_an_error_naming_it(tmp_path, takes) -> None:
 
 
 def test_a_read_that_hangs_times_out_and_the_next_read_works(takes) -> None:
-    reader = ReaderProcess(timeout_s=1.0)
+    # Reads that answer get a minute (a child starting on a loaded machine takes seconds); the
+    # one that hangs, 1 s.
+    reader = ReaderProcess(timeout_s=60.0)
     try:
         reader.read(takes[0], "raw")
         assert reader.pid is not None
         os.kill(reader.pid, signal.SIGSTOP)  # the child answers nothing from now on
+        reader.timeout_s = 1.0
         start = time.monotonic()
         with pytest.raises(RecordingError, match=r"take_1.hdf5: reading it took more than 1 s"):
             reader.read(takes[1], "raw")
         assert time.monotonic() - start < 30
         assert reader.pid is None  # killed
+        reader.timeout_s = 60.0
         assert reader.read(takes[1], "raw").tracks
         assert reader.started == 2
     finally:
