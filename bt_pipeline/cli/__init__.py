@@ -1,24 +1,29 @@
 """The ``bt`` command: one typed CLI over every job (tyro builds it from the commands' signatures).
 
-Results go to stdout (a table, or one JSON object with ``--json``); progress bars, warnings and
-errors go to stderr. Errors bt raises on purpose print one line and exit with status 2.
+Commands of other installed packages join through the ``bt.commands`` entry-point group (bt_teleop
+adds ``bt teleop`` that way), so this package never imports them. Results go to stdout (a table,
+or one JSON object with ``--json``); progress bars, warnings and errors go to stderr. Errors bt
+raises on purpose print one line and exit with status 2.
 """
 
 from __future__ import annotations
 
 import logging
 import sys
+from collections.abc import Callable
+from importlib.metadata import entry_points
 
 import tyro
 
 from bt_pipeline.cli.data_commands import clean, score, synth
 from bt_pipeline.cli.evaluate_commands import evaluate, reproduce
 from bt_pipeline.cli.interop_commands import export, import_, view
-from bt_pipeline.cli.teleop_command import teleop
 from bt_pipeline.exceptions import BtError, ConfigError
 
-COMMANDS = {
-    "teleop": teleop,
+PLUGIN_GROUP = "bt.commands"
+"""Entry-point group of commands other packages add to ``bt`` (``name = "module:function"``)."""
+
+BUILT_IN: dict[str, Callable[..., object]] = {
     "score": score,
     "synth": synth,
     "clean": clean,
@@ -28,6 +33,30 @@ COMMANDS = {
     "import": import_,
     "view": view,
 }
+
+
+def commands() -> dict[str, Callable[..., object]]:
+    """Every ``bt`` command: the installed plugins' (``bt teleop``) first, then the built-in ones.
+
+    A plugin that fails to load, or takes a built-in's name, is left out with a one-line warning;
+    the other commands still work.
+    """
+    found: dict[str, Callable[..., object]] = {}
+    for point in sorted(entry_points(group=PLUGIN_GROUP), key=lambda p: p.name):
+        if point.name in BUILT_IN:
+            logging.getLogger("bt").warning(
+                "command %r of %s is left out: bt has a command of that name",
+                point.name,
+                point.value,
+            )
+            continue
+        try:
+            found[point.name] = point.load()
+        except Exception as error:  # a broken plugin must not take the other commands down
+            logging.getLogger("bt").warning(
+                "command %r (%s) is left out: it failed to load: %s", point.name, point.value, error
+            )
+    return {**found, **BUILT_IN}
 
 
 def main(args: list[str] | None = None) -> None:
@@ -44,7 +73,7 @@ def main(args: list[str] | None = None) -> None:
         return
     try:
         tyro.extras.subcommand_cli_from_dict(
-            COMMANDS,
+            commands(),
             prog="bt",
             description="Beyond the Teacher: score and clean demos. `bt --version` prints the "
             "version.",

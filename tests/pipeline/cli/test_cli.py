@@ -212,3 +212,39 @@ def test_teleop_realtime_priority_reaches_every_session(capsys, monkeypatch) -> 
     assert [options.session.realtime_priority for options in seen] == [12, 10, 0]
     code, _, err = run(capsys, "teleop", "--realtime-priority", "100")
     assert code == 2 and "realtime_priority" in err and "Traceback" not in err
+
+
+def test_teleop_joins_bt_through_its_entry_point_not_an_import() -> None:
+    """``bt teleop`` is bt_teleop's plugin (pyproject's ``bt.commands`` group): the installed
+    metadata names it, and loading it is what brings bt_teleop in."""
+    from importlib.metadata import entry_points
+
+    import bt_pipeline.cli as cli
+
+    (point,) = [p for p in entry_points(group=cli.PLUGIN_GROUP) if p.name == "teleop"]
+    assert point.value == "bt_teleop.cli:teleop"
+    found = cli.commands()
+    assert next(iter(found)) == "teleop" and found["teleop"].__module__ == "bt_teleop.cli"
+    assert set(cli.BUILT_IN) < set(found) and "teleop" not in cli.BUILT_IN
+
+
+def test_a_broken_or_clashing_plugin_is_left_out_with_a_warning(monkeypatch, caplog) -> None:
+    from importlib.metadata import EntryPoint
+
+    import bt_pipeline.cli as cli
+
+    points = [
+        EntryPoint("broken", "no_such_module_xyz:run", cli.PLUGIN_GROUP),
+        EntryPoint("score", "json:dumps", cli.PLUGIN_GROUP),  # a built-in's name
+        EntryPoint("dumps", "json:dumps", cli.PLUGIN_GROUP),
+    ]
+    monkeypatch.setattr(
+        cli, "entry_points", lambda group: points if group == cli.PLUGIN_GROUP else []
+    )
+    with caplog.at_level("WARNING", logger="bt"):
+        found = cli.commands()
+    assert "broken" not in found and found["score"] is cli.BUILT_IN["score"]
+    assert found["dumps"] is json.dumps
+    text = caplog.text
+    assert "'broken'" in text and "failed to load" in text
+    assert "'score'" in text and "bt has a command of that name" in text

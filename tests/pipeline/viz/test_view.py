@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from bt_pipeline.cli import COMMANDS, main
+from bt_pipeline.cli import commands, main
 from bt_pipeline.exceptions import ConfigError
 from bt_pipeline.viz import view as view_module
 from bt_pipeline.viz.demo_style import display_name
@@ -116,7 +116,7 @@ def test_version_flag(capsys) -> None:
     assert capsys.readouterr().out.startswith("bt ")
 
 
-@pytest.mark.parametrize("command", sorted(COMMANDS))
+@pytest.mark.parametrize("command", sorted(commands()))
 def test_help_never_shows_an_empty_default(command: str, capsys, monkeypatch) -> None:
     monkeypatch.setenv("COLUMNS", "200")
     with pytest.raises(SystemExit):

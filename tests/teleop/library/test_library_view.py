@@ -141,9 +141,9 @@ def test_listed_must_be_positive(tmp_path: Path) -> None:
 
 def test_listed_demos_reaches_the_app_from_bt_teleop(monkeypatch) -> None:
     import bt_teleop.app as app_module
-    from bt_pipeline.cli.teleop_command import teleop
     from bt_pipeline.exceptions import ConfigError
     from bt_teleop.app import AppOptions
+    from bt_teleop.cli import teleop
 
     seen: list[AppOptions] = []
     monkeypatch.setattr(app_module, "serve", seen.append)  # do not bind

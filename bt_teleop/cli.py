@@ -1,4 +1,9 @@
-"""``bt teleop``: parse, then start the web app (bt_teleop, imported only here)."""
+"""``bt teleop``: the app's command of the ``bt`` CLI.
+
+bt_teleop registers it under the ``bt.commands`` entry-point group (pyproject.toml), and the CLI in
+bt_pipeline loads every command of that group, so bt_pipeline never imports bt_teleop. The app is
+imported inside the function, only when the command runs: ``bt --help`` stays fast.
+"""
 
 from __future__ import annotations
 
