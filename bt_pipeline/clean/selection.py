@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from bt_pipeline.clean.best_loop import best_demo_loop
+from bt_pipeline.clean.best_loop import best_demo_loop, closed_span
 from bt_pipeline.clean.fan_out import per_demo, segment_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.loop_learn import TaskLoop, learn_task_loop
@@ -125,6 +125,15 @@ def select_demos(
         again = _select(demos, best_loop, config, allowed, executor, chunk_size, selection.misfits)
         spent = {k: v + again.seconds.get(k, 0.0) for k, v in selection.seconds.items()}
         selection = dataclasses.replace(again, seconds=spent)
+    best = selection.scores.best_index
+    closed = closed_span(demos[best], selection.segments[best])
+    if closed is not selection.segments[best]:  # Its whole loop passes through (best_loop.py).
+        segments, spans = list(selection.segments), list(selection.demos)
+        segments[best] = closed
+        spans[best] = span_demo(
+            demos[best], closed, demos[0].n_samples, selection.preferences[best]
+        )
+        selection = dataclasses.replace(selection, segments=tuple(segments), demos=tuple(spans))
     selection.seconds["loop"] = learned
     return selection
 

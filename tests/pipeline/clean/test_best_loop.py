@@ -1,0 +1,140 @@
+"""The best demo's span closed where its path returns to itself (bt_pipeline/clean/best_loop.py).
+
+The takes here are drawn in this file: a loop with no symmetry, an approach that eases to a stop
+where the loop begins, a loop that starts at a fraction of its later speed, and a retreat.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from bt_pipeline.clean.best_loop import closed_span
+from bt_pipeline.clean.guide_fit import GuideFit
+from bt_pipeline.clean.segment import Segment
+from bt_pipeline.clean.selection import select_demos
+from bt_pipeline.data.demo import Demo, demos_from_recording
+from bt_pipeline.data.loop_shape import LoopShape
+from bt_pipeline.data.random_loops import draw_set_loop
+from bt_pipeline.data.synth_human import make_human_set
+from bt_pipeline.data.tasks import default_plane
+
+
+def _egg() -> LoopShape:
+    """An egg with a dent: no symmetry, 16 cm across."""
+    c = np.zeros(9, dtype=complex)
+    c[5], c[6], c[3], c[7] = 1.0, 0.18j, 0.12, -0.07
+    loop = LoopShape(c, "egg")
+    return loop.transformed(rho=0.16 / loop.size_m)
+
+
+def _take(fraction: float = 1.0, seed: int = 0) -> tuple[Demo, float, float, LoopShape]:
+    """Rest, an approach from outside easing to a stop at the loop's start, a 0.3 s pause,
+    `fraction` of a loop whose first fifth runs at a third of the later speed, a retreat
+    outwards, rest; 40 Hz with uneven steps. Returns the demo and the loop's true start and end
+    times [s]."""
+    loop = _egg()
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / 400.0
+    s = np.linspace(0.0, 1.0, 4000)  # The loop's phase share over 10 s of drawing.
+    speed = np.where(s < 0.2, 1.0 / 3.0, 1.0)
+    u = np.concatenate([[0.0], np.cumsum(1.0 / speed[:-1])])
+    u = fraction * u / u[-1]
+    phase0 = 1.3
+    loop_path = loop.at(phase0 + 2.0 * np.pi * u)
+    ease = 0.5 - 0.5 * np.cos(np.pi * np.linspace(0.0, 1.0, 600))  # 1.5 s, stops at the end.
+    centre = loop.points(256).mean(axis=0)
+
+    def outward(point: np.ndarray) -> np.ndarray:  # 15 cm out from the loop's centre.
+        return point + 0.15 * (point - centre) / np.linalg.norm(point - centre)
+
+    rest_a = outward(loop_path[0])
+    approach = rest_a + ease[:, None] * (loop_path[0] - rest_a)
+    pause = np.repeat(loop_path[:1], 120, axis=0)
+    rest_b = outward(loop_path[-1])
+    retreat = loop_path[-1] + ease[:, None] * (rest_b - loop_path[-1])
+    fine = np.concatenate(
+        [
+            np.repeat(rest_a[None], 200, 0),
+            approach,
+            pause,
+            loop_path,
+            retreat,
+            np.repeat(rest_b[None], 200, 0),
+        ]
+    )
+    start = (200 + 600 + 120) * dt
+    end = start + (loop_path.shape[0] - 1) * dt
+    t_fine = np.arange(fine.shape[0]) * dt
+    times = np.cumsum(rng.uniform(0.7, 1.3, size=int(t_fine[-1] * 40) + 10) / 40.0)
+    times = times[times < t_fine[-1]]
+    x = np.stack([np.interp(times, t_fine, fine[:, d]) for d in range(2)], axis=1)
+    x += rng.normal(0.0, 0.0003, x.shape)
+    demo = Demo(
+        positions=x[:: max(1, x.shape[0] // 300)][:300],
+        task="stirring",
+        file="",
+        name="take",
+        demonstrator="a",
+        theta_deg=None,
+        rho=None,
+        plane=default_plane("wiping"),
+        duration_s=float(times[-1] - times[0]),
+        raw_positions=x,
+        raw_times_s=times,
+    )
+    return demo, start, end, loop
+
+
+def _segment(start: float, end: float, cycles: float, loop: LoopShape) -> Segment:
+    fit = GuideFit(0.0, 1.0, np.zeros(2), 0.0005, loop.size_m, loop)
+    return Segment(start_s=start, end_s=end, cycles=cycles, guide=fit)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_span_cut_at_its_slow_start_is_closed_where_the_loop_began(seed: int) -> None:
+    demo, start, end, loop = _take(seed=seed)
+    cut = _segment(start + 1.2, end, 0.88, loop)  # The slow first fifth: 2.5 s of 7.5 s.
+    closed = closed_span(demo, cut)
+    assert closed.cycles == 1.0 and abs(closed.end_s - cut.end_s) < 0.05
+    assert abs(closed.start_s - start) < 0.1  # Not in the pause nor on the approach.
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_span_cut_before_its_end_is_closed_where_the_loop_ends(seed: int) -> None:
+    demo, start, end, loop = _take(seed=seed)
+    cut = _segment(start, end - 0.6, 0.92, loop)
+    closed = closed_span(demo, cut)
+    assert abs(closed.start_s - cut.start_s) < 0.05
+    assert abs(closed.end_s - end) < 0.1  # Not on the retreat.
+
+
+def test_a_part_of_a_loop_or_a_whole_one_is_left_as_it_is() -> None:
+    demo, start, end, loop = _take(fraction=0.8)
+    part = _segment(start, end, 0.8, loop)  # Its path never returns: nothing to close.
+    assert closed_span(demo, part) is part
+    whole_demo, start, end, loop = _take()
+    whole = _segment(start, end, 0.96, loop)
+    assert closed_span(whole_demo, whole) is whole
+    assert closed_span(whole_demo, dataclasses.replace(whole, cycles=0.4)).cycles == 0.4
+
+
+def test_the_best_demo_keeps_the_slow_start_of_its_one_loop() -> None:
+    """A human-style set of a random oval (θ/ρ hidden): the expert-like demo, the best, draws
+    one loop that starts at half its later speed after its approach pauses where it joins; its
+    kept span starts where its true loop part starts (it started 0.58 s late: 3.4 x its raw
+    shape error once cleaned)."""
+    synth = make_human_set("wiping", 4, 4, shape=draw_set_loop("random", 4, "wiping"))
+    demos = demos_from_recording(synth.recording)
+    selection = select_demos(demos)
+    expert = synth.expert_index
+    assert selection.scores.best_index == expert
+    record = list(synth.recording.demos.values())[expert]
+    times = demos[expert].raw_samples()[1]
+    on = np.flatnonzero(np.asarray(record.attrs["truth_on_loop"]) > 0)
+    segment = selection.segments[expert]
+    assert abs(segment.start_s - times[on[0]]) < 0.1
+    assert abs(segment.end_s - times[on[-1]]) < 0.1
+    assert selection.demos[expert].raw_times_s[0] == segment.start_s
