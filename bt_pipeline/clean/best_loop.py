@@ -30,6 +30,8 @@ _GUIDE_SHORT = 0.9  # A guide is replaced when less than this share of the best 
 _WHOLE = 0.95  # A best demo's span under this many loops is also sought against its own loop.
 _OPEN = (0.6, _WHOLE)  # A best demo's span of this many loops is closed where its path returns,
 _RETURN = 0.05  # within this share of the loop's size (at least 3 mm), running the same way,
+_OVER = (1.05, 1.35)  # A span of this many loops holds one loop and a stretch of approach or
+# retreat that runs along it: it is trimmed to the closest return between its two ends.
 _REACH = 0.15  # at most the missing part of a loop plus this share of one away from the span,
 _ON_LOOP = 0.08  # the part added lying within this share of the size of its fitted loop (9 in 10
 _ON_SHARE = 0.9  # samples: a retreat that passes the span's start on its way out does not).
@@ -118,9 +120,15 @@ def closed_span(demo: Demo, segment: Segment) -> Segment:
     after it that returns to the span's start; the nearer return wins. The part added must lie
     on the span's fitted loop (9 in 10 of its samples within 8 % of its size): a retreat that
     passes the span's start on its way out is no return. No return: as it was.
+
+    A span of 1.05-1.35 loops holds one loop and an approach or a retreat that runs along it
+    (the approach converges on the loop where it begins, the retreat leaves it where it ends):
+    it is trimmed to the pair of samples, one in each end's extra part of a loop (plus 0.1),
+    that lie closest (within the same 5 %; of pairs within 1 mm of the closest, the last
+    start), running the same way.
     """
     low, high = _OPEN
-    if not low <= segment.cycles < high:
+    if not (low <= segment.cycles < high or _OVER[0] <= segment.cycles <= _OVER[1]):
         return segment
     x, t = demo.raw_samples()
     clock = np.arange(t[0], t[-1], 1.0 / _CLOCK_HZ)
@@ -133,6 +141,8 @@ def closed_span(demo: Demo, segment: Segment) -> Segment:
     reach = int((1.0 - segment.cycles + _REACH) * (i1 - i0) / segment.cycles)
     tolerance = max(0.003, _RETURN * segment.guide.size_m)
     step = max(2, round(0.1 * _CLOCK_HZ))
+    if segment.cycles >= _OVER[0]:
+        return _trimmed(segment, path, clock, t, i0, i1, tolerance, step)
     found: list[tuple[float, float, float]] = []
     # The start earlier: the path before the span passes the span's end, running on the way
     # the end arrives.
@@ -161,6 +171,36 @@ def closed_span(demo: Demo, segment: Segment) -> Segment:
     _, start, end = min(found)
     start = float(t[min(int(np.searchsorted(t, start - 1e-9)), t.size - 1)])
     end = float(t[max(int(np.searchsorted(t, end + 1e-9)) - 1, 0)])
+    return dataclasses.replace(segment, start_s=start, end_s=end, cycles=1.0)
+
+
+def _trimmed(
+    segment: Segment,
+    path: np.ndarray,
+    clock: np.ndarray,
+    t: np.ndarray,
+    i0: int,
+    i1: int,
+    tolerance: float,
+    step: int,
+) -> Segment:
+    """`segment` of more than one loop trimmed to its closest return (:func:`closed_span`)."""
+    window = int((segment.cycles - 1.0 + 0.1) / segment.cycles * (i1 - i0))
+    if window < 2 or i1 - window <= i0 + window:
+        return segment
+    head, tail = path[i0 : i0 + window], path[i1 - window : i1 + 1]
+    gaps = np.linalg.norm(head[:, None, :] - tail[None, :, :], axis=2)
+    # Of the about closest pairs (within 1 mm), the last start: a pause where the loop begins
+    # is one point, and the loop leaves it at the pause's end.
+    s = int(np.flatnonzero((gaps <= gaps.min() + 0.001).any(axis=1))[-1])
+    e = int(np.argmin(gaps[s]))
+    k0, k1 = i0 + s, i1 - window + e
+    leaving = path[min(k0 + step, clock.size - 1)] - path[k0]
+    arriving = path[k1] - path[max(0, k1 - step)]
+    if float(gaps[s, e]) > tolerance or not _same_way(arriving, leaving):
+        return segment
+    start = float(t[min(int(np.searchsorted(t, clock[k0] - 1e-9)), t.size - 1)])
+    end = float(t[max(int(np.searchsorted(t, clock[k1] + 1e-9)) - 1, 0)])
     return dataclasses.replace(segment, start_s=start, end_s=end, cycles=1.0)
 
 

@@ -30,11 +30,14 @@ def _egg() -> LoopShape:
     return loop.transformed(rho=0.16 / loop.size_m)
 
 
-def _take(fraction: float = 1.0, seed: int = 0) -> tuple[Demo, float, float, LoopShape]:
+def _take(
+    fraction: float = 1.0, seed: int = 0, along: float = 0.0
+) -> tuple[Demo, float, float, LoopShape]:
     """Rest, an approach from outside easing to a stop at the loop's start, a 0.3 s pause,
     `fraction` of a loop whose first fifth runs at a third of the later speed, a retreat
-    outwards, rest; 40 Hz with uneven steps. Returns the demo and the loop's true start and end
-    times [s]."""
+    outwards, rest; 40 Hz with uneven steps. With `along` > 0, the approach's last `along` of a
+    loop and the retreat's first run along the loop, 4 mm off it where they meet the loop's
+    ends and more farther out. Returns the demo and the loop's true start and end times [s]."""
     loop = _egg()
     rng = np.random.default_rng(seed)
     dt = 1.0 / 400.0
@@ -55,6 +58,17 @@ def _take(fraction: float = 1.0, seed: int = 0) -> tuple[Demo, float, float, Loo
     pause = np.repeat(loop_path[:1], 120, axis=0)
     rest_b = outward(loop_path[-1])
     retreat = loop_path[-1] + ease[:, None] * (rest_b - loop_path[-1])
+    if along > 0.0:  # Converge on the loop along it, and leave it along it.
+        lead_in = np.linspace(-along, 0.0, 400)
+        inner = loop.at(phase0 + 2.0 * np.pi * lead_in)
+        off = (inner - centre) * (1.0 + 0.025 + 0.4 * np.abs(lead_in)[:, None])
+        approach = np.concatenate(
+            [approach[:200] + (off[0] + centre - approach[199]), off + centre]
+        )
+        lead_out = np.linspace(0.0, along, 400) + fraction
+        outer = loop.at(phase0 + 2.0 * np.pi * lead_out)
+        off = (outer - centre) * (1.0 + 0.025 + 0.4 * (lead_out - fraction)[:, None])
+        retreat = np.concatenate([off + centre, retreat[:200] + (off[-1] + centre - retreat[0])])
     fine = np.concatenate(
         [
             np.repeat(rest_a[None], 200, 0),
@@ -109,6 +123,18 @@ def test_a_span_cut_before_its_end_is_closed_where_the_loop_ends(seed: int) -> N
     closed = closed_span(demo, cut)
     assert abs(closed.start_s - cut.start_s) < 0.05
     assert abs(closed.end_s - end) < 0.1  # Not on the retreat.
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_span_that_runs_on_along_an_approach_and_a_retreat_is_trimmed_to_its_loop(
+    seed: int,
+) -> None:
+    demo, start, end, loop = _take(seed=seed, along=0.12)
+    _, t = demo.raw_samples()
+    long = _segment(float(t[0]) + 1.0, float(t[-1]) - 1.0, 1.2, loop)  # Both runs along.
+    closed = closed_span(demo, long)
+    assert closed.cycles == 1.0
+    assert abs(closed.start_s - start) < 0.15 and abs(closed.end_s - end) < 0.15
 
 
 def test_a_part_of_a_loop_or_a_whole_one_is_left_as_it_is() -> None:
