@@ -127,6 +127,8 @@ class TaskLoop:
     """Each demo's own loop (256 points, arc length) by label, for the demos that close one."""
     repeats: dict[str, float] = dataclasses.field(default_factory=dict, repr=False)
     """Each such demo's path length in loops (:attr:`OwnLoop.loops`, approach included)."""
+    traced: bool = False
+    """A demo's own loop lies within :data:`GUIDE_TRACED` of the guide (the guide is kept)."""
 
     @functools.cached_property
     def symmetry_axis(self) -> tuple[float, float]:
@@ -175,11 +177,13 @@ class TaskLoop:
         return out
 
 
-def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
+def learn_task_loop(demos: Sequence[Demo], *, use_guide: bool = True) -> TaskLoop:
     """The loop one task's demos are measured against (module doc).
 
     Args:
         demos: The task's demos (their raw samples are read).
+        use_guide: Whether the task's guide may be chosen (step 4); False when selection found
+            that the demos do not follow it after all (:mod:`bt_pipeline.clean.selection`).
 
     Raises:
         DemoError: A task without a guide none of whose demos closes a loop.
@@ -244,7 +248,7 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
             for loop, i in zip(loops, used, strict=True)
         ]
         closest = min(gaps)
-        if closest <= GUIDE_TRACED and misfit > GUIDE_MISFIT:
+        if use_guide and closest <= GUIDE_TRACED and misfit > GUIDE_MISFIT:
             tracers = [used[k] for k, g in enumerate(gaps) if g <= GUIDE_FOLLOWED]
             return TaskLoop(
                 guide,
@@ -259,8 +263,9 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
                 ),
                 own=own,
                 repeats=repeats,
+                traced=True,
             )
-        if closest <= GUIDE_FOLLOWED and misfit <= GUIDE_MISFIT:
+        if use_guide and closest <= GUIDE_FOLLOWED and misfit <= GUIDE_MISFIT:
             return TaskLoop(
                 guide,
                 "guide",
@@ -269,13 +274,14 @@ def learn_task_loop(demos: Sequence[Demo]) -> TaskLoop:
                 f"the {task} guide's frame",
                 own=own,
                 repeats=repeats,
+                traced=closest <= GUIDE_TRACED,
             )
-        notes.append(
-            f"the {task} demos do not follow the task's guide (the closest is "
-            f"{100 * closest:.1f} % of its size off, the consensus {100 * misfit:.1f} %): their "
-            "own loop, learned from "
-            f"{len(kept)} demos, is used"
-        )
+        if use_guide:
+            notes.append(
+                f"the {task} demos do not follow the task's guide (the closest is "
+                f"{100 * closest:.1f} % of its size off, the consensus {100 * misfit:.1f} %): "
+                f"their own loop, learned from {len(kept)} demos, is used"
+            )
     framing = [k for k in range(len(used)) if k not in outliers]
     framed, frame = _frame(learned, [demos[used[k]] for k in framing], [loops[k] for k in framing])
     return TaskLoop(

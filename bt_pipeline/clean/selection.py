@@ -17,6 +17,7 @@ best demo is the eligible one (it follows the task's guide about as closely as a
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -55,6 +56,11 @@ from bt_pipeline.score.utility import (
     score_demos,
     set_utilities,
 )
+
+OFF_GUIDE_CYCLES = 0.5
+"""A demo whose own loop closes has less than this many loops found on the guide: it is off it"""
+OFF_GUIDE_SHARE = 0.25
+"""and when this share of such demos (two at least) is, the guide is set aside."""
 
 
 @dataclass(frozen=True)
@@ -117,6 +123,18 @@ def select_demos(
     task_loop = learn_task_loop(demos)
     learned = time.perf_counter() - start
     selection = _select(demos, task_loop, config, allowed, executor, chunk_size)
+    off = off_guide(demos, task_loop, selection.segments)
+    if off:  # The demos close loops of their own that the guide does not hold: learn theirs.
+        start = time.perf_counter()
+        task_loop = learn_task_loop(demos, use_guide=False)
+        note = (
+            f"{', '.join(demos[i].label for i in off)} close loops of their own, but less than "
+            f"half a loop of each lies on the {demos[0].task} guide: the guide is set aside "
+            f"and their own loop, learned from {len(task_loop.used)} demos, is used"
+        )
+        task_loop = dataclasses.replace(task_loop, notes=(*task_loop.notes, note))
+        learned += time.perf_counter() - start
+        selection = _select(demos, task_loop, config, allowed, executor, chunk_size)
     best = selection.scores.best_index
     best_loop = best_demo_loop(task_loop, demos[best], selection.segments[best])
     if best_loop is not None:  # Once more against the best demo's own loop (loop_learn step 6).
@@ -136,6 +154,25 @@ def select_demos(
         selection = dataclasses.replace(selection, segments=tuple(segments), demos=tuple(spans))
     selection.seconds["loop"] = learned
     return selection
+
+
+def off_guide(demos: Sequence[Demo], task_loop: TaskLoop, segments: Sequence[Segment]) -> list[int]:
+    """The demos that show the guide is not the task's loop, or none (step 4 checked again).
+
+    The guide is kept when some demo traces it and the demos' consensus lies near it
+    (:mod:`bt_pipeline.clean.loop_learn`); a loop near the guide but not it (a figure-eight of
+    unequal lobes, with 20 demos one of which happens to lie near the guide) passes that test,
+    and segmentation against the guide then finds a tenth of a loop in demos that draw four
+    of their own. So when a quarter or more of the demos whose path holds a loop of its own
+    (two at least) have less than half a loop found on the guide, they are returned and the
+    loop is learned from the demos instead; unless a demo traced the guide (within 2 %): a
+    majority that shares one bias (the same wrong lobe of an eight) does not outvote it.
+    """
+    if task_loop.source != "guide" or task_loop.traced:
+        return []  # A demo that traced the guide is not outvoted (loop_learn step 4).
+    closers = [i for i, d in enumerate(demos) if task_loop.repeats.get(d.label, 0.0) >= 1.0]
+    off = [i for i in closers if segments[i].cycles < OFF_GUIDE_CYCLES]
+    return off if len(off) >= max(2, math.ceil(OFF_GUIDE_SHARE * len(closers))) else []
 
 
 def _select(

@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+from bt_pipeline.clean.guide_fit import GuideFit
+from bt_pipeline.clean.loop_learn import TaskLoop
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
+from bt_pipeline.clean.segment import Segment
+from bt_pipeline.clean.selection import off_guide, select_demos
 from bt_pipeline.clean.shape_gate import eligible
 from bt_pipeline.data.demo import Demo, demos_from_recording, resample_uniform
+from bt_pipeline.data.loop_shape import LoopShape
+from bt_pipeline.data.random_loops import draw_set_loop
 from bt_pipeline.data.shapes import canonical_loop, similarity_transform
 from bt_pipeline.data.synth import make_d1, make_d2
+from bt_pipeline.data.synth_human import make_human_set
 from bt_pipeline.data.synth_truth import ratios_against
 from bt_pipeline.data.tasks import TASKS, Task, default_plane
 from bt_pipeline.score.utility import select_best
@@ -138,3 +147,41 @@ def test_eligibility_is_relative_to_the_closest_follower() -> None:
     """Eligible: misfit ≤ 1.5 × the smallest + 0.1 % of the size; ranks list them first."""
     assert eligible(np.array([0.002, 0.0039, 0.0041, 0.01])).tolist() == [True, True, False, False]
     assert eligible(np.array([0.0, 0.0009, 0.0011])).tolist() == [True, True, False]
+
+
+def _segment_with(cycles: float) -> Segment:
+    fit = GuideFit(0.0, 1.0, np.zeros(2), 0.0005, 0.2, LoopShape.guide("weaving"))
+    return Segment(start_s=0.0, end_s=1.0, cycles=cycles, guide=fit)
+
+
+def test_the_guide_is_set_aside_when_a_quarter_of_the_looping_demos_are_off_it() -> None:
+    """Demos whose own path holds a loop or more but have under half a loop found on the guide
+    show that the guide is not the task's loop; one such demo, a learned loop, or a guide a
+    demo traced, does not."""
+    plane = default_plane("weaving")
+    demos = [
+        Demo(np.zeros((16, 2)), "weaving", "", f"d{i}", "a", None, None, plane) for i in range(8)
+    ]
+    repeats = {d.label: 3.0 for d in demos[:7]}  # demo 7 closes no loop of its own
+    guide = TaskLoop(LoopShape.guide("weaving"), "guide", 0.05, (), "f", repeats=repeats)
+    cycles = [3.0, 0.1, 2.9, 0.08, 3.1, 3.0, 2.8, 0.0]
+    assert off_guide(demos, guide, [_segment_with(c) for c in cycles]) == [1, 3]  # 2 of 7
+    cycles[3] = 2.9
+    assert off_guide(demos, guide, [_segment_with(c) for c in cycles]) == []  # 1 of 7
+    learned = dataclasses.replace(guide, source="learned")
+    assert off_guide(demos, learned, [_segment_with(0.1) for _ in cycles]) == []
+    traced = dataclasses.replace(guide, traced=True)  # A demo traced it: never outvoted.
+    assert off_guide(demos, traced, [_segment_with(0.1) for _ in cycles]) == []
+
+
+def test_a_loop_near_the_guide_but_not_it_is_learned_after_segmentation() -> None:
+    """20 human-style weaving demos of a random figure of the guide's kind (θ/ρ hidden): the
+    guide passed the loop-learning test, but segmented against it six demos that draw 1-4
+    loops of their own kept 0.08-0.46 of a loop, the expert-like demo among them, and a naive
+    demo was picked as the best. Set aside, the learned loop picks the expert-like demo."""
+    synth = make_human_set("weaving", 20, 1, shape=draw_set_loop("random", 1, "weaving"))
+    selection = select_demos(demos_from_recording(synth.recording))
+    assert selection.loop.source == "learned"
+    assert any("the guide is set aside" in note for note in selection.notes)
+    assert selection.scores.best_index == synth.expert_index
+    assert min(s.cycles for s in selection.segments) >= 0.9
