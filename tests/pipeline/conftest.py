@@ -12,9 +12,32 @@ from pathlib import Path
 
 import numpy as np
 
+from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.plane import TaskPlane
 from bt_pipeline.data.recording import write_recording
+from bt_pipeline.data.tasks import default_plane
 from tests.conftest import build_recording
+
+
+def demo_of(
+    x: np.ndarray, t: np.ndarray, name: str, task: str, theta: float | None, rho: float | None
+) -> Demo:
+    """A demo of raw samples `x` (T, 2) at times `t` (its N samples a thinning of them), its
+    demonstrator named as the demo, on the wiping plane."""
+    return Demo(
+        positions=x[:: max(1, x.shape[0] // 300)][:300],
+        task=task,
+        file="",
+        name=name,
+        demonstrator=name,
+        theta_deg=theta,
+        rho=rho,
+        plane=default_plane("wiping"),
+        duration_s=float(t[-1] - t[0]),
+        raw_positions=x,
+        raw_times_s=t,
+    )
+
 
 TILT = math.radians(20.0)
 STIRRING_PLANE = TaskPlane(

@@ -19,7 +19,7 @@ from bt_pipeline.data.demo import Demo, demos_from_recording
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.random_loops import draw_set_loop
 from bt_pipeline.data.synth_human import make_human_set
-from bt_pipeline.data.tasks import default_plane
+from tests.pipeline.conftest import demo_of
 
 
 def _egg() -> LoopShape:
@@ -86,19 +86,7 @@ def _take(
     times = times[times < t_fine[-1]]
     x = np.stack([np.interp(times, t_fine, fine[:, d]) for d in range(2)], axis=1)
     x += rng.normal(0.0, 0.0003, x.shape)
-    demo = Demo(
-        positions=x[:: max(1, x.shape[0] // 300)][:300],
-        task="stirring",
-        file="",
-        name="take",
-        demonstrator="a",
-        theta_deg=None,
-        rho=None,
-        plane=default_plane("wiping"),
-        duration_s=float(times[-1] - times[0]),
-        raw_positions=x,
-        raw_times_s=times,
-    )
+    demo = demo_of(x, times, "take", "stirring", None, None)
     return demo, start, end, loop
 
 

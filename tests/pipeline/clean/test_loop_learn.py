@@ -24,9 +24,9 @@ from bt_pipeline.data.random_loops import draw_set_loop
 from bt_pipeline.data.shapes import canonical_loop
 from bt_pipeline.data.synth import make_demo_set
 from bt_pipeline.data.synth_truth import truth_ratios
-from bt_pipeline.data.tasks import default_plane
 from bt_pipeline.exceptions import DemoError
 from bt_pipeline.score.losses import symmetry_loss
+from tests.pipeline.conftest import demo_of
 
 
 def blob(seed: int, size_m: float = 0.2) -> LoopShape:
@@ -75,24 +75,6 @@ def drawn(
     times = times[times < t_fine[-1]] + 3.7
     x = np.stack([np.interp(times - 3.7, t_fine, fine[:, d]) for d in range(2)], axis=1)
     return x + rng.normal(0.0, noise_m, x.shape), times
-
-
-def demo_of(
-    x: np.ndarray, t: np.ndarray, name: str, task: str, theta: float | None, rho: float | None
-) -> Demo:
-    return Demo(
-        positions=x[:: max(1, x.shape[0] // 300)][:300],
-        task=task,
-        file="",
-        name=name,
-        demonstrator=name,
-        theta_deg=theta,
-        rho=rho,
-        plane=default_plane("wiping"),
-        duration_s=float(t[-1] - t[0]),
-        raw_positions=x,
-        raw_times_s=t,
-    )
 
 
 def as_complex(points: np.ndarray) -> np.ndarray:
