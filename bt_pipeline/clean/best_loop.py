@@ -143,32 +143,54 @@ def closed_span(demo: Demo, segment: Segment) -> Segment:
     step = max(2, round(0.1 * _CLOCK_HZ))
     if segment.cycles >= _OVER[0]:
         return _trimmed(segment, path, clock, t, i0, i1, tolerance, step)
+    # The start earlier: the path before the span passes the span's end (the last such
+    # sample); or the end later: the path after the span returns to its start (the first).
     found: list[tuple[float, float, float]] = []
-    # The start earlier: the path before the span passes the span's end, running on the way
-    # the end arrives.
-    lo = max(0, i0 - reach)
-    arriving = path[i1] - path[max(i0, i1 - step)]
-    near = np.linalg.norm(path[lo:i0] - path[i1], axis=1)
-    if near.size and near.min() <= tolerance:
-        k = lo + int(np.flatnonzero(near <= near.min() + 0.001)[-1])
-        leaving = path[min(k + step, clock.size - 1)] - path[k]
-        if _same_way(arriving, leaving):
-            found.append((float(near.min()), float(clock[k]), segment.end_s))
-    # The end later: the path after the span returns to the span's start.
-    hi = min(clock.size, i1 + 1 + reach)
-    leaving = path[min(i1, i0 + step)] - path[i0]
-    near = np.linalg.norm(path[i1 + 1 : hi] - path[i0], axis=1)
-    if near.size and near.min() <= tolerance:
-        k = i1 + 1 + int(np.flatnonzero(near <= near.min() + 0.001)[0])
-        arriving = path[k] - path[max(0, k - step)]
-        if _same_way(arriving, leaving):
-            found.append((float(near.min()), segment.start_s, float(clock[k])))
+    back = _return_to(path, i1, max(0, i0 - reach), i0, tolerance, step, last=True)
+    if back is not None:
+        found.append((back[0], float(clock[back[1]]), segment.end_s))
+    ahead = _return_to(
+        path, i0, i1 + 1, min(clock.size, i1 + 1 + reach), tolerance, step, last=False
+    )
+    if ahead is not None:
+        found.append((ahead[0], segment.start_s, float(clock[ahead[1]])))
     ring = segment.guide.guide()
     on_loop = max(0.008, _ON_LOOP * segment.guide.size_m)
     found = [f for f in found if _on_loop(path, clock, f[1:], segment, ring, on_loop)]
     if not found:
         return segment
     _, start, end = min(found)
+    return _snapped(segment, t, start, end)
+
+
+def _return_to(
+    path: np.ndarray, j: int, a: int, b: int, tolerance: float, step: int, *, last: bool
+) -> tuple[float, int] | None:
+    """Where the path over samples a..b-1 comes back to sample j (:func:`closed_span`): the last
+    (`last`, before j) or first (after j) sample within 1 mm of the nearest one, when that is
+    within `tolerance` and the path runs on there the way it runs at j. Returns (distance, k)."""
+    near = np.linalg.norm(path[a:b] - path[j], axis=1)
+    if not near.size or near.min() > tolerance:
+        return None
+    hits = np.flatnonzero(near <= near.min() + 0.001)
+    k = a + int(hits[-1] if last else hits[0])
+    if last:  # The loop arrives at j and leaves k.
+        same = _same_way(_arriving(path, j, step), _leaving(path, k, step))
+    else:  # It leaves j and arrives at k.
+        same = _same_way(_leaving(path, j, step), _arriving(path, k, step))
+    return (float(near.min()), k) if same else None
+
+
+def _leaving(path: np.ndarray, i: int, step: int) -> np.ndarray:
+    return path[min(i + step, path.shape[0] - 1)] - path[i]
+
+
+def _arriving(path: np.ndarray, i: int, step: int) -> np.ndarray:
+    return path[i] - path[max(0, i - step)]
+
+
+def _snapped(segment: Segment, t: np.ndarray, start: float, end: float) -> Segment:
+    """`segment` from `start` to `end` [s] snapped to raw sample times, holding one loop."""
     start = float(t[min(int(np.searchsorted(t, start - 1e-9)), t.size - 1)])
     end = float(t[max(int(np.searchsorted(t, end + 1e-9)) - 1, 0)])
     return dataclasses.replace(segment, start_s=start, end_s=end, cycles=1.0)
@@ -195,13 +217,11 @@ def _trimmed(
     s = int(np.flatnonzero((gaps <= gaps.min() + 0.001).any(axis=1))[-1])
     e = int(np.argmin(gaps[s]))
     k0, k1 = i0 + s, i1 - window + e
-    leaving = path[min(k0 + step, clock.size - 1)] - path[k0]
-    arriving = path[k1] - path[max(0, k1 - step)]
-    if float(gaps[s, e]) > tolerance or not _same_way(arriving, leaving):
+    if float(gaps[s, e]) > tolerance:
         return segment
-    start = float(t[min(int(np.searchsorted(t, clock[k0] - 1e-9)), t.size - 1)])
-    end = float(t[max(int(np.searchsorted(t, clock[k1] + 1e-9)) - 1, 0)])
-    return dataclasses.replace(segment, start_s=start, end_s=end, cycles=1.0)
+    if not _same_way(_arriving(path, k1, step), _leaving(path, k0, step)):
+        return segment
+    return _snapped(segment, t, float(clock[k0]), float(clock[k1]))
 
 
 def _on_loop(
