@@ -179,13 +179,17 @@ class TaskLoop:
         return out
 
 
-def learn_task_loop(demos: Sequence[Demo], *, use_guide: bool = True) -> TaskLoop:
+def learn_task_loop(
+    demos: Sequence[Demo], *, use_guide: bool = True, known: TaskLoop | None = None
+) -> TaskLoop:
     """The loop one task's demos are measured against (module doc).
 
     Args:
         demos: The task's demos (their raw samples are read).
         use_guide: Whether the task's guide may be chosen (step 4); False when selection found
             that the demos do not follow it after all (:mod:`bt_pipeline.clean.selection`).
+        known: An earlier result for the same demos: their own loops are taken from it
+            instead of being found again (step 1).
 
     Raises:
         DemoError: A task without a guide none of whose demos closes a loop.
@@ -197,13 +201,17 @@ def learn_task_loop(demos: Sequence[Demo], *, use_guide: bool = True) -> TaskLoo
     own: dict[str, np.ndarray] = {}
     repeats: dict[str, float] = {}
     for i, demo in enumerate(demos):
-        positions, times = demo.raw_samples()
-        found = own_loop(positions, times, demo.label)
-        if found.closes and found.loop is not None:
-            loops.append(centred_complex(found.loop))
+        if known is not None:
+            loop, count = known.own.get(demo.label), known.repeats.get(demo.label, 0.0)
+        else:
+            found = own_loop(*demo.raw_samples(), demo.label)
+            loop = found.loop if found.closes else None
+            count = found.loops
+        if loop is not None:
+            loops.append(centred_complex(loop))
             used.append(i)
-            own[demo.label] = found.loop
-            repeats[demo.label] = found.loops
+            own[demo.label] = loop
+            repeats[demo.label] = count
     notes: list[str] = []
     if not loops:
         names = ", ".join(d.label for d in demos)

@@ -126,7 +126,7 @@ def select_demos(
     off = off_guide(demos, task_loop, selection.segments)
     if off:  # The demos close loops of their own that the guide does not hold: learn theirs.
         start = time.perf_counter()
-        task_loop = learn_task_loop(demos, use_guide=False)
+        task_loop = learn_task_loop(demos, use_guide=False, known=task_loop)
         note = (
             f"{', '.join(demos[i].label for i in off)} close loops of their own, but less than "
             f"half a loop of each lies on the {demos[0].task} guide: the guide is set aside "
