@@ -103,6 +103,22 @@ def ratios_against(
     return shape, timing
 
 
+def symmetry_turn(points: ArrayLike, tolerance: float = 0.005) -> float:
+    """The smallest turn [deg] about its centroid that maps a closed loop onto itself (360°/n
+    for the largest n in 2-8 that does, within `tolerance` of its size by Chamfer distance),
+    360 for a loop with no such symmetry: a truth-side reading for :func:`relative_hits`."""
+    p = np.asarray(points, dtype=np.float64)
+    z = p[:, 0] + 1j * p[:, 1]
+    z = z - z.mean()
+    size = float(np.max(np.ptp(p, axis=0)))
+    for n in range(8, 1, -1):
+        turned = z * np.exp(2j * np.pi / n)
+        pair = [np.stack([w.real, w.imag], axis=1) for w in (turned, z)]
+        if shape_distance(*pair) < tolerance * size:
+            return 360.0 / n
+    return 360.0
+
+
 def oracle_similarity(
     positions: ArrayLike, intended: ArrayLike, on_loop: np.ndarray
 ) -> tuple[float, float]:
@@ -119,13 +135,25 @@ def oracle_similarity(
 
 
 def relative_hits(
-    thetas: ArrayLike, rhos: ArrayLike, true_thetas: ArrayLike, true_rhos: ArrayLike
+    thetas: ArrayLike,
+    rhos: ArrayLike,
+    true_thetas: ArrayLike,
+    true_rhos: ArrayLike,
+    period_deg: float = 360.0,
 ) -> np.ndarray:
     """Whether each demo's θ relative to the set's mean θ is within 5° of the truth's, and its ρ
     relative to the set's geometric-mean ρ within 5 %, shape (M,) (bool): what a loop learned
-    from the demos can identify (its own frame is the set's)."""
+    from the demos can identify (its own frame is the set's). A loop that maps onto itself
+    turned by `period_deg` (an n-fold symmetric loop: 360°/n) has θ only modulo that turn."""
     th, r = np.asarray(thetas, dtype=np.float64), np.asarray(rhos, dtype=np.float64)
     tt, tr = np.asarray(true_thetas, dtype=np.float64), np.asarray(true_rhos, dtype=np.float64)
-    d_theta = (th - th.mean()) - (tt - tt.mean())
+    # θ − θ_true is the frame's turn plus each demo's error: the turn is their mean (circular,
+    # modulo the symmetry turn, for a symmetric loop), the error what is left.
+    off = th - tt
+    frame = float(off.mean())
+    if period_deg < 360.0:
+        frame = float(np.angle(np.mean(np.exp(2j * np.pi * off / period_deg))))
+        frame *= period_deg / (2 * np.pi)
+    d_theta = (off - frame + period_deg / 2) % period_deg - period_deg / 2
     rel = (r / np.exp(np.log(r).mean())) / (tr / np.exp(np.log(tr).mean()))
     return (np.abs(d_theta) <= 5.0) & (np.abs(rel - 1.0) <= 0.05)

@@ -6,7 +6,8 @@ the cleaner is not judged only on the data it was tuned on. Each demo of a set (
 
 * a rest of 0.3-1.5 s 6-20 cm from the loop, a straight eased approach of 1-2.5 s, the loops,
   a retreat and a rest the same way;
-* loops of the task's canonical shape under the operator's θ ∈ [−40°, 40°] and ρ ∈ [0.65, 1.6]
+* loops of the task's canonical shape (or of the loop given, for example one of
+  :mod:`bt_pipeline.testing.lab_loops`) under the operator's θ ∈ [−40°, 40°] and ρ ∈ [0.65, 1.6]
   starting at a random phase: 1-5 loops (the steady operator 2-3), a period of 2-5 s with the
   speed swinging ±40 % slowly, 0-2 pauses of 0.5-2.5 s, and for a wobbly operator in 30 % of
   the demos a last loop stopped 10-30 % early;
@@ -27,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bt_pipeline.data.demo import DEFAULT_SAMPLES, Demo, resample_uniform
+from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.data.shapes import canonical_shape, similarity_transform
 from bt_pipeline.data.tasks import GuidedTask, Task, default_plane, parse_guided_task
@@ -56,11 +58,16 @@ class OperatorSet:
     steady_index: int
 
 
-def operator_set(task: Task, seed: int, n_demos: int = 5, hidden: bool = False) -> OperatorSet:
+def operator_set(
+    task: Task, seed: int, n_demos: int = 5, hidden: bool = False, loop: LoopShape | None = None
+) -> OperatorSet:
     """A set of `n_demos` demos, one operator each; θ/ρ stored as unknown when `hidden`.
 
+    The operators draw `loop` at θ/ρ relative to it, or the task's guide when it is None; the
+    demos are stored under `task` either way (its plane).
+
     Raises:
-        UnknownTaskError: `task` has no built-in guide shape (the operators draw it).
+        UnknownTaskError: `task` is not one of bt's three tasks.
     """
     guided = parse_guided_task(task)
     rng = np.random.default_rng([seed, 99])
@@ -68,7 +75,7 @@ def operator_set(task: Task, seed: int, n_demos: int = 5, hidden: bool = False) 
     demos = []
     for k in range(n_demos):
         theta, rho = float(rng.uniform(-40, 40)), float(rng.uniform(0.65, 1.6))
-        demos.append(_demo(guided, rng, k, k == steady, theta, rho, hidden))
+        demos.append(_demo(guided, rng, k, k == steady, theta, rho, hidden, loop))
     return OperatorSet(tuple(demos), steady)
 
 
@@ -106,10 +113,12 @@ def _demo(
     theta: float,
     rho: float,
     hidden: bool,
+    shape: LoopShape | None,
 ) -> OperatorDemo:
     loops = int(rng.integers(2, 4)) if steady else int(rng.integers(1, 6))
     phase = rng.uniform(0.0, 2 * np.pi) + _phase(rng, loops, steady)
-    loop = similarity_transform(canonical_shape(task, phase), theta, rho)
+    drawn_loop = canonical_shape(task, phase) if shape is None else shape.at(phase)
+    loop = similarity_transform(drawn_loop, theta, rho)
     rest0, rest1 = _away(loop[0], rng), _away(loop[-1], rng)
     parts = [
         np.repeat(rest0[None], int(rng.uniform(0.3, 1.5) * _FINE_HZ), axis=0),
