@@ -38,8 +38,6 @@ from bt_pipeline.clean.periodic import (
 )
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.shape_gate import (
-    LEARNED_MISFIT_FACTOR,
-    MISFIT_FACTOR,
     eligible,
     gate_best,
     gate_reason,
@@ -228,8 +226,7 @@ def _select(
     # The best demo is taken among those that follow the guide about as closely as any: Ũ is
     # blind to a slow wobble (bt_pipeline/clean/shape_gate.py).
     misfits = list(gate) if gate else [t.misfit for _, t in parts]
-    factor = LEARNED_MISFIT_FACTOR if task_loop.source == "learned" else MISFIT_FACTOR
-    scores = gate_best(by_utility, misfits, factor)
+    scores = gate_best(by_utility, misfits)
     reason = ""
     if scores.best_index != by_utility.best_index:
         first, best = by_utility.best_index, scores.best_index

@@ -105,16 +105,17 @@ def ratios_against(
 
 def symmetry_turn(points: ArrayLike, tolerance: float = 0.005) -> float:
     """The smallest turn [deg] about its centroid that maps a closed loop onto itself (360°/n
-    for the largest n in 2-8 that does, within `tolerance` of its size by Chamfer distance),
-    360 for a loop with no such symmetry: a truth-side reading for :func:`relative_hits`."""
+    for the largest n in 2-8 that does: the turned points lie within `tolerance` of its size
+    of the points on average; `points` dense along the loop), 360 for a loop with no such
+    symmetry: a truth-side reading for :func:`relative_hits`."""
     p = np.asarray(points, dtype=np.float64)
     z = p[:, 0] + 1j * p[:, 1]
     z = z - z.mean()
     size = float(np.max(np.ptp(p, axis=0)))
+    tree = KDTree(np.stack([z.real, z.imag], axis=1))
     for n in range(8, 1, -1):
         turned = z * np.exp(2j * np.pi / n)
-        pair = [np.stack([w.real, w.imag], axis=1) for w in (turned, z)]
-        if shape_distance(*pair) < tolerance * size:
+        if np.mean(tree.query(np.stack([turned.real, turned.imag], axis=1))[0]) < tolerance * size:
             return 360.0 / n
     return 360.0
 
