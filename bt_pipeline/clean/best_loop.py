@@ -19,8 +19,8 @@ from scipy.ndimage import gaussian_filter1d
 from bt_pipeline.clean.loop_align import align, centred_complex
 from bt_pipeline.clean.loop_learn import HARMONICS, REPEATS, TIE, TaskLoop
 from bt_pipeline.clean.recurrence import LOOP_POINTS
-from bt_pipeline.clean.segment import Segment, segment_demo
-from bt_pipeline.clean.span_loop import span_loop
+from bt_pipeline.clean.segment import Segment, segment_demo, span_times
+from bt_pipeline.clean.span_loop import gaps, span_loop
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.exceptions import DemoError
@@ -46,11 +46,12 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
     demo's (Sec. III-B). Once selection has picked it, its own loop, low-passed to 12
     harmonics and turned and scaled onto the consensus (so the frame stays), is the template
     the demos are measured against again: read between its returns when its path holds 2
-    loops or more, or is the loop alone (at most 1.1 loops of path: no approach), and otherwise
-    off its kept span (:func:`~bt_pipeline.clean.span_loop.span_loop`: a single loop with an
-    approach closes at one point, where the approach may join it). A guide is replaced the same
-    way when the best demo closes a loop of its own but less than 90 % of it was found on the
-    guide (a loop close to the guide, but not it: an arch of another return depth). None
+    loops or more (unless its span has gaps in its samples: dropped frames, bridged by chords
+    on the analysis clock) or is the loop alone (at most 1.1 loops of path: no approach), and
+    otherwise off its kept span (:func:`~bt_pipeline.clean.span_loop.span_loop`: a single loop
+    with an approach closes at one point, where the approach may join it). A guide is replaced
+    the same way when the best demo closes a loop of its own but less than 90 % of it was found
+    on the guide (a loop close to the guide, but not it: an arch of another return depth). None
     otherwise, or when no loop of the best demo can be read.
     """
     loop = task_loop.own.get(demo.label)
@@ -72,6 +73,13 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
         loop = span_loop(*demo.raw_samples(), segment, LOOP_POINTS)
         if loop is None:
             return None
+    elif _gapped(demo, segment):
+        # Read between its returns on a clock that bridges a gap in its samples with a chord
+        # (dropped frames: 0.2-0.6 s of a 2.7 s loop cut 5 mm inside it): off its span instead,
+        # over every loop, the chords left out, so another loop covers the phase a gap skips.
+        segment = _segment_on_own(demo, loop, segment)
+        read = span_loop(*demo.raw_samples(), segment, LOOP_POINTS)
+        loop = loop if read is None else read
     shape = LoopShape.from_points(loop, HARMONICS)
     current = centred_complex(task_loop.loop.points(LOOP_POINTS))
     a, _, flipped, _ = align(current, centred_complex(shape.points(LOOP_POINTS)), TIE)
@@ -87,6 +95,12 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
     return dataclasses.replace(
         task_loop, loop=framed, source="learned", best=demo.label, notes=notes
     )
+
+
+def _gapped(demo: Demo, segment: Segment) -> bool:
+    """Whether the raw samples of the demo's kept span have a gap (:func:`span_loop.gaps`)."""
+    times = demo.raw_samples()[1]
+    return bool(np.any(gaps(times[span_times(times, segment)])))
 
 
 def _segment_on_own(demo: Demo, own: np.ndarray, segment: Segment) -> Segment:

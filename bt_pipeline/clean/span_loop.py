@@ -7,9 +7,13 @@ sample of its kept span (read at 50 Hz, σ = 0.03 s) has a phase along the fitte
 (:func:`track_phase`), and its own loop is the closed curve z(φ) = Σ_k c_k e^{ikφ} (|k| ≤ 12)
 that the samples trace in that phase:
 
-- each sample weighs the path it moves along (a pause is not many samples of one point);
+- each sample weighs the path it moves along (a pause is not many samples of one point), and
+  a clock sample inside a gap of the raw samples (:func:`bridged`) weighs nothing: the clock
+  bridges a gap with a chord that cuts inside the loop, and another loop of the span, or the
+  bending penalty, covers that phase instead;
 - a span of fewer than two loops is read over the one loop of phase in its middle, so a bit of
-  approach or retreat at its ends does not compete with the loop at the same phase;
+  approach or retreat at its ends does not compete with the loop at the same phase (over the
+  whole span when a gap falls in that loop: the robust weights then drop what runs beside it);
 - least squares with a small bending penalty (10⁻⁵ Σ k⁴ |c_k|² per unit weight: it bridges a
   phase the span leaves uncovered), reweighted three times with Tukey's biweight (c = 4.685
   robust standard deviations of the residuals, at least 0.5 mm), so what runs beside the loop
@@ -45,6 +49,8 @@ _TRACK_POINTS = 512  # Template points for the phase track.
 _TUKEY = 4.685  # Tukey's biweight constant, in robust standard deviations.
 _MIN_SCALE_M = 0.0005  # The residuals' robust scale is at least this [m].
 _REWEIGHTS = 3  # Reweighting passes per fit.
+_GAP_FACTOR = 2.5  # A gap in the raw samples: an interval this many times their median
+_GAP_MIN_S = 0.1  # and at least this long [s].
 
 
 def span_loop(
@@ -72,8 +78,11 @@ def span_loop(
     raw = np.asarray(positions, dtype=np.float64)[inside]
     path = np.stack([np.interp(clock, t[inside], raw[:, d]) for d in range(2)], axis=1)
     path = gaussian_filter1d(path, _SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
-    # Each sample weighs as much path as it moves along: a pause is not many samples of a point.
+    # Each sample weighs as much path as it moves along: a pause is not many samples of a point;
+    # one on a chord across a gap in the samples, nothing.
     travel = np.linalg.norm(np.gradient(path, axis=0), axis=1)
+    chords = bridged(clock, t[inside], _SMOOTH_S)
+    travel[chords] = 0.0
     z = path[:, 0] + 1j * path[:, 1]
     ring = segment.guide.guide(_TRACK_POINTS)
     coefficients, forward = np.zeros(0, dtype=complex), 1.0
@@ -85,14 +94,36 @@ def span_loop(
         forward = 1.0 if phase[-1] > phase[0] else -1.0
         keep = np.ones(phase.shape, dtype=bool)
         if turned < 2.0 * np.pi * _ALL_LOOPS:
-            # One loop, and a bit of approach or retreat: the loop of phase in the middle.
+            # One loop, and a bit of approach or retreat: the loop of phase in the middle,
+            # unless a gap leaves part of it out (the rest of the span may cover that phase).
             middle = 0.5 * (phase[0] + phase[-1])
             keep = np.abs(phase - middle) <= np.pi
+            if np.any(chords[keep]):
+                keep[:] = True
         coefficients = _robust_fit(z[keep], phase[keep], travel[keep])
         # Tracked again along this fit, uniform in arc length (a fit on a poor template's
         # phase runs unevenly, and the track's step bound then stops it short).
         ring = arc_points(_evaluate(coefficients, 4 * _TRACK_POINTS, 1.0))
     return _evaluate(coefficients, points, forward)
+
+
+def gaps(times_s: ArrayLike) -> np.ndarray:
+    """Whether each interval between raw samples is a gap (shape (T − 1,), bool): longer than
+    2.5 x the median interval and than 0.1 s (a dropped stretch of samples, not a low rate)."""
+    dt = np.diff(np.asarray(times_s, dtype=np.float64))
+    if dt.size == 0:
+        return np.zeros(0, dtype=bool)
+    return dt > max(_GAP_FACTOR * float(np.median(dt)), _GAP_MIN_S)
+
+
+def bridged(clock: FloatArray, times_s: ArrayLike, margin_s: float = 0.0) -> np.ndarray:
+    """Whether each clock time falls inside a gap of the raw samples (:func:`gaps`), widened by
+    `margin_s` on both sides (a smoothed path feels a chord that far), shape (len(clock),)."""
+    t = np.asarray(times_s, dtype=np.float64)
+    out = np.zeros(clock.shape, dtype=bool)
+    for k in np.flatnonzero(gaps(t)):
+        out |= (clock > t[k] - margin_s) & (clock < t[k + 1] + margin_s)
+    return out
 
 
 def _basis(phase: FloatArray) -> np.ndarray:

@@ -106,3 +106,19 @@ def test_a_wobbly_demo_with_a_higher_utility_does_not_pass_the_steady_one() -> N
     assert int(np.argmax(utility)) != ops.steady_index  # Ũ alone picks a wobbly demo.
     assert selection.loop.source == "learned"
     assert selection.scores.best_index == ops.steady_index
+
+
+def test_a_steady_take_with_dropped_samples_gives_the_set_its_loop() -> None:
+    """Kidney set, seed 8, θ/ρ given: the steady operator's two fast loops have six gaps of
+    0.24-0.59 s. Its loop read between returns took the gaps' chords (5 mm inside the loop), so
+    the demos were segmented against a dented loop: the steady demo kept one loop of two (5.25 x
+    its raw error, read against both) and the wobbly ones cleaned to 0.36-0.71. Read off its
+    span with the chords left out, every demo keeps its loops and comes closer."""
+    ops = operator_set("wiping", 8, loop=lab_set_loop(8))
+    result = clean_demos([o.demo for o in ops.demos], CleanOptions(seed=8, progress=False))
+    assert result.best_index == ops.steady_index
+    for i, op in enumerate(ops.demos):
+        shape, _ = ratios_against(
+            op.intended, op.on_loop, op.demo.raw_samples(), result.on_raw_times(i)
+        )
+        assert shape < (1.05 if i == ops.steady_index else 0.4), (i, shape)

@@ -17,7 +17,7 @@ from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
 from bt_pipeline.clean.segment import segment_demo
 from bt_pipeline.clean.selection import select_demos
-from bt_pipeline.clean.span_loop import span_loop
+from bt_pipeline.clean.span_loop import bridged, gaps, span_loop
 from bt_pipeline.data.demo import Demo, demos_from_recording
 from bt_pipeline.data.loop_shape import LoopShape, arc_length_resample
 from bt_pipeline.data.random_loops import draw_set_loop
@@ -228,6 +228,24 @@ def test_a_single_loop_is_read_off_its_span_closer_than_the_template() -> None:
         assert shape_error(loop, LoopShape.from_points(read, 12)) < 0.01
         assert shape_error(loop, stretched) > 0.02
     assert read_off >= 5
+
+
+def test_a_gap_in_the_samples_is_read_off_the_other_loop() -> None:
+    """1.8 loops with 0.5 s of samples dropped from the middle one: the clock bridges the gap
+    with a chord inside the loop; read off the span, the chord weighs nothing and the other
+    loop covers that phase."""
+    loop = blob(45)
+    x, t = drawn(loop, 1.8, seed=2, noise_m=0.0002)
+    middle = 0.5 * (t[0] + t[-1])
+    kept = (t < middle) | (t > middle + 0.5)
+    assert np.any(gaps(t[kept])) and not np.any(gaps(t))
+    segment = segment_demo(x[kept], t[kept], loop, "demo")
+    read = span_loop(x[kept], t[kept], segment)
+    assert read is not None
+    assert shape_error(loop, LoopShape.from_points(read, 12)) < 0.004
+    clock = np.arange(t[0], t[-1], 0.02)
+    chord = bridged(clock, t[kept])
+    assert chord.any() and np.all((clock[chord] > middle - 0.1) & (clock[chord] < middle + 0.6))
 
 
 def test_part_of_a_loop_gives_no_span_loop() -> None:
