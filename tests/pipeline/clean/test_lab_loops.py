@@ -65,15 +65,23 @@ def test_the_operators_draw_the_given_loop_under_their_preference() -> None:
 def test_a_squircle_set_of_the_second_generator_cleans() -> None:
     """Seed 0, θ/ρ given: the steady operator is the best and passes as it is, and every wobbly
     demo comes out closer to its operator's intended loop than it went in."""
-    ops = operator_set("wiping", 0, loop=lab_set_loop(0))
     assert lab_set_loop(0).label == "squircle"
-    result = clean_demos([o.demo for o in ops.demos], CleanOptions(seed=0, progress=False))
+    steady, wobbly = _cleaned_shape_ratios(0)
+    assert steady < 1.05
+    assert max(wobbly) < 0.5, wobbly
+
+
+def _cleaned_shape_ratios(seed: int) -> tuple[float, list[float]]:
+    """Shape ratios of a lab-loop operator set (θ/ρ given) cleaned: the steady demo's and the
+    wobbly ones'; asserts the steady demo is the best."""
+    ops = operator_set("wiping", seed, loop=lab_set_loop(seed))
+    result = clean_demos([o.demo for o in ops.demos], CleanOptions(seed=seed, progress=False))
     assert result.best_index == ops.steady_index
-    for i, op in enumerate(ops.demos):
-        shape, _ = ratios_against(
-            op.intended, op.on_loop, op.demo.raw_samples(), result.on_raw_times(i)
-        )
-        assert shape < (1.05 if i == ops.steady_index else 0.5), (i, shape)
+    ratios = [
+        ratios_against(op.intended, op.on_loop, op.demo.raw_samples(), result.on_raw_times(i))[0]
+        for i, op in enumerate(ops.demos)
+    ]
+    return ratios[ops.steady_index], [r for i, r in enumerate(ratios) if i != ops.steady_index]
 
 
 def test_symmetry_turn_reads_a_loop_s_rotational_symmetry() -> None:
@@ -114,11 +122,6 @@ def test_a_steady_take_with_dropped_samples_gives_the_set_its_loop() -> None:
     the demos were segmented against a dented loop: the steady demo kept one loop of two (5.25 x
     its raw error, read against both) and the wobbly ones cleaned to 0.36-0.71. Read off its
     span with the chords left out, every demo keeps its loops and comes closer."""
-    ops = operator_set("wiping", 8, loop=lab_set_loop(8))
-    result = clean_demos([o.demo for o in ops.demos], CleanOptions(seed=8, progress=False))
-    assert result.best_index == ops.steady_index
-    for i, op in enumerate(ops.demos):
-        shape, _ = ratios_against(
-            op.intended, op.on_loop, op.demo.raw_samples(), result.on_raw_times(i)
-        )
-        assert shape < (1.05 if i == ops.steady_index else 0.4), (i, shape)
+    steady, wobbly = _cleaned_shape_ratios(8)
+    assert steady < 1.05
+    assert max(wobbly) < 0.4, wobbly
