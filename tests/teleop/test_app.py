@@ -189,10 +189,15 @@ def test_the_recordings_list_shows_scores_after_saving(make_app, tabs) -> None:
     ui.controls.rho_input.value = 1.2
     record(ui, 0.5)
     wait_until(lambda: ui.library is not None and len(ui.library.raw) == 1, what="library")
+    # The table, the options and the picker follow the library one after another on the
+    # loader's thread: wait for the last of them (under load the test read between).
+    wait_until(
+        lambda: ui.controls.replay_picker.key == ui.library.raw[0].key,  # type: ignore[union-attr]
+        what="the replay picker on the new take",
+    )
     listed = ui.controls.library_text.content
     assert "10°, 1.20" in listed and "★" in listed
     assert len(ui.controls.replay_input.options) == 1
-    assert ui.controls.replay_picker.key == ui.library.raw[0].key  # type: ignore[union-attr]
     assert app.reader is not None and app.reader.pid is not None  # read and scored in the child
     # The loads list the takes on a thread below the sessions' control loops (nice +10).
     (loader,) = [t for t in threading.enumerate() if t.name.startswith("bt-read")]
