@@ -50,7 +50,8 @@ UNCERTAIN = 0.5
 _PHASE_SMOOTH_S = 0.06  # Gaussian σ of the tracked phase [s]: removes jitter, keeps speed.
 _RESIDUAL_SMOOTH_S = 0.12  # Gaussian σ of Stage 2's residual over the reference [s].
 _DRIFT_SMOOTH_S = 1.0  # Gaussian σ of the slow drift removed before the phase is read [s].
-_DRIFT_PASSES = 3  # Phase tracks (2 under 1.5 loops); the drift is estimated between them.
+_DRIFT_PASSES = 3  # Phase tracks (2 without a periodic drift); the drift is read between them.
+_PERIODIC_DRIFT_MIN_M = 0.008  # A periodic drift reaching less than this [m] is a sway, not drift.
 _POOL_THETA_DEG = 2.5  # Estimates this close in θ [deg] and
 _POOL_RHO = 0.025  # in ρ agree when a demonstrator's demos are pooled.
 _RETIME_OVERSAMPLE = 4  # Points of the dense reference per reference sample.
@@ -172,9 +173,11 @@ def retime_reference(
     (:func:`periodic_drift`, both components: a drift along the loop moves the nearest point
     with it, so the offset off the reference, which lies across the loop, missed it), then,
     read again, what is left of its offset off the reference smoothed over σ = 1 s (a hand's
-    slow sway that a polynomial in time does not follow). A shorter demo cannot tell a drift
-    from its shape: only the smoothed offset, and the phase read again once (a second time
-    moved single loops' timing ratio 0.37 → 0.39 on random weaving).
+    slow sway that a polynomial in time does not follow). Otherwise only the smoothed offset,
+    and the phase read again once: in a shorter demo, which cannot tell a drift from its shape
+    (a second time moved single loops' timing ratio 0.37 → 0.39 on random weaving), and where
+    the periodic drift reaches less than 8 mm (a wobbly hand's slow sway of a few mm, read as
+    drift, took the second generator's wobbly operators' timing ratio 0.68 → 0.71).
 
     Returns:
         Shape (N, 2), in [m].
@@ -192,21 +195,26 @@ def retime_reference(
     target = x
     seen, steps = _sampled(demo)
     grid = np.arange(x.shape[0], dtype=np.float64)
+    periodic = False
     for track in range(_DRIFT_PASSES):  # Track, estimate the slow drift, re-track.
         tracked = track_phase((smooth_x - drift)[seen], dense, steps=steps) / _RETIME_OVERSAMPLE
         phase = np.interp(grid, grid[seen], tracked)  # Reference samples.
         phase = gaussian_filter1d(phase, max(sigma, 0.5), mode="nearest")
         target = _read(closed, np.mod(phase, p))
-        loops = phase / p
-        degree = periodic_degree(abs(float(loops[-1] - loops[0])))
-        if track == _DRIFT_PASSES - 1 or (degree < 1 and track > 0):
-            break
-        if degree >= 1 and track == 0:
+        if track == 0:
+            loops = phase / p
+            degree = periodic_degree(abs(float(loops[-1] - loops[0])))
             drift = periodic_drift(smooth_x, loops, degree)
-        else:  # What is left off the reference, slow: a sway the polynomial does not follow.
+            periodic = float(np.max(np.linalg.norm(drift, axis=1))) >= _PERIODIC_DRIFT_MIN_M
+            if not periodic:
+                drift = gaussian_filter1d(x - target, drift_sigma, axis=0, mode="nearest")
+        elif periodic and track < _DRIFT_PASSES - 1:
+            # What is left off the reference, slow: a sway the polynomial does not follow.
             drift = drift + gaussian_filter1d(
                 x - drift - target, drift_sigma, axis=0, mode="nearest"
             )
+        else:
+            break
     return target
 
 
