@@ -24,7 +24,11 @@ drawing of it. For one demo's raw samples:
 4. **Perimeter.** L, the median path length from a point to its return (over the points that
    return). One loop is the stretch from the point whose loop length is nearest L, among those
    nearest the middle of the path's returns, to its return; resampled to 256 points by arc
-   length, closed.
+   length, closed. When that loop's ends lie more than 5 % of E farther apart than the
+   best-closing loop's (its start was on an approach that joins the loop, its return on the
+   loop's end: a steady single figure-eight's closed 30 mm apart, against 0.5 mm, and lost
+   the tip of a lobe), it is read among the loops that close within 1 % of E (or 2 mm) of the
+   best instead.
 
 A demo whose path never returns (a part of a loop, a stroke that stops, a take with no loop)
 ``closes`` no loop. Times are only used to trim the rests.
@@ -54,6 +58,9 @@ _PARALLEL = 0.8  # Tangents at a point and its return run the same way (cos ≥ 
 _CHORD = 0.05  # The way the path runs: a chord of this share of E.
 _SPAN = 0.75  # A loop spans at least this share of E.
 _MIDDLE = 0.1  # E is read between these shares of the path's length from each end.
+_OPEN = 0.05  # A loop closing this share of E worse than the best-closing loop is not read,
+_CLOSE = 0.01  # but one closing within this share of E (or _CLOSE_M) of the best is.
+_CLOSE_M = 0.002
 LOOP_POINTS = 256
 """Points of the loop a demo gives (uniform in arc length, endpoint excluded)."""
 
@@ -155,6 +162,14 @@ def loop_of_path(path: FloatArray) -> OwnLoop:
     mid = typical + 0.5 * (returns[typical] - typical)
     near = typical[np.argsort(np.abs(mid - centre))[: max(3, typical.size // 10)]]
     k = int(near[np.argmin(np.abs((returns[near] - near) * h - perimeter))])
+    closure = distance[typical, returns[typical]]
+    if distance[k, returns[k]] > float(closure.min()) + _OPEN * size:
+        # That loop closes far worse than another does: it was read from an approach that
+        # joins the loop, across to the loop's end. The loops that close best are read instead.
+        keep = closure <= float(closure.min()) + max(_CLOSE * size, _CLOSE_M)
+        typical, mid = typical[keep], mid[keep]
+        near = typical[np.argsort(np.abs(mid - centre))[: max(3, typical.size // 10)]]
+        k = int(near[np.argmin(np.abs((returns[near] - near) * h - perimeter))])
     j = int(returns[k])
     loop = arc_length_resample(np.concatenate([y[k:j], y[k : k + 1]]), LOOP_POINTS + 1)[:-1]
     return OwnLoop(
