@@ -160,18 +160,20 @@ def loop_of_path(path: FloatArray) -> OwnLoop:
         typical = found
     # The loop nearest the middle of the returns (a loop well inside the demo), then the one
     # whose length is nearest L among its neighbours.
-    centre = float(np.median(typical + 0.5 * (returns[typical] - typical)))
     mid = typical + 0.5 * (returns[typical] - typical)
-    near = typical[np.argsort(np.abs(mid - centre))[: max(3, typical.size // 10)]]
-    k = int(near[np.argmin(np.abs((returns[near] - near) * h - perimeter))])
+    centre = float(np.median(mid))
+
+    def chosen(starts: np.ndarray, middles: np.ndarray) -> int:
+        near = starts[np.argsort(np.abs(middles - centre))[: max(3, starts.size // 10)]]
+        return int(near[np.argmin(np.abs((returns[near] - near) * h - perimeter))])
+
+    k = chosen(typical, mid)
     closure = distance[typical, returns[typical]]
     if distance[k, returns[k]] > float(closure.min()) + _OPEN * size:
         # That loop closes far worse than another does: it was read from an approach that
         # joins the loop, across to the loop's end. The loops that close best are read instead.
         keep = closure <= float(closure.min()) + max(_CLOSE * size, _CLOSE_M)
-        typical, mid = typical[keep], mid[keep]
-        near = typical[np.argsort(np.abs(mid - centre))[: max(3, typical.size // 10)]]
-        k = int(near[np.argmin(np.abs((returns[near] - near) * h - perimeter))])
+        k = chosen(typical[keep], mid[keep])
     j = int(returns[k])
     loop = arc_length_resample(np.concatenate([y[k:j], y[k : k + 1]]), LOOP_POINTS + 1)[:-1]
     return OwnLoop(

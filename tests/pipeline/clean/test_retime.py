@@ -123,11 +123,7 @@ def _demo(loops: float, seed: int, drift_m: float) -> tuple[Demo, np.ndarray, np
     speed = 1.0 + 0.3 * np.sin(2 * np.pi * t / rng.uniform(2.0, 5.0) + rng.uniform(0, 7))
     progress = np.cumsum(speed)
     phase = 0.3 + loops * (progress - progress[0]) / (progress[-1] - progress[0])
-    dense = shape.points(4096)
-    at = (phase % 1.0) * dense.shape[0]
-    lower = np.floor(at).astype(int)
-    frac = (at - lower)[:, None]
-    truth = (1 - frac) * dense[lower % 4096] + frac * dense[(lower + 1) % 4096]
+    truth = shape.at(2.0 * np.pi * phase)
     angle = rng.uniform(0, 2 * np.pi)
     drift = drift_m * (t / t[-1])[:, None] * np.array([np.cos(angle), np.sin(angle)])
     positions = truth + drift + rng.normal(0.0, 0.001, truth.shape)
