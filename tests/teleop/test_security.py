@@ -187,7 +187,7 @@ def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
         # The reader names itself just after its fork; on a busy machine that can take a while,
         # and until then it looks like a second session.
         wait_until(
-            lambda: any(c.name() == READER_NAME for c in _forked(app)), 60.0, "the named reader"
+            lambda: any(_name(c) == READER_NAME for c in _forked(app)), 60.0, "the named reader"
         )
         time.sleep(1.0)  # let Rerun's servers come up
         sockets = listening(process.pid)
@@ -195,7 +195,7 @@ def test_every_socket_of_bt_teleop_listens_on_loopback_only(tmp_path) -> None:
         exposed = [s for s in sockets if not is_loopback_address(s[1])]
         assert not exposed, f"sockets on non-loopback interfaces: {exposed}"
         children = app.children(recursive=True)
-        assert any("rerun" in " ".join(c.cmdline()) for c in children), children
+        assert any("rerun" in " ".join(_cmdline(c)) for c in children), children
         sessions = _session_processes(app)
         assert len(sessions) == 1, sessions
         process.kill()
@@ -234,7 +234,7 @@ def test_ctrl_c_of_bt_teleop_ends_every_session_process(tmp_path) -> None:
 
 def _session_processes(app: psutil.Process) -> list[psutil.Process]:
     """The app's session processes: the forkserver's children but the library's reader."""
-    return [child for child in _forked(app) if child.name() != READER_NAME]
+    return [child for child in _forked(app) if _name(child) not in (READER_NAME, None)]
 
 
 def _forked(app: psutil.Process) -> list[psutil.Process]:
@@ -242,9 +242,32 @@ def _forked(app: psutil.Process) -> list[psutil.Process]:
     return [
         child
         for server in app.children()
-        if "multiprocessing.forkserver" in " ".join(server.cmdline())
-        for child in server.children()
+        if "multiprocessing.forkserver" in " ".join(_cmdline(server))
+        for child in _children(server)
     ]
+
+
+# A process listed a moment ago may have exited since (a child the forkserver forks briefly):
+# psutil then raises NoSuchProcess, which these read as "not there" rather than a failure.
+def _name(process: psutil.Process) -> str | None:
+    try:
+        return process.name()
+    except psutil.NoSuchProcess:
+        return None
+
+
+def _cmdline(process: psutil.Process) -> list[str]:
+    try:
+        return process.cmdline()
+    except psutil.NoSuchProcess:
+        return []
+
+
+def _children(process: psutil.Process) -> list[psutil.Process]:
+    try:
+        return process.children()
+    except psutil.NoSuchProcess:
+        return []
 
 
 def _now() -> datetime:
