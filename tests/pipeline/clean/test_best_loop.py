@@ -13,12 +13,14 @@ import pytest
 
 from bt_pipeline.clean.best_loop import closed_span
 from bt_pipeline.clean.guide_fit import GuideFit
+from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.selection import select_demos
 from bt_pipeline.data.demo import Demo, demos_from_recording
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.random_loops import draw_set_loop
 from bt_pipeline.data.synth_human import make_human_set
+from bt_pipeline.data.synth_truth import truth_ratios
 from tests.pipeline.conftest import demo_of
 
 
@@ -153,3 +155,23 @@ def test_the_best_demo_keeps_the_slow_start_of_its_one_loop() -> None:
     assert abs(segment.end_s - times[on[-1]]) < 0.1
     kept = selection.demos[expert].raw_times_s
     assert kept is not None and kept[0] == segment.start_s
+
+
+def test_an_eight_of_unequal_lobes_keeps_the_frame_its_demos_were_read_in() -> None:
+    """Varied weaving, θ/ρ hidden: the expert-like demo draws an eight whose left lobe is the
+    larger, and the consensus of the lopsided naive demos has lobes nearly equal, so it nearly
+    matches itself turned by 180°. The best demo's own loop was turned onto that consensus by
+    180° (the least-turn tie), and then the demos' fits, held within ±45° of the frame, matched
+    one lobe: the canonical loop lost the other's tip and every naive demo came out 1.8-2.6 x
+    its raw error. Framed by the θ/ρ the best demo's fit read, each comes out closer."""
+    synth = make_human_set("weaving", 4, 4, shape=draw_set_loop("varied", 4, "weaving"))
+    assert synth.hidden
+    demos = demos_from_recording(synth.recording)
+    result = clean_demos(demos, CleanOptions(seed=4, progress=False))
+    assert result.best_index == synth.expert_index
+    for i, record in enumerate(synth.recording.demos.values()):
+        shape, timing = truth_ratios(record, demos[i].raw_samples(), result.on_raw_times(i))
+        if i == synth.expert_index:
+            assert shape < 1.05, shape
+        else:
+            assert shape < 0.8 and timing < 0.8, (i, shape, timing)
