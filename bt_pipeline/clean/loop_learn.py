@@ -306,6 +306,14 @@ def learn_task_loop(
     )
 
 
+def guide_distance(loop: np.ndarray, demo: Demo) -> float:
+    """How far a demo's own loop (256 points, arc length) lies from its task's guide, as a
+    share of its RMS radius (:func:`_guide_distance`)."""
+    guide = LoopShape.guide(demo.task)
+    drawn = loop_signature(guide.points(1024))
+    return _guide_distance(centred_complex(loop), guide, drawn, demo)
+
+
 def _guide_distance(loop: np.ndarray, guide: LoopShape, drawn: np.ndarray, demo: Demo) -> float:
     """How far a demo's own loop (centred complex) lies from the guide (step 4): from its
     best similarity of the guide (`drawn`, its signature), or from the guide turned and scaled
@@ -376,13 +384,16 @@ def _frame(
 
 
 __all__ = [
+    "GUIDE_FOLLOWED",
     "GUIDE_MISFIT",
+    "GUIDE_TRACED",
     "HARMONICS",
     "REPEATS",
     "TIE",
     "LoopSource",
     "TaskLoop",
     "arc_points",
+    "guide_distance",
     "learn_task_loop",
     "loop_signature",
 ]

@@ -175,3 +175,19 @@ def test_an_eight_of_unequal_lobes_keeps_the_frame_its_demos_were_read_in() -> N
             assert shape < 1.05, shape
         else:
             assert shape < 0.8 and timing < 0.8, (i, shape, timing)
+
+
+def test_a_best_demo_off_the_guide_replaces_it() -> None:
+    """Varied weaving, θ/ρ hidden: a lopsided naive demo's own loop lies within 4 % of the
+    guide, so the first pass keeps the guide, but the expert-like demo, the best, draws an eight
+    11 % off it. Once it is picked its own loop is the template (it passed through 2.5 x its
+    raw error when the guide stayed), with a note saying so."""
+    synth = make_human_set("weaving", 4, 1, shape=draw_set_loop("varied", 1, "weaving"))
+    demos = demos_from_recording(synth.recording)
+    result = clean_demos(demos, CleanOptions(seed=1, progress=False))
+    assert result.best_index == synth.expert_index
+    assert result.loop is not None and result.loop.source == "learned"
+    assert any("off the weaving guide: its own loop is used" in n for n in result.notes)
+    for i, record in enumerate(synth.recording.demos.values()):
+        shape, _ = truth_ratios(record, demos[i].raw_samples(), result.on_raw_times(i))
+        assert shape < (1.05 if i == synth.expert_index else 0.6), (i, shape)

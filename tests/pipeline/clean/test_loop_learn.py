@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bt_pipeline.clean.loop_align import align, loop_signature, stated_distance
-from bt_pipeline.clean.loop_learn import learn_task_loop
+from bt_pipeline.clean.loop_learn import TIE, learn_task_loop
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.clean.recurrence import LOOP_POINTS, own_loop
 from bt_pipeline.clean.segment import segment_demo
@@ -103,6 +103,26 @@ def test_align_recovers_a_known_similarity_shift_and_direction(seed: int) -> Non
     assert np.allclose(a * np.roll(w[::-1] if flipped else w, s), z)
 
 
+@pytest.mark.parametrize("turn", [-25.0, -10.0, 12.0, 30.0])
+def test_a_tie_does_not_slide_a_roundish_loop_s_turn_toward_zero(turn: float) -> None:
+    """A D shape (a circle with one side cut flat) matches itself turned a little almost as
+    well, since on a round loop a start shift is nearly a turn. Ties are distinct alignments,
+    so the turn is the one that fits: the least turn among every shift within the tie slid it
+    toward 0 (the foreign D shape's expert-like demo read 8° off)."""
+    phase = np.linspace(0.0, 2.0 * np.pi, 2048, endpoint=False)
+    d_shape = np.stack([np.maximum(np.cos(phase), -0.6), np.sin(phase)], axis=1) * 0.08
+    z = loop_signature(d_shape)
+    turned = d_shape @ np.array(
+        [
+            [np.cos(np.radians(turn)), np.sin(np.radians(turn))],
+            [-np.sin(np.radians(turn)), np.cos(np.radians(turn))],
+        ]
+    )
+    a, _, _, distance = align(z, loop_signature(turned), TIE)  # a · turned ≈ z
+    assert abs(np.degrees(np.angle(a)) + turn) < 1.0, np.degrees(np.angle(a))
+    assert distance < 0.01
+
+
 def test_own_loop_of_several_loops_with_approach_pause_and_retreat() -> None:
     loop = blob(3)
     perimeter = float(np.sum(np.linalg.norm(np.diff(loop.points(4096), axis=0), axis=1)))
@@ -189,11 +209,12 @@ def test_a_loop_unlike_any_guide_is_learned_close_to_its_true_shape(seed: int) -
     mean_turn = math.degrees(np.angle(np.mean(np.exp(1j * np.radians(thetas)))))
     expected = loop.transformed(mean_turn, float(np.exp(np.mean(np.log(rhos)))))
     z_l, z_e = (as_complex(s.points(LOOP_POINTS)) for s in (learned.loop, expected))
-    a = align(z_e, z_l, 0.03)[0]
-    # Within 6 %: each demo's own loop is read on a path its noise lengthens and its smoothing
-    # shrinks; what the cleaner needs is the demos' relative preferences, measured by
-    # benchmarks/quality/bench_foreign_loops.py and bench_clean_human.py --shape.
-    assert abs(math.degrees(np.angle(a))) < 3.0 and abs(abs(a) - 1.0) < 0.06
+    a = align(z_e, z_l)[0]  # The best alignment: no tie to slide the turn it measures.
+    # Within 4° and 6 %: each demo's own loop is read on a path its noise lengthens and its
+    # smoothing shrinks; what the cleaner needs is the demos' relative preferences, measured by
+    # benchmarks/quality/bench_foreign_loops.py and bench_clean_human.py --shape. (While ties
+    # slid turns toward 0, the frame was 3-10° off, and a tied measurement here read 0-0.6°.)
+    assert abs(math.degrees(np.angle(a))) < 4.0 and abs(abs(a) - 1.0) < 0.06
 
 
 def test_given_preferences_fix_the_learned_loop_s_frame() -> None:
