@@ -191,3 +191,18 @@ def test_a_best_demo_off_the_guide_replaces_it() -> None:
     for i, record in enumerate(synth.recording.demos.values()):
         shape, _ = truth_ratios(record, demos[i].raw_samples(), result.on_raw_times(i))
         assert shape < (1.05 if i == synth.expert_index else 0.6), (i, shape)
+
+
+def test_a_best_single_loop_is_read_off_its_span_closed_where_it_returns() -> None:
+    """Varied weaving, θ/ρ hidden: the expert-like demo draws one figure-eight, and its approach
+    runs beside the loop's last arc, so its first span holds 1.12 loops. The loop read off that
+    span took the approach in, and the span found against it lost a lobe's tip (8 x the expert's
+    raw error). Trimmed to where its path returns to itself first, the loop is its own."""
+    synth = make_human_set("weaving", 4, 11, shape=draw_set_loop("varied", 11, "weaving"))
+    demos = demos_from_recording(synth.recording)
+    result = clean_demos(demos, CleanOptions(seed=11, progress=False))
+    expert = synth.expert_index
+    assert result.best_index == expert
+    record = list(synth.recording.demos.values())[expert]
+    shape, _ = truth_ratios(record, demos[expert].raw_samples(), result.on_raw_times(expert))
+    assert shape < 1.05, shape
