@@ -16,6 +16,7 @@ import math
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from bt_pipeline.clean.guide_track import track_phase
 from bt_pipeline.clean.loop_align import align, centred_complex
 from bt_pipeline.clean.loop_learn import (
     GUIDE_FOLLOWED,
@@ -180,8 +181,8 @@ def closed_span(demo: Demo, segment: Segment) -> Segment:
 
     A span of 1.05-1.35 loops holds one loop and an approach or a retreat that runs along it
     (the approach converges on the loop where it begins, the retreat leaves it where it ends):
-    it is trimmed to the pair of samples, one in each end's extra part of a loop (plus 0.1),
-    that lie closest (within the same 5 %; of pairs within 1 mm of the closest, the last
+    it is trimmed to the pair of samples, one in each end's extra part of a loop (plus 0.1,
+    counted in loops along the fitted loop), that lie closest (within the same 5 %; of pairs within 1 mm of the closest, the last
     start), running the same way.
     """
     low, high = _OPEN
@@ -263,11 +264,25 @@ def _trimmed(
     tolerance: float,
     step: int,
 ) -> Segment:
-    """`segment` of more than one loop trimmed to its closest return (:func:`closed_span`)."""
-    window = int((segment.cycles - 1.0 + 0.1) / segment.cycles * (i1 - i0))
-    if window < 2 or i1 - window <= i0 + window:
+    """`segment` of more than one loop trimmed to its closest return (:func:`closed_span`).
+
+    Each end's extra part of a loop (plus 0.1) is counted in loops along the fitted loop, not
+    in time: an approach that creeps along the loop takes longer than its share of a loop (a
+    rest pose on the loop itself, random weaving seed 3: a 2 s chord of 0.1 loop; counted in
+    time the start's part ended before the loop began, and the closest return ran through the
+    chord)."""
+    extra = segment.cycles - 1.0 + 0.1
+    ring = segment.guide.guide()
+    phase = track_phase(path[i0 : i1 + 1], ring) / ring.shape[0]
+    travelled = np.maximum.accumulate(np.abs(phase - phase[0]))
+    head_n = int(np.searchsorted(travelled, extra, side="right"))
+    tail_n = i1 - i0 + 1 - int(np.searchsorted(travelled, travelled[-1] - extra, side="left"))
+    if travelled[-1] < 1.0:  # The track lost the loop: the parts in time, as a share of the span.
+        head_n = tail_n = int(extra / segment.cycles * (i1 - i0))
+    if min(head_n, tail_n) < 2 or i1 - tail_n + 1 <= i0 + head_n:
         return segment
-    head, tail = path[i0 : i0 + window], path[i1 - window : i1 + 1]
+    window = tail_n - 1
+    head, tail = path[i0 : i0 + head_n], path[i1 - window : i1 + 1]
     gaps = np.linalg.norm(head[:, None, :] - tail[None, :, :], axis=2)
     # Of the about closest pairs (within 1 mm), the last start: a pause where the loop begins
     # is one point, and the loop leaves it at the pause's end.

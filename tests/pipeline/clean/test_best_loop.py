@@ -208,3 +208,22 @@ def test_a_best_single_loop_is_read_off_its_span_closed_where_it_returns() -> No
     record = list(synth.recording.demos.values())[expert]
     shape, _ = truth_ratios(record, demos[expert].raw_samples(), result.on_raw_times(expert))
     assert shape < 1.05, shape
+
+
+def test_an_approach_from_a_rest_on_the_loop_is_not_taken_for_its_start() -> None:
+    """Random weaving, θ/ρ given: the expert-like demo's rest pose lies on its loop, so its
+    approach is a 2 s chord from a point of the loop to where the loop begins (0.1 of a loop
+    by phase), and its first span holds 1.11 loops. Its ends' extra parts were counted in time,
+    so the start's part ended before the loop began and the closest return ran through the
+    chord (3.5 x its raw error); counted in loops along its fitted loop, the span is the loop."""
+    synth = make_human_set("weaving", 4, 3, shape=draw_set_loop("random", 3, "weaving"))
+    demos = demos_from_recording(synth.recording)
+    result = clean_demos(demos, CleanOptions(seed=3, progress=False))
+    expert = synth.expert_index
+    assert result.best_index == expert
+    record = list(synth.recording.demos.values())[expert]
+    times = demos[expert].raw_samples()[1]
+    on = np.flatnonzero(np.asarray(record.attrs["truth_on_loop"]) > 0)
+    assert abs(result.segments[expert].start_s - times[on[0]]) < 0.1
+    shape, _ = truth_ratios(record, demos[expert].raw_samples(), result.on_raw_times(expert))
+    assert shape < 1.05, shape
