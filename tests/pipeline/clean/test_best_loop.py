@@ -13,13 +13,13 @@ import pytest
 
 from bt_pipeline.clean.best_loop import closed_span
 from bt_pipeline.clean.guide_fit import GuideFit
-from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
+from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.selection import select_demos
 from bt_pipeline.data.demo import Demo, demos_from_recording
 from bt_pipeline.data.loop_shape import LoopShape
-from bt_pipeline.data.random_loops import draw_set_loop
-from bt_pipeline.data.synth_human import make_human_set
+from bt_pipeline.data.random_loops import LoopKind, draw_set_loop
+from bt_pipeline.data.synth_human import HumanSet, make_human_set
 from bt_pipeline.data.synth_truth import truth_ratios
 from tests.pipeline.conftest import demo_of
 
@@ -159,6 +159,21 @@ def test_the_best_demo_keeps_the_slow_start_of_its_one_loop() -> None:
     assert kept is not None and kept[0] == segment.start_s
 
 
+def _cleaned(
+    kind: LoopKind, seed: int
+) -> tuple[HumanSet, TaskCleanResult, list[tuple[float, float]]]:
+    """A human-style weaving set drawing a `kind` loop, cleaned, and each demo's (shape, timing)
+    ratios against its truth."""
+    synth = make_human_set("weaving", 4, seed, shape=draw_set_loop(kind, seed, "weaving"))
+    demos = demos_from_recording(synth.recording)
+    result = clean_demos(demos, CleanOptions(seed=seed, progress=False))
+    ratios = [
+        truth_ratios(record, demos[i].raw_samples(), result.on_raw_times(i))
+        for i, record in enumerate(synth.recording.demos.values())
+    ]
+    return synth, result, ratios
+
+
 def test_an_eight_of_unequal_lobes_keeps_the_frame_its_demos_were_read_in() -> None:
     """Varied weaving, θ/ρ hidden: the expert-like demo draws an eight whose left lobe is the
     larger, and the consensus of the lopsided naive demos has lobes nearly equal, so it nearly
@@ -166,13 +181,9 @@ def test_an_eight_of_unequal_lobes_keeps_the_frame_its_demos_were_read_in() -> N
     180° (the least-turn tie), and then the demos' fits, held within ±45° of the frame, matched
     one lobe: the canonical loop lost the other's tip and every naive demo came out 1.8-2.6 x
     its raw error. Framed by the θ/ρ the best demo's fit read, each comes out closer."""
-    synth = make_human_set("weaving", 4, 4, shape=draw_set_loop("varied", 4, "weaving"))
-    assert synth.hidden
-    demos = demos_from_recording(synth.recording)
-    result = clean_demos(demos, CleanOptions(seed=4, progress=False))
-    assert result.best_index == synth.expert_index
-    for i, record in enumerate(synth.recording.demos.values()):
-        shape, timing = truth_ratios(record, demos[i].raw_samples(), result.on_raw_times(i))
+    synth, result, ratios = _cleaned("varied", 4)
+    assert synth.hidden and result.best_index == synth.expert_index
+    for i, (shape, timing) in enumerate(ratios):
         if i == synth.expert_index:
             assert shape < 1.05, shape
         else:
@@ -184,14 +195,11 @@ def test_a_best_demo_off_the_guide_replaces_it() -> None:
     guide, so the first pass keeps the guide, but the expert-like demo, the best, draws an eight
     11 % off it. Once it is picked its own loop is the template (it passed through 2.5 x its
     raw error when the guide stayed), with a note saying so."""
-    synth = make_human_set("weaving", 4, 1, shape=draw_set_loop("varied", 1, "weaving"))
-    demos = demos_from_recording(synth.recording)
-    result = clean_demos(demos, CleanOptions(seed=1, progress=False))
+    synth, result, ratios = _cleaned("varied", 1)
     assert result.best_index == synth.expert_index
     assert result.loop is not None and result.loop.source == "learned"
     assert any("off the weaving guide: its own loop is used" in n for n in result.notes)
-    for i, record in enumerate(synth.recording.demos.values()):
-        shape, _ = truth_ratios(record, demos[i].raw_samples(), result.on_raw_times(i))
+    for i, (shape, _) in enumerate(ratios):
         assert shape < (1.05 if i == synth.expert_index else 0.6), (i, shape)
 
 
@@ -200,14 +208,9 @@ def test_a_best_single_loop_is_read_off_its_span_closed_where_it_returns() -> No
     runs beside the loop's last arc, so its first span holds 1.12 loops. The loop read off that
     span took the approach in, and the span found against it lost a lobe's tip (8 x the expert's
     raw error). Trimmed to where its path returns to itself first, the loop is its own."""
-    synth = make_human_set("weaving", 4, 11, shape=draw_set_loop("varied", 11, "weaving"))
-    demos = demos_from_recording(synth.recording)
-    result = clean_demos(demos, CleanOptions(seed=11, progress=False))
-    expert = synth.expert_index
-    assert result.best_index == expert
-    record = list(synth.recording.demos.values())[expert]
-    shape, _ = truth_ratios(record, demos[expert].raw_samples(), result.on_raw_times(expert))
-    assert shape < 1.05, shape
+    synth, result, ratios = _cleaned("varied", 11)
+    assert result.best_index == synth.expert_index
+    assert ratios[synth.expert_index][0] < 1.05, ratios[synth.expert_index]
 
 
 def test_an_approach_from_a_rest_on_the_loop_is_not_taken_for_its_start() -> None:
@@ -216,14 +219,11 @@ def test_an_approach_from_a_rest_on_the_loop_is_not_taken_for_its_start() -> Non
     by phase), and its first span holds 1.11 loops. Its ends' extra parts were counted in time,
     so the start's part ended before the loop began and the closest return ran through the
     chord (3.5 x its raw error); counted in loops along its fitted loop, the span is the loop."""
-    synth = make_human_set("weaving", 4, 3, shape=draw_set_loop("random", 3, "weaving"))
-    demos = demos_from_recording(synth.recording)
-    result = clean_demos(demos, CleanOptions(seed=3, progress=False))
+    synth, result, ratios = _cleaned("random", 3)
     expert = synth.expert_index
     assert result.best_index == expert
     record = list(synth.recording.demos.values())[expert]
-    times = demos[expert].raw_samples()[1]
+    times = demos_from_recording(synth.recording)[expert].raw_samples()[1]
     on = np.flatnonzero(np.asarray(record.attrs["truth_on_loop"]) > 0)
     assert abs(result.segments[expert].start_s - times[on[0]]) < 0.1
-    shape, _ = truth_ratios(record, demos[expert].raw_samples(), result.on_raw_times(expert))
-    assert shape < 1.05, shape
+    assert ratios[expert][0] < 1.05, ratios[expert]
