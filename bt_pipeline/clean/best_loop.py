@@ -182,8 +182,8 @@ def closed_span(demo: Demo, segment: Segment) -> Segment:
     A span of 1.05-1.35 loops holds one loop and an approach or a retreat that runs along it
     (the approach converges on the loop where it begins, the retreat leaves it where it ends):
     it is trimmed to the pair of samples, one in each end's extra part of a loop (plus 0.1,
-    counted in loops along the fitted loop), that lie closest (within the same 5 %; of pairs within 1 mm of the closest, the last
-    start), running the same way.
+    counted in loops along the fitted loop), that lie closest (within the same 5 %; of pairs
+    within 1 mm of the closest, the last start), running the same way.
     """
     low, high = _OPEN
     if not (low <= segment.cycles < high or _OVER[0] <= segment.cycles <= _OVER[1]):
