@@ -92,20 +92,18 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
         return None
     shape = LoopShape.from_points(loop, HARMONICS)
     current = centred_complex(task_loop.loop.points(LOOP_POINTS))
-    a, _, flipped, _ = align(current, centred_complex(shape.points(LOOP_POINTS)), TIE)
+    flipped = align(current, centred_complex(shape.points(LOOP_POINTS)), TIE)[2]
     shape = shape.reversed() if flipped else shape
     if demo.theta_deg is not None and demo.rho is not None:
         # Its stated θ/ρ removed: the paper's x^g = R(−θ_best)(x^d − c) / ρ_best (Sec. III-B).
         shape = shape.transformed(-demo.theta_deg, 1.0 / demo.rho)
-    elif math.isfinite(segment.guide.theta_deg) and segment.guide.rho > 0.0:
+    else:
         # Hidden: the θ/ρ its fit to the learned loop read removed, so it keeps the place in
         # the set's frame that the other demos were read against. Aligning the shapes instead
         # turns it by 180° where the consensus is nearly its own twin: an eight of unequal
         # lobes onto a consensus of lopsided demos, whose fits then matched one lobe (varied
         # weaving, seed 4: naive demos 1.8-2.6 x their raw error).
         shape = shape.transformed(-segment.guide.theta_deg, 1.0 / segment.guide.rho)
-    else:
-        shape = shape.transformed(math.degrees(math.atan2(a.imag, a.real)), abs(a))
     shape = shape.transformed(translation=-shape.centre)
     label = f"{demo.task} loop of its best demo, {demo.label}"
     framed = LoopShape(shape.coefficients, label)
@@ -279,16 +277,16 @@ def _trimmed(
     tail_n = i1 - i0 + 1 - int(np.searchsorted(travelled, travelled[-1] - extra, side="left"))
     if travelled[-1] < 1.0:  # The track lost the loop: the parts in time, as a share of the span.
         head_n = tail_n = int(extra / segment.cycles * (i1 - i0))
-    if min(head_n, tail_n) < 2 or i1 - tail_n + 1 <= i0 + head_n:
+    tail_0 = i1 + 1 - tail_n  # The tail part is path[tail_0 : i1 + 1].
+    if min(head_n, tail_n) < 2 or tail_0 <= i0 + head_n:
         return segment
-    window = tail_n - 1
-    head, tail = path[i0 : i0 + head_n], path[i1 - window : i1 + 1]
+    head, tail = path[i0 : i0 + head_n], path[tail_0 : i1 + 1]
     gaps = np.linalg.norm(head[:, None, :] - tail[None, :, :], axis=2)
     # Of the about closest pairs (within 1 mm), the last start: a pause where the loop begins
     # is one point, and the loop leaves it at the pause's end.
     s = int(np.flatnonzero((gaps <= gaps.min() + 0.001).any(axis=1))[-1])
     e = int(np.argmin(gaps[s]))
-    k0, k1 = i0 + s, i1 - window + e
+    k0, k1 = i0 + s, tail_0 + e
     if float(gaps[s, e]) > tolerance:
         return segment
     if not _same_way(_arriving(path, k1, step), _leaving(path, k0, step)):

@@ -386,7 +386,6 @@ def _frame(
 __all__ = [
     "GUIDE_FOLLOWED",
     "GUIDE_MISFIT",
-    "GUIDE_TRACED",
     "HARMONICS",
     "REPEATS",
     "TIE",
