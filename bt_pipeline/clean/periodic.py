@@ -101,9 +101,7 @@ def pool_preferences(
     demos: Sequence[Demo], segments: Sequence[Segment]
 ) -> tuple[PreferenceEstimate, ...]:
     """θ/ρ of every demo: given ones kept, missing ones pooled per demonstrator (module doc)."""
-    quality = np.array(
-        [min(1.0, s.cycles) / (1.0 + (s.misfit_m / (0.02 * s.guide.size_m)) ** 2) for s in segments]
-    )
+    quality = np.array([fit_quality(s) for s in segments])
     pooled: dict[str, PreferenceEstimate] = {}
     for who in {d.demonstrator for d in demos}:
         idx = [i for i, d in enumerate(demos) if d.demonstrator == who]
@@ -131,6 +129,12 @@ def pool_preferences(
         else:
             out.append(pooled[demo.demonstrator])
     return tuple(out)
+
+
+def fit_quality(segment: Segment) -> float:
+    """q, how far a demo's guide fit is trusted: the pooling's weight (module doc)."""
+    misfit = segment.misfit_m / (0.02 * segment.guide.size_m)
+    return min(1.0, segment.cycles) / (1.0 + misfit**2)
 
 
 def span_demo(demo: Demo, segment: Segment, n_samples: int, preference: PreferenceEstimate) -> Demo:

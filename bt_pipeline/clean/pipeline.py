@@ -30,7 +30,13 @@ from bt_pipeline.clean.cleaned_utility import cleaned_utilities, moved_from_raw,
 from bt_pipeline.clean.fan_out import metrics_step, per_demo, retime_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.loop_learn import TaskLoop
-from bt_pipeline.clean.periodic import PreferenceEstimate, phase_loop, smooth_residual
+from bt_pipeline.clean.periodic import (
+    PreferenceEstimate,
+    fit_quality,
+    phase_loop,
+    smooth_residual,
+)
+from bt_pipeline.clean.pivot import pivoted, read_pivot
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.selection import select_demos
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
@@ -272,8 +278,24 @@ def clean_demos(
             f"phases of the canonical motion come from the task's {selection.loop.source} loop"
         )
     stage1 = run_stage1(stage1_demos, best, seed=options.seed, best_cycles=1.0)
-    # Every reference sits at the best demo's centre c, as in the paper (Sec. III-B): a demo's
-    # offset from c is not read as its preference (docs/refinement.md step 5).
+    if preferences[best].estimated and selection.loop.source != "guide":
+        # θ/ρ hidden against a learned loop: the box centre's frame is only the learned loop's
+        # (a guide's is its own, centred where bt draws it); where do the demos' loops turn?
+        pivot = read_pivot(
+            [s.guide for s in segments],
+            [fit_quality(s) for s in segments],
+            best,
+            stage1.centre,
+        )
+        if pivot.read:
+            stage1 = pivoted(stage1, pivot)
+            notes.append(
+                f"the {task_label} demos' fits turn and scale their loops about a point "
+                f"{1e3 * pivot.offset_m:.1f} mm from the best demo's box centre (θ/ρ hidden): "
+                "their references turn about it"
+            )
+    # Every reference sits at the best demo's centre c (or the pivot), as in the paper (Sec.
+    # III-B): a demo's offset from c is not read as its preference (docs/refinement.md step 5).
     aligned = np.stack(
         per_demo(
             retime_step,
