@@ -20,7 +20,9 @@ task's guide. There the hidden column is the share of relative θ within 5° and
 (``synth_truth.relative_hits``: a loop learned from the demos fixes no absolute frame; θ modulo
 the loop's own symmetry turn, 72° for a five-lobed loop) and the errors column is left out. The
 operators' loops are stored under the task's name only for its plane, so one task is enough
-(``--tasks wiping``: the three give the same table).
+(``--tasks wiping``: the three give the same table). ``--shapes d_shape`` (or another family of
+``bt_pipeline.data.random_loops``) has them draw one loop of that family per set instead, read
+the same way.
 
 ``--oracle`` adds a third row per task, a reference for the hidden row: each demo's θ/ρ given as
 the **oracle similarity**, the least-squares fit of the operator's intended loop onto the drawn
@@ -32,6 +34,7 @@ hidden row is what a better estimator could still gain.
     python benchmarks/quality/bench_operator_sets.py --seeds 12
     python benchmarks/quality/bench_operator_sets.py --seeds 6 --oracle
     python benchmarks/quality/bench_operator_sets.py --seeds 12 --shapes lab --tasks wiping
+    python benchmarks/quality/bench_operator_sets.py --seeds 6 --shapes d_shape --tasks wiping
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from collections import defaultdict
 import numpy as np
 
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
+from bt_pipeline.data.random_loops import LOOP_FAMILIES, family_loop
 from bt_pipeline.data.synth_truth import (
     oracle_similarity,
     ratios_against,
@@ -62,9 +66,13 @@ def _oracle(op: OperatorDemo) -> tuple[float, float]:
 
 def measure(task: str, seed: int, mode: str, shapes: str = "guide") -> dict[str, list[float]]:
     """The ratios and rates of one cleaned set; `mode` is given, hidden or oracle; `shapes` is
-    guide or lab."""
-    hidden, lab = mode == "hidden", shapes == "lab"
-    loop = lab_set_loop(seed) if lab else None
+    guide, lab or a random-loop family."""
+    hidden, lab = mode == "hidden", shapes != "guide"  # lab: a loop no guide draws.
+    loop = None
+    if shapes == "lab":
+        loop = lab_set_loop(seed)
+    elif lab:
+        loop = family_loop(shapes, np.random.default_rng([seed, 7]))  # type: ignore[arg-type]
     ops = operator_set(task, seed, hidden=hidden, loop=loop)  # type: ignore[arg-type]
     demos = [o.demo for o in ops.demos]
     if mode == "oracle":
@@ -113,7 +121,10 @@ def main() -> None:
     parser.add_argument("--tasks", default=",".join(TASKS))
     parser.add_argument("--oracle", action="store_true", help="add the oracle-similarity row")
     parser.add_argument(
-        "--shapes", choices=("guide", "lab"), default="guide", help="the loops drawn (module doc)"
+        "--shapes",
+        choices=("guide", "lab", *LOOP_FAMILIES),
+        default="guide",
+        help="the loops drawn (module doc)",
     )
     args = parser.parse_args()
     print(
