@@ -22,7 +22,9 @@ The fit is a trimmed iterative-closest-point similarity fit:
    the size off the fit) is fitted by consensus over half-loop refits, also with the guide
    centred on the task plane's origin (where the app draws it): of the about equally good
    modes, the smallest ρ when it is more than 6 % below the median mode's (a bulge), else the
-   median mode (:func:`_consensus`; always the smallest read wobbly hands' ρ too small).
+   median mode (:func:`_consensus`; always the smallest read wobbly hands' ρ too small). A thin
+   loop (principal spreads' ratio under 0.2: a back-and-forth stroke) skips this: each half of a
+   near-line is fitted closely by a shorter one, and the smallest mode took half its length.
 5. When that loop's fit lies near the plane's origin (within 15 % of its size) and the best
    centred fit costs at most 3 x the best free one, only the centred fits are modes: a lopsided
    arch's shifted compromise no longer outweighs them. Among the centred modes the smallest
@@ -61,6 +63,7 @@ _CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this 
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
 _SHIFT_STARTS = 0.25  # With θ and ρ known, translations this share of the size off start too.
 _CENTRED_OFF = 0.05  # A close fit this share of its size off the origin is checked (see reach).
+_THIN = 0.2  # A loop thinner than this (principal spreads' ratio) takes the median mode.
 
 
 @dataclass(frozen=True)
@@ -248,6 +251,11 @@ def _consensus(
     that closely by a fit shifted that much). On a loop without a defect every fit lands on the
     same mode and nothing changes.
     """
+    if _aspect(guide) < _THIN:
+        # A stretch of a near-line is a shorter near-line: each half of a thin stroke is fitted
+        # closely by a shorter stroke, and the smallest mode took half its length (the second
+        # generator's strokes, θ/ρ hidden: 1.59 x their raw error; 0.91 with the plain fit).
+        return fit
     size = float(np.max(np.ptp(guide, axis=0)))
     n = points.shape[0]
     keep = max(3, int(_CONSENSUS_KEEP * n))
@@ -325,6 +333,12 @@ def _consensus(
     modes = sorted((f for c, f, _ in found if c <= tie), key=lambda f: f.rho)
     middle = modes[(len(modes) - 1) // 2]
     return modes[0] if modes[0].rho < (1.0 - bulge) * middle.rho else middle
+
+
+def _aspect(points: FloatArray) -> float:
+    """The loop's thickness: the ratio of its principal spreads (1 round, 0 a line)."""
+    spread = np.linalg.eigvalsh(np.cov((points - points.mean(axis=0)).T))
+    return float(np.sqrt(max(spread[0], 0.0) / max(spread[1], 1e-300)))
 
 
 def _icp(
