@@ -36,7 +36,7 @@ from bt_pipeline.exceptions import DemoError
 _ALONE = 1.1  # A path of at most this many loops is the loop alone (no approach to join it).
 _GUIDE_SHORT = 0.9  # A guide is replaced when less than this share of the best loop is on it.
 _WHOLE = 0.95  # A best demo's span under this many loops is also sought against its own loop.
-_OPEN = (0.6, _WHOLE)  # A best demo's span of this many loops is closed where its path returns,
+_OPEN = (0.5, _WHOLE)  # A best demo's span of this many loops is closed where its path returns,
 _RETURN = 0.05  # within this share of the loop's size (at least 3 mm), running the same way,
 _OVER = (1.05, 1.35)  # A span of this many loops holds one loop and a stretch of approach or
 # retreat that runs along it: it is trimmed to the closest return between its two ends.
@@ -169,7 +169,9 @@ def closed_span(demo: Demo, segment: Segment) -> Segment:
     out part of its loop loses that part of the output. A loop that starts slowly after the
     approach pauses where it joins is cut by the segmentation's travel test (it starts at a
     fraction of its later speed: 0.58 s of a random oval's 6.3 s loop), and an end can be cut
-    the same way. Where the span holds 0.6-0.95 of a loop, its one loop ends where the path
+    the same way; a thin stroke's phase track can jump between its strands (a pick-and-place
+    stroke's expert kept 0.56 of its loop). Where the span holds 0.5-0.95 of a loop, its one
+    loop ends where the path
     comes back to where it began: the span starts at the last sample before it, within the
     missing part of a loop, that lies within 5 % of the loop's size (3 mm at least) of the
     span's end and leaves it the way the end arrives (cos ≥ 0.5), or ends at the first sample

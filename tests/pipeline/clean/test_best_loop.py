@@ -21,6 +21,7 @@ from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.random_loops import LoopKind, draw_set_loop
 from bt_pipeline.data.synth_human import HumanSet, make_human_set
 from bt_pipeline.data.synth_truth import truth_ratios
+from bt_pipeline.data.tasks import Task
 from tests.pipeline.conftest import demo_of
 
 
@@ -160,11 +161,11 @@ def test_the_best_demo_keeps_the_slow_start_of_its_one_loop() -> None:
 
 
 def _cleaned(
-    kind: LoopKind, seed: int
+    kind: LoopKind, seed: int, task: Task = "weaving"
 ) -> tuple[HumanSet, TaskCleanResult, list[tuple[float, float]]]:
-    """A human-style weaving set drawing a `kind` loop, cleaned, and each demo's (shape, timing)
-    ratios against its truth."""
-    synth = make_human_set("weaving", 4, seed, shape=draw_set_loop(kind, seed, "weaving"))
+    """A human-style set (weaving by default) drawing a `kind` loop, cleaned, and each demo's
+    (shape, timing) ratios against its truth."""
+    synth = make_human_set(task, 4, seed, shape=draw_set_loop(kind, seed, task))
     demos = demos_from_recording(synth.recording)
     result = clean_demos(demos, CleanOptions(seed=seed, progress=False))
     ratios = [
@@ -227,3 +228,15 @@ def test_an_approach_from_a_rest_on_the_loop_is_not_taken_for_its_start() -> Non
     on = np.flatnonzero(np.asarray(record.attrs["truth_on_loop"]) > 0)
     assert abs(result.segments[expert].start_s - times[on[0]]) < 0.1
     assert ratios[expert][0] < 1.05, ratios[expert]
+
+
+def test_a_stroke_expert_cut_to_half_its_loop_is_closed() -> None:
+    """A human-style pick-and-place set of thin strokes (seed 4): the phase track jumps between
+    the stroke's strands, so the expert's single loop was kept as 0.56 of a loop, and being
+    passed through, output as that half (11.77 x its raw shape error). Its span is now closed
+    where its path returns to itself from 0.5 of a loop."""
+    synth, result, ratios = _cleaned("stroke", 4, "pick_and_place")
+    expert = synth.expert_index
+    assert result.best_index == expert
+    assert result.segments[expert].cycles == 1.0
+    assert ratios[expert][0] < 2.0 and ratios[expert][1] == pytest.approx(1.0, abs=0.01)
