@@ -171,13 +171,13 @@ def closed_span(demo: Demo, segment: Segment) -> Segment:
     fraction of its later speed: 0.58 s of a random oval's 6.3 s loop), and an end can be cut
     the same way; a thin stroke's phase track can jump between its strands (a pick-and-place
     stroke's expert kept 0.56 of its loop). Where the span holds 0.5-0.95 of a loop, its one
-    loop ends where the path
-    comes back to where it began: the span starts at the last sample before it, within the
-    missing part of a loop, that lies within 5 % of the loop's size (3 mm at least) of the
-    span's end and leaves it the way the end arrives (cos ≥ 0.5), or ends at the first sample
-    after it that returns to the span's start; the nearer return wins. The part added must lie
-    on the span's fitted loop (9 in 10 of its samples within 8 % of its size): a retreat that
-    passes the span's start on its way out is no return. No return: as it was.
+    loop ends where the path comes back to where it began: the span starts at the last sample
+    before it, within the missing part of a loop, that lies within 5 % of the loop's size (3 mm
+    at least) of the span's end and leaves it the way the end arrives (cos ≥ 0.5), or ends at
+    the first sample after it that returns to the span's start; the nearer return wins. The
+    part added must lie on the span's fitted loop (9 in 10 of its samples within 8 % of its
+    size): a retreat that passes the span's start on its way out is no return. No return: as
+    it was.
 
     A span of 1.05-1.35 loops holds one loop and an approach or a retreat that runs along it
     (the approach converges on the loop where it begins, the retreat leaves it where it ends):

@@ -63,7 +63,7 @@ _CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this 
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
 _SHIFT_STARTS = 0.25  # With θ and ρ known, translations this share of the size off start too.
 _CENTRED_OFF = 0.05  # A close fit this share of its size off the origin is checked (see reach).
-_THIN = 0.2  # A loop thinner than this (principal spreads' ratio) takes the median mode.
+_THIN = 0.2  # A loop thinner than this (principal spreads' ratio) keeps its plain fit.
 
 
 @dataclass(frozen=True)

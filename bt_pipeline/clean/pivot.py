@@ -38,7 +38,6 @@ there (on the second generator's guide sets, θ/ρ hidden, the test read a pivot
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -47,7 +46,7 @@ from numpy.typing import ArrayLike
 from scipy.stats import f as f_distribution
 
 from bt_pipeline.clean.guide_fit import GuideFit
-from bt_pipeline.clean.stage1.alignment import remove_preference
+from bt_pipeline.clean.stage1.alignment import remove_preference, rotation_matrix
 from bt_pipeline.clean.stage1.extract import Stage1Result
 from bt_pipeline.data.records import FloatArray
 
@@ -99,7 +98,7 @@ def read_pivot(fits: Sequence[GuideFit], quality: ArrayLike, best: int, centre: 
     for i, fit in enumerate(fits):
         if i == best or not weight[i] > 0.0:
             continue
-        turn = _similarity(fit.rho / fb.rho, fit.theta_deg - fb.theta_deg)
+        turn = fit.rho / fb.rho * rotation_matrix(fit.theta_deg - fb.theta_deg)
         rows.append(np.eye(2) - turn)
         rhs.append(np.asarray(fit.translation) - turn @ np.asarray(fb.translation))
         w0.append(float(weight[i]))
@@ -107,8 +106,7 @@ def read_pivot(fits: Sequence[GuideFit], quality: ArrayLike, best: int, centre: 
         return kept
     m, b, base = np.stack(rows), np.stack(rhs), np.asarray(w0)
     ridge = _RIDGE * float(base.sum())
-    w = base.copy()
-    point = c
+    w, point, residual = base.copy(), c, np.zeros(len(rows))
     for _ in range(_REWEIGHTS):
         gram = ridge * np.eye(2) + np.einsum("k,kji,kjl->il", w, m, m)
         vector = ridge * c + np.einsum("k,kji,kj->i", w, m, b)
@@ -119,7 +117,6 @@ def read_pivot(fits: Sequence[GuideFit], quality: ArrayLike, best: int, centre: 
     if not np.all(np.isfinite(point)):
         return kept
     at_c = np.linalg.norm(np.einsum("kij,j->ki", m, c) - b, axis=1)
-    residual = np.linalg.norm(np.einsum("kij,j->ki", m, point) - b, axis=1)
     support = float(np.sum(w * residual**2)) / max(float(np.sum(w * at_c**2)), 1e-18)
     offset = float(np.linalg.norm(point - c))
     # F-test of the two extra unknowns on the demos that carry weight (Kish's effective count
@@ -140,11 +137,6 @@ def pivoted(stage1: Stage1Result, pivot: Pivot) -> Stage1Result:
     theta, rho = float(stage1.thetas[best]), float(stage1.rhos[best])
     shape = remove_preference(stage1.reference, theta, rho, pivot.point)
     return dataclasses.replace(stage1, centre=pivot.point, global_shape=shape)
-
-
-def _similarity(scale: float, theta_deg: float) -> FloatArray:
-    a = math.radians(theta_deg)
-    return scale * np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
 
 
 __all__ = ["LEVEL", "MAX_OFFSET", "MIN_DEMOS", "MIN_WEIGHT", "Pivot", "pivoted", "read_pivot"]
