@@ -27,6 +27,7 @@ then it keeps that entry (under its new label: Ũ and marks change) while it is 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import viser
@@ -168,6 +169,10 @@ class Picker:
         """What it offers now."""
         self.follows_default = True
         """No entry picked in the browser since the choice was last reset to the default."""
+        # A script's choice (another thread) and the library's refresh each read the offered
+        # labels and then set the value: interleaved, a choice lands as a label no longer
+        # offered (a CI run saw Restore stay disabled). Each runs whole under this lock.
+        self._lock = threading.RLock()
 
         @dropdown.on_update
         async def _(event: viser.GuiEvent) -> None:
@@ -187,21 +192,23 @@ class Picker:
         Raises:
             KeyError: It does not offer `key`.
         """
-        label = self.offered.label_of(key)
-        if label is None:
-            raise KeyError(f"the {self.name} picker does not offer {key!r}")
-        self.follows_default = False
-        self.dropdown.value = label
+        with self._lock:
+            label = self.offered.label_of(key)
+            if label is None:
+                raise KeyError(f"the {self.name} picker does not offer {key!r}")
+            self.follows_default = False
+            self.dropdown.value = label
 
     def offer(self, options: PickerOptions) -> None:
         """Offer `options`: the default while it follows it, else the demo chosen while it is
         offered, else the default again (and follow it)."""
-        chosen = self.offered.key_of(self.dropdown.value)
-        self.offered = options
-        label = None if self.follows_default or chosen is None else options.label_of(chosen)
-        if label is None:
-            label, self.follows_default = options.default, True
-        if tuple(self.dropdown.options) != options.labels:
-            self.dropdown.options = options.labels
-        if self.dropdown.value != label:
-            self.dropdown.value = label
+        with self._lock:
+            chosen = self.offered.key_of(self.dropdown.value)
+            self.offered = options
+            label = None if self.follows_default or chosen is None else options.label_of(chosen)
+            if label is None:
+                label, self.follows_default = options.default, True
+            if tuple(self.dropdown.options) != options.labels:
+                self.dropdown.options = options.labels
+            if self.dropdown.value != label:
+                self.dropdown.value = label

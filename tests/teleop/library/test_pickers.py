@@ -6,6 +6,7 @@ the pick."""
 from __future__ import annotations
 
 import dataclasses
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
@@ -15,7 +16,13 @@ import pytest
 import viser
 
 from bt_teleop.library.listing import TaskLibrary, load_library
-from bt_teleop.library.pickers import NO_DEMOS, PickerOptions, demo_label, picker_options
+from bt_teleop.library.pickers import (
+    NO_DEMOS,
+    Picker,
+    PickerOptions,
+    demo_label,
+    picker_options,
+)
 from bt_teleop.library.view import library_view
 from bt_teleop.testing.harness import synthetic_task_files
 from bt_teleop.ui.panels import TabControls
@@ -216,3 +223,43 @@ def test_a_picker_follows_its_default_until_a_person_picks(
     assert controls.replay_picker.key == three.raw[0].key
     with pytest.raises(KeyError, match="does not offer"):
         controls.choose_demo("raw · nothing")
+
+
+class _SlowDropdown:
+    """A dropdown whose first value change pauses until released (a thread switch there)."""
+
+    def __init__(self, options: tuple[str, ...]) -> None:
+        self.options, self.value = options, options[0]
+        self.entered, self.release = threading.Event(), threading.Event()
+        self._first = True
+
+    def on_update(self, callback: Any) -> Any:
+        return callback
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name == "value" and getattr(self, "_first", False):
+            object.__setattr__(self, "_first", False)
+            self.entered.set()
+            self.release.wait(10.0)
+        object.__setattr__(self, name, value)
+
+
+def test_a_choice_made_while_the_library_refreshes_is_kept() -> None:
+    # A script chooses a demo from one thread while the library's refresh re-labels the picker
+    # from another (the demo was just excluded: its label changed). The choice must stay on the
+    # demo under its new label, not on a label the picker no longer offers.
+    before = PickerOptions(("a · Ũ 0.5", "b · Ũ 0.4"), ("a", "b"), "a · Ũ 0.5")
+    after = PickerOptions(("a · Ũ 0.5", "⊘ b · excluded"), ("a", "b"), "a · Ũ 0.5")
+    dropdown = _SlowDropdown(before.labels)
+    picker = Picker(dropdown, "Demo")  # type: ignore[arg-type]
+    picker.offered = before
+    choose = threading.Thread(target=picker.choose, args=("b",))
+    choose.start()
+    assert dropdown.entered.wait(10.0)
+    refresh = threading.Thread(target=picker.offer, args=(after,))
+    refresh.start()
+    refresh.join(0.3)  # unguarded, the refresh runs to its end here, inside the choice
+    dropdown.release.set()
+    choose.join(10.0)
+    refresh.join(10.0)
+    assert picker.key == "b" and dropdown.value == "⊘ b · excluded"
