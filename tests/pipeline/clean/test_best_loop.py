@@ -240,3 +240,22 @@ def test_a_stroke_expert_cut_to_half_its_loop_is_closed() -> None:
     assert result.best_index == expert
     assert result.segments[expert].cycles == 1.0
     assert ratios[expert][0] < 2.0 and ratios[expert][1] == pytest.approx(1.0, abs=0.01)
+
+
+def test_a_retreat_that_crosses_the_loops_first_arc_does_not_close_it() -> None:
+    """Random weaving, θ/ρ hidden (seed 11): the expert-like demo draws one loop and retreats
+    from where it began along its first arc, crossing it 0.5 s later. Both points close a loop;
+    the later one (the old rule: of pairs as close, the last start) kept 0.96 s of the retreat,
+    2.3 x the expert's raw shape error. The return whose end arrives the way its start leaves
+    closes the loop where it began."""
+    synth = make_human_set(
+        "weaving", 4, 11, hidden=True, shape=draw_set_loop("random", 11, "weaving")
+    )
+    demos = demos_from_recording(synth.recording)
+    selection = select_demos(demos)
+    e = synth.expert_index
+    assert selection.scores.best_index == e
+    truth = synth.demos[e]
+    times = demos[e].raw_samples()[1][truth.on_loop]
+    span = selection.segments[e]
+    assert abs(span.start_s - times[0]) < 0.15 and abs(span.end_s - times[-1]) < 0.35, span
