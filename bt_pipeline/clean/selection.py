@@ -200,9 +200,7 @@ def guide_overrules(
     it; measured against the guide, the gate then passed the expert-like demo over and the set
     was cleaned towards the noisy one (the expert came out at 73 x its raw error). The paper's
     own ranking (Ũ) names a demo that does not follow the guide: the guide is set aside, unless
-    a demo traced it (within 2 %), which a bias shared by others does not outvote, or two demos
-    or more follow it (within 4 %): in the app's own browser takes of wiping, two careful takes
-    lie 3.0 and 3.9 % off the guide and the highest Ũ, a looser one, 7.5 %.
+    a demo traced it (within 2 %), which a bias shared by others does not outvote.
     """
     if task_loop.source != "guide" or task_loop.traced or not selection.best_reason:
         return None
@@ -212,12 +210,7 @@ def guide_overrules(
     if loop is None:
         return None
     gap = guide_distance(loop, demos[first])
-    followers = [
-        d
-        for d in demos
-        if d.label in task_loop.own and guide_distance(task_loop.own[d.label], d) <= GUIDE_FOLLOWED
-    ]
-    return (first, gap) if gap > GUIDE_FOLLOWED and len(followers) <= 1 else None
+    return (first, gap) if gap > GUIDE_FOLLOWED else None
 
 
 def _select(
