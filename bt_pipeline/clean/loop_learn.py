@@ -27,8 +27,7 @@ against before the best demo is known, so the loop is learned from every demo fi
    demo 9 % off, does not); or when some demo lies within 2 %, whatever the consensus (a traced
    guide must not be outvoted by a majority sharing one bias). Otherwise the learned loop is used.
    Selection checks a kept guide once more against the segmented demos and may set it aside
-   (``use_guide=False``; :func:`bt_pipeline.clean.selection.off_guide` and
-   :func:`~bt_pipeline.clean.selection.guide_overrules`).
+   (``use_guide=False``; :func:`bt_pipeline.clean.selection.off_guide`).
 5. **Frame.** A learned loop's θ = 0, ρ = 1 is the set's: each demo's similarity to the
    consensus is read off its alignment, and the loop is turned and scaled so that these have
    circular-mean θ 0 and geometric-mean ρ 1; when demos state θ/ρ, so that theirs match the

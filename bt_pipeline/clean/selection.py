@@ -28,12 +28,7 @@ import numpy as np
 from bt_pipeline.clean.best_loop import best_demo_loop, closed_span
 from bt_pipeline.clean.fan_out import per_demo, segment_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
-from bt_pipeline.clean.loop_learn import (
-    GUIDE_FOLLOWED,
-    TaskLoop,
-    guide_distance,
-    learn_task_loop,
-)
+from bt_pipeline.clean.loop_learn import TaskLoop, learn_task_loop
 from bt_pipeline.clean.periodic import (
     UNCERTAIN,
     PreferenceEstimate,
@@ -127,24 +122,14 @@ def select_demos(
     learned = time.perf_counter() - start
     selection = _select(demos, task_loop, config, allowed, executor, chunk_size)
     off = off_guide(demos, task_loop, selection.segments)
-    overruled = guide_overrules(demos, task_loop, selection)
-    if off or overruled is not None:  # The demos' own loops are not the guide: learn theirs.
+    if off:  # The demos close loops of their own that the guide does not hold: learn theirs.
         start = time.perf_counter()
         task_loop = learn_task_loop(demos, use_guide=False, known=task_loop)
-        if overruled is None:
-            note = (
-                f"{', '.join(demos[i].label for i in off)} close loops of their own, but less "
-                f"than half a loop of each lies on the {demos[0].task} guide: the guide is set "
-                f"aside and their own loop, learned from {len(task_loop.used)} demos, is used"
-            )
-        else:
-            first, gap = overruled
-            note = (
-                f"{demos[first].label} has the highest Ũ and draws a loop of its own "
-                f"{100 * gap:.1f} % of its size off the {demos[0].task} guide: the "
-                f"guide is set aside and the demos' own loop, learned from "
-                f"{len(task_loop.used)} demos, is used"
-            )
+        note = (
+            f"{', '.join(demos[i].label for i in off)} close loops of their own, but less than "
+            f"half a loop of each lies on the {demos[0].task} guide: the guide is set aside "
+            f"and their own loop, learned from {len(task_loop.used)} demos, is used"
+        )
         task_loop = dataclasses.replace(task_loop, notes=(*task_loop.notes, note))
         learned += time.perf_counter() - start
         selection = _select(demos, task_loop, config, allowed, executor, chunk_size)
@@ -186,31 +171,6 @@ def off_guide(demos: Sequence[Demo], task_loop: TaskLoop, segments: Sequence[Seg
     closers = [i for i, d in enumerate(demos) if task_loop.repeats.get(d.label, 0.0) >= 1.0]
     off = [i for i in closers if segments[i].cycles < OFF_GUIDE_CYCLES]
     return off if len(off) >= max(2, math.ceil(OFF_GUIDE_SHARE * len(closers))) else []
-
-
-def guide_overrules(
-    demos: Sequence[Demo], task_loop: TaskLoop, selection: Selection
-) -> tuple[int, float] | None:
-    """The demo with the highest Ũ and its own loop's distance from the guide, when the shape gate
-    against the guide passed it over although its own loop does not follow the guide; else None.
-
-    The guide is kept when some demo's own loop lies within 4 % of it (:mod:`loop_learn` step 4),
-    and a noisy demo can: a lopsided figure-eight whose bulge evens out unequal lobes lay 3.2 %
-    off the weaving guide while the expert-like demo, the highest Ũ, drew its own loop 11 % off
-    it; measured against the guide, the gate then passed the expert-like demo over and the set
-    was cleaned towards the noisy one (the expert came out at 73 x its raw error). The paper's
-    own ranking (Ũ) names a demo that does not follow the guide: the guide is set aside, unless
-    a demo traced it (within 2 %), which a bias shared by others does not outvote.
-    """
-    if task_loop.source != "guide" or task_loop.traced or not selection.best_reason:
-        return None
-    utility = [s.utility for s in selection.scores.scores]
-    first = int(np.argmax(utility))
-    loop = task_loop.own.get(demos[first].label)
-    if loop is None:
-        return None
-    gap = guide_distance(loop, demos[first])
-    return (first, gap) if gap > GUIDE_FOLLOWED else None
 
 
 def _select(
