@@ -43,6 +43,8 @@ _OVER = (1.05, 1.35)  # A span of this many loops holds one loop and a stretch o
 _REACH = 0.15  # at most the missing part of a loop plus this share of one away from the span,
 _ON_LOOP = 0.08  # the part added lying within this share of the size of its fitted loop (9 in 10
 _ON_SHARE = 0.9  # samples: a retreat that passes the span's start on its way out does not).
+_PLACED_REACH = 0.15  # A best loop whose box centre lies this share of its size from the
+# plane's origin or nearer stays where its demo drew it (the guide fit's centred reach).
 _TANGENT_TIE = 0.02  # Closing pairs whose tangents agree within this cosine of the best tie.
 _CLOCK_HZ = 50.0  # The path is read on this clock,
 _LIGHT_S = 0.03  # smoothed this lightly [s] (as the loop is read: recurrence.py).
@@ -61,7 +63,9 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
     with an approach closes at one point, where the approach may join it). A guide is replaced
     the same way when the best demo closes a loop of its own but less than 90 % of it was found
     on the guide (a loop close to the guide, but not it: an arch of another return depth). None
-    otherwise, or when no loop of the best demo can be read.
+    otherwise, or when no loop of the best demo can be read. The loop keeps the place the best
+    demo drew it at (:attr:`~bt_pipeline.data.loop_shape.LoopShape.placed`) when that lies
+    near the plane's origin (docs/refinement.md, step 6).
     """
     own = task_loop.own.get(demo.label)
     notes = task_loop.notes
@@ -105,9 +109,15 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
         # lobes onto a consensus of lopsided demos, whose fits then matched one lobe (varied
         # weaving, seed 4: naive demos 1.8-2.6 x their raw error).
         shape = shape.transformed(-segment.guide.theta_deg, 1.0 / segment.guide.rho)
-    shape = shape.transformed(translation=-shape.centre)
+    # It stays where the best demo drew it, turned and scaled back about the plane's origin:
+    # the point the demos turn it about, which a box's centre is not on a loop without central
+    # symmetry (docs/quality.md). A loop drawn far from the origin (an imported file's) is
+    # centred on its box instead.
+    placed = bool(np.linalg.norm(shape.centre) <= _PLACED_REACH * shape.size_m)
+    if not placed:
+        shape = shape.transformed(translation=-shape.centre)
     label = f"{demo.task} loop of its best demo, {demo.label}"
-    framed = LoopShape(shape.coefficients, label)
+    framed = LoopShape(shape.coefficients, label, placed=placed)
     return dataclasses.replace(
         task_loop, loop=framed, source="learned", best=demo.label, notes=notes
     )

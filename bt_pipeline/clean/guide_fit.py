@@ -29,7 +29,11 @@ The fit is a trimmed iterative-closest-point similarity fit:
    centred fit costs at most 3 x the best free one, only the centred fits are modes: a lopsided
    arch's shifted compromise no longer outweighs them. Among the centred modes the smallest
    wins from 3 % below the median mode (they hold no shifted compromise between the two
-   sides). What each rule gained and cost on three kinds of data: docs/quality.md.
+   sides). The best demo's loop kept where that demo drew it (``LoopShape.placed``,
+   :mod:`~bt_pipeline.clean.best_loop`) is centred the same way, its origin being where the
+   demos turn it, within 1.5 x instead of 3 x: a drifting single loop or a wobbly hand fits
+   1.5-3 x worse held there, a lopsided loop about as well. What each rule gained and cost on
+   three kinds of data: docs/quality.md.
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
 """
@@ -60,6 +64,7 @@ _CONSENSUS_FLOOR_M = 0.0005  # or within this of it [m] (a clean loop's costs ar
 _BULGE = 0.06  # The smallest mode wins when its ρ is this share below the median mode's.
 _CENTRED_REACH = 0.15  # Centred fits alone count when the fit's centre is this share of the
 _CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this factor as well;
+_PLACED_SLACK = 1.5  # Against a best demo's placed loop, this factor (module doc, step 5).
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
 _SHIFT_STARTS = 0.25  # With θ and ρ known, translations this share of the size off start too.
 _CENTRED_OFF = 0.05  # A close fit this share of its size off the origin is checked (see reach).
@@ -260,8 +265,9 @@ def _consensus(
     n = points.shape[0]
     keep = max(3, int(_CONSENSUS_KEEP * n))
     off = float(np.linalg.norm(fit.translation))
-    # Centred fits only for a guide: it is drawn on the plane's origin; a learned loop is not.
-    anchored = fit.loop.is_guide
+    # Centred fits only for a loop the demos turn about the plane's origin: a guide, drawn
+    # there, or the best demo's loop kept where that demo drew it.
+    anchored = fit.loop.anchored
     if _trimmed_cost(points, tree, fit, int(0.9 * n)) < _LOPSIDED * fit.size_m and not (
         anchored and _CENTRED_OFF * fit.size_m < off <= _CENTRED_REACH * fit.size_m
     ):
@@ -321,7 +327,8 @@ def _consensus(
     if (
         off <= _CENTRED_REACH * fit.size_m
         and centred_costs
-        and min(centred_costs) <= _CENTRED_SLACK * free_low
+        and min(centred_costs)
+        <= (_CENTRED_SLACK if fit.loop.is_guide else _PLACED_SLACK) * free_low
     ):
         # The loop is centred where the app draws the guide: only centred fits count.
         found = [f for f in found if f[2]]

@@ -36,7 +36,7 @@ from bt_pipeline.clean.periodic import (
     phase_loop,
     smooth_residual,
 )
-from bt_pipeline.clean.pivot import pivoted, read_pivot
+from bt_pipeline.clean.pivot import Pivot, pivoted, read_pivot
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.selection import select_demos
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
@@ -281,6 +281,12 @@ def clean_demos(
     if preferences[best].estimated and selection.loop.source != "guide":
         # θ/ρ hidden against a learned loop: the box centre's frame is only the learned loop's
         # (a guide's is its own, centred where bt draws it); where do the demos' loops turn?
+        centre = "the best demo's box centre"
+        if selection.loop.loop.placed:
+            # The best demo's loop kept where it was drawn (clean/best_loop.py): the plane's
+            # origin is the point the demos turn it about, as a guide's centre is.
+            origin = Pivot(np.zeros(2), float(np.linalg.norm(stage1.centre)), 1.0, True)
+            stage1, centre = pivoted(stage1, origin), "the task plane's origin"
         pivot = read_pivot(
             [s.guide for s in segments],
             [fit_quality(s) for s in segments],
@@ -291,7 +297,7 @@ def clean_demos(
             stage1 = pivoted(stage1, pivot)
             notes.append(
                 f"the {task_label} demos' fits turn and scale their loops about a point "
-                f"{1e3 * pivot.offset_m:.1f} mm from the best demo's box centre (θ/ρ hidden): "
+                f"{1e3 * pivot.offset_m:.1f} mm from {centre} (θ/ρ hidden): "
                 "their references turn about it"
             )
     # Every reference sits at the best demo's centre c (or the pivot), as in the paper (Sec.

@@ -37,6 +37,9 @@ class LoopShape:
     """What the loop is, for notes and attrs: ``"wiping guide"``, ``"learned"``."""
     guide_task: str | None = None
     """The task whose guide this is (evaluated exactly as the app draws it), or None."""
+    placed: bool = False
+    """Whether the loop sits where a demo drew it, turned and scaled about the plane's origin
+    (a best demo's loop, :mod:`bt_pipeline.clean.best_loop`), rather than on its box's centre."""
 
     def __post_init__(self) -> None:
         c = np.asarray(self.coefficients)
@@ -55,6 +58,12 @@ class LoopShape:
     def is_guide(self) -> bool:
         """Whether this is a task's built-in guide (drawn centred on the task plane's origin)."""
         return self.guide_task is not None
+
+    @property
+    def anchored(self) -> bool:
+        """Whether the plane's origin is the point demos turn and scale this loop about: a
+        guide (the app draws it there) or a loop :attr:`placed` where its demo drew it."""
+        return self.guide_task is not None or self.placed
 
     def at(self, phase: ArrayLike) -> FloatArray:
         """Positions at the given phases [rad] (any shape): that shape plus a last axis of 2 [m]."""

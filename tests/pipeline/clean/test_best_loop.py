@@ -259,3 +259,32 @@ def test_a_retreat_that_crosses_the_loops_first_arc_does_not_close_it() -> None:
     times = demos[e].raw_samples()[1][truth.on_loop]
     span = selection.segments[e]
     assert abs(span.start_s - times[0]) < 0.15 and abs(span.end_s - times[-1]) < 0.35, span
+
+
+def test_lopsided_demos_read_their_scale_against_a_best_loop_kept_where_it_was_drawn() -> None:
+    """Random pick-and-place, θ/ρ hidden (seed 16): three of the naive demos draw one side of
+    the loop 20-35 % bigger. Against a best loop centred on its box (a point the demos do not
+    turn the loop about), their fits could only take the bulge in as a shift and a bigger
+    scale: relative ρ 15-20 % too big, 1.1-1.3 x their raw shape error. The best demo's loop
+    now stays where it was drawn, so fits turned about the plane's origin read the side not
+    bulged, and every reference turns about that origin."""
+    synth = make_human_set(
+        "pick_and_place", 4, 16, hidden=True, shape=draw_set_loop("random", 16, "pick_and_place")
+    )
+    demos = demos_from_recording(synth.recording)
+    result = clean_demos(demos, CleanOptions(seed=16, progress=False))
+    e = synth.expert_index
+    assert result.best_index == e and result.loop is not None and result.loop.loop.placed
+    assert np.allclose(result.stage1.centre, 0.0)
+    best, truth_best = result.preferences[e], synth.demos[e]
+    lopsided = [i for i, d in enumerate(synth.demos) if "lopsided" in d.defects]
+    assert len(lopsided) == 3
+    for i in lopsided:
+        p, truth = result.preferences[i], synth.demos[i]
+        turn = (p.theta_deg - best.theta_deg) - (truth.theta_deg - truth_best.theta_deg)
+        scale = (p.rho / best.rho) / (truth.rho / truth_best.rho)
+        assert abs(turn) < 5.0 and abs(scale - 1.0) < 0.05, (i, turn, scale)
+        shape, _ = truth_ratios(
+            synth.demos[i].record, demos[i].raw_samples(), result.on_raw_times(i)
+        )
+        assert shape < 0.3, (i, shape)

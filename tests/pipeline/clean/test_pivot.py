@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bt_pipeline.clean import pivot
+from bt_pipeline.clean import best_loop, pivot
 from bt_pipeline.clean.guide_fit import GuideFit
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.loop_shape import LoopShape, as_loop
@@ -126,10 +126,12 @@ def _pivot_noted(notes: tuple[str, ...]) -> bool:
 def test_hidden_preferences_on_a_d_shape_turn_about_the_read_pivot(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """A loop without central symmetry, θ/ρ hidden: the box centre in the learned loop's frame
-    is not where the operators turn the loop (the second generator turns it about its box centre
-    in its own frame). About it the wobbly operators came out 1.40 x their raw error on average;
-    about the pivot the demos' fits say, 0.62."""
+    """A loop without central symmetry, θ/ρ hidden, its best loop centred on its box (as a loop
+    drawn far from the plane's origin is): the box centre in the learned loop's frame is not
+    where the operators turn the loop (the second generator turns it about its box centre in its
+    own frame). About it the wobbly operators came out 1.40 x their raw error on average; about
+    the pivot the demos' fits say, 0.62."""
+    monkeypatch.setattr(best_loop, "_PLACED_REACH", -1.0)
     loop = family_loop("d_shape", np.random.default_rng([1, 7]))
     with_pivot, notes = _cleaned("wiping", 1, loop)
     assert _pivot_noted(notes)
@@ -137,6 +139,16 @@ def test_hidden_preferences_on_a_d_shape_turn_about_the_read_pivot(
     without, notes = _cleaned("wiping", 1, loop)
     assert not _pivot_noted(notes)
     assert with_pivot.mean() < 0.8 < 1.2 < without.mean()
+
+
+def test_a_best_loop_kept_where_it_was_drawn_turns_about_the_origin() -> None:
+    """The same set with the best demo's loop kept where it was drawn: the plane's origin is
+    the point the operators turn the loop about, the references turn about it, and no pivot
+    has to be read from the fits."""
+    loop = family_loop("d_shape", np.random.default_rng([1, 7]))
+    ratios, notes = _cleaned("wiping", 1, loop)
+    assert not _pivot_noted(notes)
+    assert ratios.mean() < 0.8, ratios
 
 
 def test_against_the_guide_the_box_centre_stays() -> None:
