@@ -17,6 +17,11 @@ Truth comes from the files' own attrs (bt_pipeline.data.synth_truth), not from t
 
     python benchmarks/quality/bench_clean_human.py --seeds 2 --presets D1,D2 --styles human,single
 
+Held-out sets: ``--hidden all --first-seed 12`` draws every human-style set with θ/ρ hidden. Passing
+`hidden` to the generator skips one draw of its random stream, so these are other sets than the
+default seeds' (docs/quality.md's fresh-seed figures: ``--seeds 12 --first-seed 12 --presets D1
+--styles human --shapes random --hidden all``).
+
 Chunking (issue 14): ``--chunk-sizes all,8 --presets D48`` cleans each set of 48 demos once as one
 Stage 2 batch and once in chunks of at most 8 demos, with the same seed, and adds each run's K and
 its wall time (median over the set's runs) to the rows, so the two rows of a set compare directly.
@@ -46,12 +51,17 @@ def measure(
     style: str,
     chunk_size: int = 10**9,
     loop_kind: LoopKind = "guide",
+    all_hidden: bool = False,
 ) -> dict[str, list[float]]:
     """Ratios and rates of one cleaned set (Stage 2 in chunks of at most `chunk_size` demos),
-    its demos drawing `loop_kind` (the task's guide, a varied guide or a loop drawn at random)."""
+    its demos drawing `loop_kind` (the task's guide, a varied guide or a loop drawn at random);
+    with `all_hidden`, a human-style set with θ/ρ hidden (a held-out draw, module doc)."""
     loop = None if loop_kind == "guide" else draw_set_loop(loop_kind, seed, task)
     if style == "human":
-        synth = make_human_set(task, n, seed, shape=loop)
+        if all_hidden:
+            synth = make_human_set(task, n, seed, hidden=True, shape=loop)
+        else:
+            synth = make_human_set(task, n, seed, shape=loop)
         hidden, expert, recording = synth.hidden, synth.expert_index, synth.recording
     else:
         single = make_demo_set(task, n, seed, shape=loop)
@@ -91,6 +101,10 @@ def measure(
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seeds", type=int, default=2)
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument(
+        "--hidden", choices=("half", "all"), default="half", help="human sets with θ/ρ hidden"
+    )
     parser.add_argument("--presets", default="D1,D2")
     parser.add_argument("--styles", default="human,single")
     parser.add_argument("--tasks", default=",".join(TASKS))
@@ -119,8 +133,10 @@ def main() -> None:
         for task in args.tasks.split(","):
             for preset, chunk_size in ((p, k) for p in args.presets.split(",") for k in chunks):
                 runs: dict[str, list[float]] = defaultdict(list)
-                for seed in range(args.seeds):
-                    measured = measure(task, sizes[preset], seed, style, chunk_size, shape)
+                for seed in range(args.first_seed, args.first_seed + args.seeds):
+                    measured = measure(
+                        task, sizes[preset], seed, style, chunk_size, shape, args.hidden == "all"
+                    )
                     for key, values in measured.items():
                         runs[key].extend(values)
                 k_label = "all" if chunk_size >= sizes[preset] else str(chunk_size)
