@@ -153,6 +153,7 @@ class TaskLoop:
             "loop_demos": len(self.used),
             "loop_symmetry_axis_deg": self.symmetry_axis[0],
             "loop_asymmetry": self.symmetry_axis[1],
+            "loop_placed": int(self.loop.anchored),
         }
 
     def hints(self) -> dict[str, GuideFit]:

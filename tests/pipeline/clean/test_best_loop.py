@@ -275,6 +275,7 @@ def test_lopsided_demos_read_their_scale_against_a_best_loop_kept_where_it_was_d
     result = clean_demos(demos, CleanOptions(seed=16, progress=False))
     e = synth.expert_index
     assert result.best_index == e and result.loop is not None and result.loop.loop.placed
+    assert result.loop.attrs()["loop_placed"] == 1
     assert np.allclose(result.stage1.centre, 0.0)
     best, truth_best = result.preferences[e], synth.demos[e]
     lopsided = [i for i, d in enumerate(synth.demos) if "lopsided" in d.defects]
