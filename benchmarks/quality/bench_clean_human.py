@@ -20,7 +20,7 @@ Truth comes from the files' own attrs (bt_pipeline.data.synth_truth), not from t
 Held-out sets: ``--hidden all --first-seed 12`` draws every human-style set with θ/ρ hidden. Passing
 `hidden` to the generator skips one draw of its random stream, so these are other sets than the
 default seeds' (docs/quality.md's fresh-seed figures: ``--seeds 12 --first-seed 12 --presets D1
---styles human --shapes random --hidden all``).
+--styles human --shapes random,varied --hidden all``).
 
 Chunking (issue 14): ``--chunk-sizes all,8 --presets D48`` cleans each set of 48 demos once as one
 Stage 2 batch and once in chunks of at most 8 demos, with the same seed, and adds each run's K and
