@@ -103,13 +103,14 @@ class LoopShape:
         return LoopShape(c, self.label)
 
     def reversed(self) -> LoopShape:
-        """The same loop travelled the other way: x(−φ)."""
-        return LoopShape(self.coefficients[::-1].copy(), self.label)
+        """The same loop travelled the other way: x(−φ), in the same place."""
+        return LoopShape(self.coefficients[::-1].copy(), self.label, placed=self.placed)
 
     def started_at(self, phase: float) -> LoopShape:
-        """The same loop started at phase `phase` [rad]: x(φ + phase)."""
+        """The same loop started at phase `phase` [rad]: x(φ + phase), in the same place."""
         k = np.arange(-self.harmonics, self.harmonics + 1)
-        return LoopShape(self.coefficients * np.exp(1j * k * phase), self.label)
+        shifted = self.coefficients * np.exp(1j * k * phase)
+        return LoopShape(shifted, self.label, placed=self.placed)
 
     @classmethod
     def from_points(cls, points: ArrayLike, harmonics: int, label: str = "learned") -> LoopShape:

@@ -128,3 +128,18 @@ def test_rotation_matrix_is_orthonormal() -> None:
     r = rotation_matrix(37.0)
     np.testing.assert_allclose(r @ r.T, np.eye(2), atol=1e-12)
     assert np.linalg.det(r) == pytest.approx(1.0)
+
+
+def test_a_placed_loop_stays_placed_travelled_the_other_way_or_started_elsewhere() -> None:
+    """A loop kept where its demo drew it is the same points in the same place reversed or
+    started at another phase; turned, scaled or moved it is not (LoopShape.placed)."""
+    from bt_pipeline.data.loop_shape import LoopShape
+
+    c = np.zeros(5, dtype=complex)
+    c[3], c[4], c[2] = 0.1, 0.02j, 0.004  # an egg 4 mm off the origin
+    loop = LoopShape(c, "egg", placed=True)
+    assert loop.anchored and loop.reversed().placed and loop.started_at(1.0).placed
+    assert not loop.transformed(10.0).placed and not LoopShape(c, "egg").anchored
+    assert LoopShape.guide("wiping").anchored
+    ring = loop.points(64)
+    assert chamfer_distance(loop.reversed().points(64), ring) < 1e-3
