@@ -16,6 +16,7 @@ import math
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from bt_pipeline.clean.guide_fit import CENTRED_REACH
 from bt_pipeline.clean.guide_track import track_phase
 from bt_pipeline.clean.loop_align import align, centred_complex
 from bt_pipeline.clean.loop_learn import (
@@ -43,8 +44,6 @@ _OVER = (1.05, 1.35)  # A span of this many loops holds one loop and a stretch o
 _REACH = 0.15  # at most the missing part of a loop plus this share of one away from the span,
 _ON_LOOP = 0.08  # the part added lying within this share of the size of its fitted loop (9 in 10
 _ON_SHARE = 0.9  # samples: a retreat that passes the span's start on its way out does not).
-_PLACED_REACH = 0.15  # A best loop whose box centre lies this share of its size from the
-# plane's origin or nearer stays where its demo drew it (the guide fit's centred reach).
 _TANGENT_TIE = 0.02  # Closing pairs whose tangents agree within this cosine of the best tie.
 _CLOCK_HZ = 50.0  # The path is read on this clock,
 _LIGHT_S = 0.03  # smoothed this lightly [s] (as the loop is read: recurrence.py).
@@ -113,7 +112,7 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
     # the point the demos turn it about, which a box's centre is not on a loop without central
     # symmetry (docs/quality.md). A loop drawn far from the origin (an imported file's) is
     # centred on its box instead.
-    placed = bool(np.linalg.norm(shape.centre) <= _PLACED_REACH * shape.size_m)
+    placed = bool(np.linalg.norm(shape.centre) <= CENTRED_REACH * shape.size_m)
     if not placed:
         shape = shape.transformed(translation=-shape.centre)
     label = f"{demo.task} loop of its best demo, {demo.label}"

@@ -62,7 +62,7 @@ _HALF_TRIM = 0.9  # Share of a half's points kept by its refit.
 _CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (see _BULGE),
 _CONSENSUS_FLOOR_M = 0.0005  # or within this of it [m] (a clean loop's costs are near 0).
 _BULGE = 0.06  # The smallest mode wins when its ρ is this share below the median mode's.
-_CENTRED_REACH = 0.15  # Centred fits alone count when the fit's centre is this share of the
+CENTRED_REACH = 0.15  # Centred fits alone count when the fit's centre is this share of the
 _CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this factor as well;
 _PLACED_SLACK = 1.5  # Against a best demo's placed loop, this factor (module doc, step 5).
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
@@ -269,7 +269,7 @@ def _consensus(
     # there, or the best demo's loop kept where that demo drew it.
     anchored = fit.loop.anchored
     if _trimmed_cost(points, tree, fit, int(0.9 * n)) < _LOPSIDED * fit.size_m and not (
-        anchored and _CENTRED_OFF * fit.size_m < off <= _CENTRED_REACH * fit.size_m
+        anchored and _CENTRED_OFF * fit.size_m < off <= CENTRED_REACH * fit.size_m
     ):
         return fit  # 90 % of the loop lies close to a fit where it is drawn: nothing misshapen.
     local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
@@ -325,7 +325,7 @@ def _consensus(
     centred_costs = [c for c, _, centred in found if centred]
     free_low = min(c for c, _, centred in found if not centred)
     if (
-        off <= _CENTRED_REACH * fit.size_m
+        off <= CENTRED_REACH * fit.size_m
         and centred_costs
         and min(centred_costs)
         <= (_CENTRED_SLACK if fit.loop.is_guide else _PLACED_SLACK) * free_low

@@ -36,7 +36,7 @@ from bt_pipeline.clean.periodic import (
     phase_loop,
     smooth_residual,
 )
-from bt_pipeline.clean.pivot import Pivot, pivoted, read_pivot
+from bt_pipeline.clean.pivot import pivoted, read_pivot
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.selection import select_demos
 from bt_pipeline.clean.stage1.extract import Stage1Result, run_stage1
@@ -285,8 +285,7 @@ def clean_demos(
         if selection.loop.loop.placed:
             # The best demo's loop kept where it was drawn (clean/best_loop.py): the plane's
             # origin is the point the demos turn it about, as a guide's centre is.
-            origin = Pivot(np.zeros(2), float(np.linalg.norm(stage1.centre)), 1.0, True)
-            stage1, centre = pivoted(stage1, origin), "the task plane's origin"
+            stage1, centre = pivoted(stage1, np.zeros(2)), "the task plane's origin"
         pivot = read_pivot(
             [s.guide for s in segments],
             [fit_quality(s) for s in segments],
@@ -294,7 +293,7 @@ def clean_demos(
             stage1.centre,
         )
         if pivot.read:
-            stage1 = pivoted(stage1, pivot)
+            stage1 = pivoted(stage1, pivot.point)
             notes.append(
                 f"the {task_label} demos' fits turn and scale their loops about a point "
                 f"{1e3 * pivot.offset_m:.1f} mm from {centre} (θ/ρ hidden): "

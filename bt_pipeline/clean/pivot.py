@@ -133,12 +133,14 @@ def read_pivot(fits: Sequence[GuideFit], quality: ArrayLike, best: int, centre: 
     return Pivot(point, offset, support, True)
 
 
-def pivoted(stage1: Stage1Result, pivot: Pivot) -> Stage1Result:
-    """Stage 1 with its preferences acting about the pivot: c and x^g (Sec. III-B) moved."""
+def pivoted(stage1: Stage1Result, point: ArrayLike) -> Stage1Result:
+    """Stage 1 with its preferences acting about `point` (a pivot's, or the plane's origin),
+    shape (2,) [m]: c and x^g (Sec. III-B) moved."""
+    c = np.asarray(point, dtype=np.float64)
     best = stage1.best_index
     theta, rho = float(stage1.thetas[best]), float(stage1.rhos[best])
-    shape = remove_preference(stage1.reference, theta, rho, pivot.point)
-    return dataclasses.replace(stage1, centre=pivot.point, global_shape=shape)
+    shape = remove_preference(stage1.reference, theta, rho, c)
+    return dataclasses.replace(stage1, centre=c, global_shape=shape)
 
 
 __all__ = ["LEVEL", "MAX_OFFSET", "MIN_DEMOS", "MIN_WEIGHT", "Pivot", "pivoted", "read_pivot"]
