@@ -113,11 +113,11 @@ def main() -> None:
     parser.add_argument("--refine-both", action="store_true", help="rows without and with it")
     parser.add_argument("--oracle", action="store_true", help="add the oracle similarity's row")
     parser.add_argument("--tasks", default=",".join(TASKS))
-    parser.add_argument("--centred-reach", type=float, default=guide_fit._CENTRED_REACH)
+    parser.add_argument("--centred-reach", type=float, default=guide_fit.CENTRED_REACH)
     parser.add_argument("--centred-slack", type=float, default=guide_fit._CENTRED_SLACK)
     parser.add_argument("--centred-bulge", type=float, default=guide_fit._CENTRED_BULGE)
     args = parser.parse_args()
-    guide_fit._CENTRED_REACH = args.centred_reach
+    guide_fit.CENTRED_REACH = args.centred_reach
     guide_fit._CENTRED_SLACK = args.centred_slack
     guide_fit._CENTRED_BULGE = args.centred_bulge
     print(

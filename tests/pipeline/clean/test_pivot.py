@@ -131,7 +131,7 @@ def test_hidden_preferences_on_a_d_shape_turn_about_the_read_pivot(
     where the operators turn the loop (the second generator turns it about its box centre in its
     own frame). About it the wobbly operators came out 1.40 x their raw error on average; about
     the pivot the demos' fits say, 0.62."""
-    monkeypatch.setattr(best_loop, "_PLACED_REACH", -1.0)
+    monkeypatch.setattr(best_loop, "CENTRED_REACH", -1.0)
     loop = family_loop("d_shape", np.random.default_rng([1, 7]))
     with_pivot, notes = _cleaned("wiping", 1, loop)
     assert _pivot_noted(notes)
