@@ -43,10 +43,10 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    span with that drift removed, from every start, and once more from that fit (on the path
    smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops), and refined over
    every raw sample of the span with robust weights (:func:`refine_fit`); that fit's θ/ρ are
-   the demo's estimate. A lopsided loop is fitted by consensus (:func:`fit_guide`). Until
-   2026-12-04 the span was fitted as it drifted and the drift read against that fit: a drifting
-   loop's centred fit turned θ by 5-9° and the drift stayed in its basin (docs/quality.md).
-7. **Cycles.** The phase along the guide is tracked sample by sample
+   the demo's estimate. A lopsided loop is fitted by consensus (:func:`fit_guide`).
+7. **Cycles.** A span of under 0.95 loops is first continued while the hand goes on around the
+   loop off the fit (:func:`~bt_pipeline.clean.partial_span.continued`: a drifting single loop),
+   after θ/ρ are read. The phase along the guide is tracked sample by sample
    (:func:`track_phase`), and cycles = |phase travelled| / one loop.
 8. **Raw ends.** In a span of 1.5 loops or more, or a single loop whose middle follows the
    guide within 1 mm (a steady hand), each raw end is cut where the samples cut lie mostly off
@@ -81,6 +81,7 @@ from bt_pipeline.clean.guide_track import (
     travel,
     trim_raw_ends,
 )
+from bt_pipeline.clean.partial_span import continued
 from bt_pipeline.data.loop_shape import LoopShape, as_loop
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import DemoError
@@ -205,11 +206,14 @@ def segment_demo(
     fa, fb = (a, b)
     if wide > tight:
         fa, fb = _kept_span(clear, distance, along, wide, guide, at_start, at_end)
-    phase = track_phase(clear[a : b + 1], guide)
-    cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     # θ/ρ from the kept span alone (step 6), on a lightly smoothed path (σ = 0.03 s): the
     # analysis path's smoothing shrinks a loop (1 % at a 3 s period, 5-9 % on fast eights).
     fa, fb = min(a, fa), max(b, fb)
+    # Part of a loop grows on where the hand goes on around it (step 7); θ/ρ are still read
+    # over the span on the fit (read over a drifted piece, a loop's ρ came out 15 % off).
+    a, b = continued(clear, distance, along, guide, a, b)
+    phase = track_phase(clear[a : b + 1], guide)
+    cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     light = gaussian_filter1d(path, _FIT_SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
     lspan = light[first + fa : first + fb + 1]
     followed = (distance[fa : fb + 1] <= 2.0 * tight) & along[fa : fb + 1]
@@ -259,7 +263,7 @@ def segment_demo(
         drift_m=float(np.max(np.ptp(drift[a : b + 1], axis=0))),
         misfit_m=float(
             np.percentile(
-                nearest_distance(fit.guide(_TRACK_POINTS), fitted[a - fa : b - fa + 1]), 90
+                nearest_distance(fit.guide(_TRACK_POINTS), fitted[max(a, fa) - fa : b - fa + 1]), 90
             )
         ),
     )
