@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
+from scipy.spatial import KDTree
 
 from bt_pipeline.clean.guide_fit import CENTRED_REACH
 from bt_pipeline.clean.guide_track import track_phase
@@ -36,6 +37,9 @@ from bt_pipeline.exceptions import DemoError
 
 _ALONE = 1.1  # A path of at most this many loops is the loop alone (no approach to join it).
 _GUIDE_SHORT = 0.9  # A guide is replaced when less than this share of the best loop is on it.
+_STEADY_OFF = 0.02  # A best loop this share of its RMS radius off the guide replaces it when
+_STEADY = 3.0  # that gap is this many times its samples' scatter about it (90th percentile).
+_DENSE = 4096  # Points of the best loop its samples' scatter is read against.
 _WHOLE = 0.95  # A best demo's span under this many loops is also sought against its own loop.
 _OPEN = (0.5, _WHOLE)  # A best demo's span of this many loops is closed where its path returns,
 _RETURN = 0.05  # within this share of the loop's size (at least 3 mm), running the same way,
@@ -61,12 +65,15 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
     otherwise off its kept span (:func:`~bt_pipeline.clean.span_loop.span_loop`: a single loop
     with an approach closes at one point, where the approach may join it). A guide is replaced
     the same way when the best demo closes a loop of its own but less than 90 % of it was found
-    on the guide (a loop close to the guide, but not it: an arch of another return depth). None
-    otherwise, or when no loop of the best demo can be read. The loop keeps the place the best
+    on the guide (a loop close to the guide, but not it: an arch of another return depth), or
+    whose own loop lies off the guide more than 4 % of its RMS radius, or more than 2 % and
+    over 3 x its samples' scatter about that loop (:func:`_steadily_off`). None otherwise, or
+    when no loop of the best demo can be read. The loop keeps the place the best
     demo drew it at (:attr:`~bt_pipeline.data.loop_shape.LoopShape.placed`) when that lies
     near the plane's origin (docs/refinement.md, step 6).
     """
     own = task_loop.own.get(demo.label)
+    near = False  # Whether a loop drawn near the guide replaces it (:func:`_steadily_off`).
     notes = task_loop.notes
     if task_loop.source == "guide":
         if own is None:
@@ -84,8 +91,11 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
             # read 4.6 % off it that way, 0.3 % off its span).
             loop = _read_loop(task_loop, demo, segment, own)
             off = math.inf if loop is None else guide_distance(loop, demo)
-            if loop is None or off <= GUIDE_FOLLOWED:
+            if loop is None or (
+                off <= GUIDE_FOLLOWED and not _steadily_off(loop, demo, segment, off)
+            ):
                 return None
+            near = off <= GUIDE_FOLLOWED  # Drawn near the guide: fitted against as a guide is.
             notes += (
                 f"{demo.label}, the best demo, closes a loop of its own {100 * off:.1f} % of its "
                 f"size off the {demo.task} guide: its own loop is used instead",
@@ -116,7 +126,7 @@ def best_demo_loop(task_loop: TaskLoop, demo: Demo, segment: Segment) -> TaskLoo
     if not placed:
         shape = shape.transformed(translation=-shape.centre)
     label = f"{demo.task} loop of its best demo, {demo.label}"
-    framed = LoopShape(shape.coefficients, label, placed=placed)
+    framed = LoopShape(shape.coefficients, label, placed=placed, near_guide=placed and near)
     return dataclasses.replace(
         task_loop, loop=framed, source="learned", best=demo.label, notes=notes
     )
@@ -147,6 +157,29 @@ def _read_loop(
         read = span_loop(*demo.raw_samples(), _segment_on_own(demo, own, segment), LOOP_POINTS)
         return own if read is None else read
     return own
+
+
+def _steadily_off(loop: np.ndarray, demo: Demo, segment: Segment, off: float) -> bool:
+    """Whether the best demo draws a loop of its own steadily, not the guide loosely: its own
+    loop lies more than 2 % of its RMS radius off the guide, and that gap is more than 3 x
+    the 90th percentile of its span's samples' distances to its own loop.
+
+    On guide sets the best demo's loop lies at most 1.5 % off the guide (12 seeds per task,
+    θ/ρ hidden); on varied guides (an arch 2.5-3.5 % off) the steady expert-like demo lies
+    4-7 x its scatter off, and cleaning towards the guide took careful naive demos from 1.2 to
+    2.9 mm off their truth. The app's careful browser take that is the best of its folder lies
+    3.9 % off the guide at 2.6 x its scatter: a hand that traces the guide loosely, and the
+    guide is kept for it. The loop that replaces the guide is fitted against as the guide was
+    (``LoopShape.near_guide``): with the learned loop's tighter centred fits, lopsided demos
+    were read 11-15 % too big and held-out varied sets cleaned worse than with the guide
+    (docs/refinement.md, step 6)."""
+    if off <= _STEADY_OFF:
+        return False
+    dense = LoopShape.from_points(loop, HARMONICS).points(_DENSE)
+    x, t = demo.raw_samples()
+    scatter = float(np.percentile(KDTree(dense).query(x[span_times(t, segment)])[0], 90))
+    radius = float(np.sqrt(np.mean(np.abs(centred_complex(loop)) ** 2)))
+    return off * radius > _STEADY * scatter
 
 
 def _gapped(demo: Demo, segment: Segment) -> bool:

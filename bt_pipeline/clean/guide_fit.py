@@ -32,7 +32,9 @@ The fit is a trimmed iterative-closest-point similarity fit:
    sides). The best demo's loop kept where that demo drew it (``LoopShape.placed``,
    :mod:`~bt_pipeline.clean.best_loop`) is centred the same way, its origin being where the
    demos turn it, within 1.5 x instead of 3 x: a drifting single loop or a wobbly hand fits
-   1.5-3 x worse held there, a lopsided loop about as well. What each rule gained and cost on
+   1.5-3 x worse held there, a lopsided loop about as well. A best demo's loop that replaced a
+   guide it lies near (``LoopShape.near_guide``) takes the guide's 3 x: its demos follow it as
+   they follow a guide. What each rule gained and cost on
    three kinds of data: docs/quality.md.
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
@@ -328,7 +330,8 @@ def _consensus(
         off <= CENTRED_REACH * fit.size_m
         and centred_costs
         and min(centred_costs)
-        <= (_CENTRED_SLACK if fit.loop.is_guide else _PLACED_SLACK) * free_low
+        <= (_CENTRED_SLACK if fit.loop.is_guide or fit.loop.near_guide else _PLACED_SLACK)
+        * free_low
     ):
         # The loop is centred where the app draws the guide: only centred fits count.
         found = [f for f in found if f[2]]

@@ -40,6 +40,10 @@ class LoopShape:
     placed: bool = False
     """Whether the loop sits where a demo drew it, turned and scaled about the plane's origin
     (a best demo's loop, :mod:`bt_pipeline.clean.best_loop`), rather than on its box's centre."""
+    near_guide: bool = False
+    """Whether this placed loop replaced the task's guide because the best demo draws a loop
+    near it (within 4 %) steadily: the demos follow it as they follow a guide, and fits may be
+    held at the origin as against one (:mod:`bt_pipeline.clean.guide_fit`, step 5)."""
 
     def __post_init__(self) -> None:
         c = np.asarray(self.coefficients)
@@ -104,13 +108,18 @@ class LoopShape:
 
     def reversed(self) -> LoopShape:
         """The same loop travelled the other way: x(−φ), in the same place."""
-        return LoopShape(self.coefficients[::-1].copy(), self.label, placed=self.placed)
+        return LoopShape(
+            self.coefficients[::-1].copy(),
+            self.label,
+            placed=self.placed,
+            near_guide=self.near_guide,
+        )
 
     def started_at(self, phase: float) -> LoopShape:
         """The same loop started at phase `phase` [rad]: x(φ + phase), in the same place."""
         k = np.arange(-self.harmonics, self.harmonics + 1)
         shifted = self.coefficients * np.exp(1j * k * phase)
-        return LoopShape(shifted, self.label, placed=self.placed)
+        return LoopShape(shifted, self.label, placed=self.placed, near_guide=self.near_guide)
 
     @classmethod
     def from_points(cls, points: ArrayLike, harmonics: int, label: str = "learned") -> LoopShape:
