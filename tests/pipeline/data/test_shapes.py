@@ -132,7 +132,7 @@ def test_rotation_matrix_is_orthonormal() -> None:
 
 def test_a_placed_loop_stays_placed_travelled_the_other_way_or_started_elsewhere() -> None:
     """A loop kept where its demo drew it is the same points in the same place reversed or
-    started at another phase; turned, scaled or moved it is not (LoopShape.placed)."""
+    started at another phase; turned, scaled or moved it is not (LoopShape.placed, near_guide)."""
     from bt_pipeline.data.loop_shape import LoopShape
 
     c = np.zeros(5, dtype=complex)
@@ -141,5 +141,9 @@ def test_a_placed_loop_stays_placed_travelled_the_other_way_or_started_elsewhere
     assert loop.anchored and loop.reversed().placed and loop.started_at(1.0).placed
     assert not loop.transformed(10.0).placed and not LoopShape(c, "egg").anchored
     assert LoopShape.guide("wiping").anchored
+    # A loop that replaced a guide it lies near stays fitted against as that guide was.
+    near = LoopShape(c, "egg", placed=True, near_guide=True)
+    assert near.reversed().near_guide and near.started_at(1.0).near_guide
+    assert not near.transformed(10.0).near_guide and not loop.near_guide
     ring = loop.points(64)
     assert chamfer_distance(loop.reversed().points(64), ring) < 1e-3
