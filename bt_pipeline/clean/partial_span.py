@@ -39,6 +39,7 @@ def continued(
     guide: FloatArray,
     a: int,
     b: int,
+    phase: FloatArray,
 ) -> tuple[int, int]:
     """The span a..b grown at each end while the hand goes on around the loop (module doc).
 
@@ -49,9 +50,10 @@ def continued(
         guide: The fitted loop, one loop, shape (P, 2) [m].
         a: First index of the span.
         b: Last index of the span.
+        phase: The span's phase track along the fitted loop (:func:`track_phase`), shape
+            (b - a + 1,), in loop points.
     """
     p = guide.shape[0]
-    phase = track_phase(clear[a : b + 1], guide)
     loops = float(phase[-1] - phase[0]) / p
     if b - a < 2 * _STEP or not 0.0 < abs(loops) < PARTIAL:
         return a, b

@@ -209,10 +209,12 @@ def segment_demo(
     # θ/ρ from the kept span alone (step 6), on a lightly smoothed path (σ = 0.03 s): the
     # analysis path's smoothing shrinks a loop (1 % at a 3 s period, 5-9 % on fast eights).
     fa, fb = min(a, fa), max(b, fb)
-    # Part of a loop grows on where the hand goes on around it (step 7); θ/ρ are still read
-    # over the span on the fit (read over a drifted piece, a loop's ρ came out 15 % off).
-    a, b = continued(clear, distance, along, guide, a, b)
+    # Part of a loop grows on around it (step 7); θ/ρ stay read over fa..fb (partial_span.py).
     phase = track_phase(clear[a : b + 1], guide)
+    ca, cb = continued(clear, distance, along, guide, a, b, phase)
+    if (ca, cb) != (a, b):
+        a, b = ca, cb
+        phase = track_phase(clear[a : b + 1], guide)
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     light = gaussian_filter1d(path, _FIT_SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
     lspan = light[first + fa : first + fb + 1]
