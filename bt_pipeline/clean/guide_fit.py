@@ -128,6 +128,7 @@ def fit_guide(
     initial: GuideFit | None = None,
     consensus: bool = True,
     hint: GuideFit | None = None,
+    drift_free: bool = False,
 ) -> GuideFit:
     """Fit the task's guide to a demo by a trimmed similarity ICP (module doc).
 
@@ -143,6 +144,8 @@ def fit_guide(
         initial: Start from this fit only (a refit of a similar demo).
         hint: Also start from this fit (the demo's own loop aligned to the task's loop).
         consensus: Resolve a lopsided loop by consensus over half-loop refits (step 4).
+        drift_free: The points are several loops with their drift removed: an offset left is
+            where the demonstrator drew the loop, so a placed loop is held centred as a guide is.
 
     Raises:
         DemoError: Non-finite positions or no motion.
@@ -211,7 +214,9 @@ def fit_guide(
         best = GuideFit(th, r, t, residual, r * float(np.max(np.ptp(guide, axis=0))), loop)
     assert best is not None  # starts is never empty
     if consensus and (rho is None or theta_deg is None):
-        best = _consensus(points, guide, tree, best, theta_deg, rho, allowed, max_iterations)
+        best = _consensus(
+            points, guide, tree, best, theta_deg, rho, allowed, max_iterations, drift_free
+        )
     return best
 
 
@@ -231,6 +236,7 @@ def _consensus(
     rho_fixed: float | None,
     allowed: PreferenceRange,
     max_iterations: int,
+    drift_free: bool = False,
 ) -> GuideFit:
     """The fit that one half of the loop follows closely, when the other half is misshapen.
 
@@ -324,13 +330,14 @@ def _consensus(
         (_trimmed_cost(points, tree, f, int(min(keep * math.sqrt(f.rho / ref), 0.8 * n))), f, c)
         for f, c in fits
     ]
+    loop = fit.loop
     centred_costs = [c for c, _, centred in found if centred]
     free_low = min(c for c, _, centred in found if not centred)
     if (
         off <= CENTRED_REACH * fit.size_m
         and centred_costs
         and min(centred_costs)
-        <= (_CENTRED_SLACK if fit.loop.is_guide or fit.loop.near_guide else _PLACED_SLACK)
+        <= (_CENTRED_SLACK if loop.is_guide or loop.near_guide or drift_free else _PLACED_SLACK)
         * free_low
     ):
         # The loop is centred where the app draws the guide: only centred fits count.

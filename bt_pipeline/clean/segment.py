@@ -222,13 +222,12 @@ def segment_demo(
     degree = min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1)
     # Drift first (what does not repeat loop to loop), then fits from every start and from that.
     span_phase = track_phase(lspan - drift[fa : fb + 1], guide) / guide.shape[0]
-    span_drift = periodic_drift(lspan, span_phase, periodic_degree(cycles))
-    fit = fit_guide(
-        lspan - span_drift, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho, hint=hint
-    )
-    fit = fit_guide(
-        lspan - span_drift, loop, name, allowed=allowed, theta_deg=theta_deg, rho=rho, initial=fit
-    )
+    drifts = periodic_degree(cycles)
+    span_drift = periodic_drift(lspan, span_phase, drifts)
+    # With the drift removed (several loops), an offset left is where the loop was drawn.
+    known = {"theta_deg": theta_deg, "rho": rho, "drift_free": drifts > 0}
+    fit = fit_guide(lspan - span_drift, loop, name, allowed=allowed, hint=hint, **known)
+    fit = fit_guide(lspan - span_drift, loop, name, allowed=allowed, initial=fit, **known)
     # Refined over the raw samples in the span (not the clock's, which bridge gaps in the
     # samples with chords that cut inside the loop), their drift read off the span's.
     span_clock = clock[first + fa : first + fb + 1]
