@@ -31,11 +31,13 @@ The fit is a trimmed iterative-closest-point similarity fit:
    wins from 3 % below the median mode (they hold no shifted compromise between the two
    sides). The best demo's loop kept where that demo drew it (``LoopShape.placed``,
    :mod:`~bt_pipeline.clean.best_loop`) is centred the same way, its origin being where the
-   demos turn it, within 1.5 x instead of 3 x: a drifting single loop or a wobbly hand fits
-   1.5-3 x worse held there, a lopsided loop about as well. A best demo's loop that replaced a
-   guide it lies near (``LoopShape.near_guide``) takes the guide's 3 x: its demos follow it as
-   they follow a guide. What each rule gained and cost on
-   three kinds of data: docs/quality.md.
+   demos turn it, within 1.5 x instead of 3 x on fewer than 1.5 loops: a drifting single loop
+   fits 1.5-3 x worse held there, and under 1.5 loops its drift is not removed. Over several
+   loops, their drift removed first (``drift_free``), an offset left is where the hand drew
+   the loop, and the 3 x holds (a lopsided loop fits 1.5-2.6 x worse held at the origin, and
+   fitted free of it was read 10-17 % too big). A best demo's loop that replaced a guide it
+   lies near (``LoopShape.near_guide``) takes the guide's 3 x: its demos follow it as they
+   follow a guide. What each rule gained and cost on three kinds of data: docs/quality.md.
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
 """
@@ -66,7 +68,7 @@ _CONSENSUS_FLOOR_M = 0.0005  # or within this of it [m] (a clean loop's costs ar
 _BULGE = 0.06  # The smallest mode wins when its ρ is this share below the median mode's.
 CENTRED_REACH = 0.15  # Centred fits alone count when the fit's centre is this share of the
 _CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this factor as well;
-_PLACED_SLACK = 1.5  # Against a best demo's placed loop, this factor (module doc, step 5).
+_PLACED_SLACK = 1.5  # Against a placed loop, under 1.5 loops, this factor (module doc, step 5).
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
 _SHIFT_STARTS = 0.25  # With θ and ρ known, translations this share of the size off start too.
 _CENTRED_OFF = 0.05  # A close fit this share of its size off the origin is checked (see reach).
