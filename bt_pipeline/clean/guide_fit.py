@@ -31,13 +31,15 @@ The fit is a trimmed iterative-closest-point similarity fit:
    wins from 3 % below the median mode (they hold no shifted compromise between the two
    sides). The best demo's loop kept where that demo drew it (``LoopShape.placed``,
    :mod:`~bt_pipeline.clean.best_loop`) is centred the same way, its origin being where the
-   demos turn it, within 1.5 x instead of 3 x on fewer than 1.5 loops: a drifting single loop
-   fits 1.5-3 x worse held there, and under 1.5 loops its drift is not removed. Over several
-   loops, their drift removed first (``drift_free``), an offset left is where the hand drew
-   the loop, and the 3 x holds (a lopsided loop fits 1.5-2.6 x worse held at the origin, and
-   fitted free of it was read 10-17 % too big). A best demo's loop that replaced a guide it
-   lies near (``LoopShape.near_guide``) takes the guide's 3 x: its demos follow it as they
-   follow a guide. What each rule gained and cost on three kinds of data: docs/quality.md.
+   demos turn it, within 1.5 x instead of 3 x: a drifting single loop or a wobbly hand fits
+   1.5-3 x worse held there. Over several loops, their drift removed first, a departure from
+   the loop that repeats every loop (its 90th percentile over 2 x the median distance of the
+   path to itself one loop on, ``repeat_m``) is a shape the hand meant, such as a bulged side,
+   and the 3 x holds (a lopsided loop fits 1.5-2.6 x worse held at the origin, and fitted free
+   of it was read 10-17 % too big); a wobble does not repeat. A best demo's loop that replaced
+   a guide it lies near (``LoopShape.near_guide``) takes the guide's 3 x: its demos follow it
+   as they follow a guide. What each rule gained and cost on three kinds of data:
+   docs/quality.md.
 
 Every loop is bounded (``max_iterations`` per start); a non-finite demo raises DemoError.
 """
@@ -68,10 +70,11 @@ _CONSENSUS_FLOOR_M = 0.0005  # or within this of it [m] (a clean loop's costs ar
 _BULGE = 0.06  # The smallest mode wins when its ρ is this share below the median mode's.
 CENTRED_REACH = 0.15  # Centred fits alone count when the fit's centre is this share of the
 _CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this factor as well;
-_PLACED_SLACK = 1.5  # Against a placed loop, under 1.5 loops, this factor (module doc, step 5).
+_PLACED_SLACK = 1.5  # Against a best demo's placed loop, this factor (module doc, step 5).
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
 _SHIFT_STARTS = 0.25  # With θ and ρ known, translations this share of the size off start too.
 _CENTRED_OFF = 0.05  # A close fit this share of its size off the origin is checked (see reach).
+_REPEATS = 2.0  # A departure this many times the path's distance to itself a loop on repeats.
 _THIN = 0.2  # A loop thinner than this (principal spreads' ratio) keeps its plain fit.
 
 
@@ -130,7 +133,7 @@ def fit_guide(
     initial: GuideFit | None = None,
     consensus: bool = True,
     hint: GuideFit | None = None,
-    drift_free: bool = False,
+    repeat_m: float | None = None,
 ) -> GuideFit:
     """Fit the task's guide to a demo by a trimmed similarity ICP (module doc).
 
@@ -146,8 +149,8 @@ def fit_guide(
         initial: Start from this fit only (a refit of a similar demo).
         hint: Also start from this fit (the demo's own loop aligned to the task's loop).
         consensus: Resolve a lopsided loop by consensus over half-loop refits (step 4).
-        drift_free: The points are several loops with their drift removed: an offset left is
-            where the demonstrator drew the loop, so a placed loop is held centred as a guide is.
+        repeat_m: For several loops with their drift removed, the median distance of the path
+            to itself one loop on [m] (step 5); None otherwise.
 
     Raises:
         DemoError: Non-finite positions or no motion.
@@ -217,15 +220,20 @@ def fit_guide(
     assert best is not None  # starts is never empty
     if consensus and (rho is None or theta_deg is None):
         best = _consensus(
-            points, guide, tree, best, theta_deg, rho, allowed, max_iterations, drift_free
+            points, guide, tree, best, theta_deg, rho, allowed, max_iterations, repeat_m
         )
     return best
 
 
+def _distances(points: FloatArray, tree: KDTree, fit: GuideFit) -> FloatArray:
+    """Each point's distance to the fitted guide [m]."""
+    local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2)) / fit.rho
+    return np.asarray(tree.query(local)[0]) * fit.rho
+
+
 def _trimmed_cost(points: FloatArray, tree: KDTree, fit: GuideFit, keep: int) -> float:
     """Mean of the `keep` smallest distances of the points to the fitted guide [m]."""
-    local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2)) / fit.rho
-    dist = np.asarray(tree.query(local)[0]) * fit.rho
+    dist = _distances(points, tree, fit)
     return float(np.mean(np.partition(dist, keep - 1)[:keep]))
 
 
@@ -238,7 +246,7 @@ def _consensus(
     rho_fixed: float | None,
     allowed: PreferenceRange,
     max_iterations: int,
-    drift_free: bool = False,
+    repeat_m: float | None = None,
 ) -> GuideFit:
     """The fit that one half of the loop follows closely, when the other half is misshapen.
 
@@ -333,13 +341,17 @@ def _consensus(
         for f, c in fits
     ]
     loop = fit.loop
+    repeats = (
+        repeat_m is not None
+        and float(np.percentile(_distances(points, tree, fit), 90)) > _REPEATS * repeat_m
+    )
     centred_costs = [c for c, _, centred in found if centred]
     free_low = min(c for c, _, centred in found if not centred)
     if (
         off <= CENTRED_REACH * fit.size_m
         and centred_costs
         and min(centred_costs)
-        <= (_CENTRED_SLACK if loop.is_guide or loop.near_guide or drift_free else _PLACED_SLACK)
+        <= (_CENTRED_SLACK if loop.is_guide or loop.near_guide or repeats else _PLACED_SLACK)
         * free_low
     ):
         # The loop is centred where the app draws the guide: only centred fits count.

@@ -308,6 +308,23 @@ def runs_of(flags: np.ndarray, min_length: int) -> list[tuple[int, int]]:
     return [(int(s), int(e)) for s, e in zip(starts, ends, strict=True) if e - s + 1 >= min_length]
 
 
+def repeat_distance(path: FloatArray, phase: FloatArray) -> float:
+    """How far the path lies from itself one loop later: the median distance between each point
+    and the point one loop on [m] (inf without a whole loop).
+
+    Args:
+        path: The span, drift removed, shape (T, 2), in [m].
+        phase: Its tracked phase in loops, shape (T,) (either sign).
+    """
+    ahead = np.asarray(phase, dtype=np.float64)
+    ahead = np.maximum.accumulate(ahead if ahead[-1] >= ahead[0] else -ahead)
+    looped = ahead + 1.0 <= ahead[-1]
+    if not looped.any():
+        return float("inf")
+    later = np.stack([np.interp(ahead[looped] + 1.0, ahead, path[:, d]) for d in range(2)], 1)
+    return float(np.median(np.linalg.norm(later - path[looped], axis=1)))
+
+
 __all__ = [
     "along_guide",
     "drift_along",
@@ -315,6 +332,7 @@ __all__ = [
     "nearest_index",
     "periodic_degree",
     "periodic_drift",
+    "repeat_distance",
     "runs_of",
     "tangential",
     "track_phase",
