@@ -34,7 +34,7 @@ The fit is a trimmed iterative-closest-point similarity fit:
    demos turn it, within 1.5 x instead of 3 x: a drifting single loop or a wobbly hand fits
    1.5-3 x worse held there. Over several loops, their drift removed first, a departure from
    the loop that repeats every loop (its 90th percentile over 2 x the median distance of the
-   path to itself one loop on, ``repeat_m``) is a shape the hand meant, such as a bulged side,
+   path to itself one loop on, ``repeats``) is a shape the hand meant, such as a bulged side,
    and the 3 x holds (a lopsided loop fits 1.5-2.6 x worse held at the origin, and fitted free
    of it was read 10-17 % too big); a wobble does not repeat. A best demo's loop that replaced
    a guide it lies near (``LoopShape.near_guide``) takes the guide's 3 x: its demos follow it
@@ -74,7 +74,6 @@ _PLACED_SLACK = 1.5  # Against a best demo's placed loop, this factor (module do
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
 _SHIFT_STARTS = 0.25  # With θ and ρ known, translations this share of the size off start too.
 _CENTRED_OFF = 0.05  # A close fit this share of its size off the origin is checked (see reach).
-_REPEATS = 2.0  # A departure this many times the path's distance to itself a loop on repeats.
 _THIN = 0.2  # A loop thinner than this (principal spreads' ratio) keeps its plain fit.
 
 
@@ -133,7 +132,7 @@ def fit_guide(
     initial: GuideFit | None = None,
     consensus: bool = True,
     hint: GuideFit | None = None,
-    repeat_m: float | None = None,
+    repeats: bool = False,
 ) -> GuideFit:
     """Fit the task's guide to a demo by a trimmed similarity ICP (module doc).
 
@@ -149,8 +148,8 @@ def fit_guide(
         initial: Start from this fit only (a refit of a similar demo).
         hint: Also start from this fit (the demo's own loop aligned to the task's loop).
         consensus: Resolve a lopsided loop by consensus over half-loop refits (step 4).
-        repeat_m: For several loops with their drift removed, the median distance of the path
-            to itself one loop on [m] (step 5); None otherwise.
+        repeats: The points are several loops, drift removed, whose departure from the loop
+            repeats every loop (:func:`~bt_pipeline.clean.guide_track.repeats_per_loop`).
 
     Raises:
         DemoError: Non-finite positions or no motion.
@@ -220,20 +219,15 @@ def fit_guide(
     assert best is not None  # starts is never empty
     if consensus and (rho is None or theta_deg is None):
         best = _consensus(
-            points, guide, tree, best, theta_deg, rho, allowed, max_iterations, repeat_m
+            points, guide, tree, best, theta_deg, rho, allowed, max_iterations, repeats
         )
     return best
 
 
-def _distances(points: FloatArray, tree: KDTree, fit: GuideFit) -> FloatArray:
-    """Each point's distance to the fitted guide [m]."""
-    local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2)) / fit.rho
-    return np.asarray(tree.query(local)[0]) * fit.rho
-
-
 def _trimmed_cost(points: FloatArray, tree: KDTree, fit: GuideFit, keep: int) -> float:
     """Mean of the `keep` smallest distances of the points to the fitted guide [m]."""
-    dist = _distances(points, tree, fit)
+    local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2)) / fit.rho
+    dist = np.asarray(tree.query(local)[0]) * fit.rho
     return float(np.mean(np.partition(dist, keep - 1)[:keep]))
 
 
@@ -246,7 +240,7 @@ def _consensus(
     rho_fixed: float | None,
     allowed: PreferenceRange,
     max_iterations: int,
-    repeat_m: float | None = None,
+    repeats: bool = False,
 ) -> GuideFit:
     """The fit that one half of the loop follows closely, when the other half is misshapen.
 
@@ -341,10 +335,6 @@ def _consensus(
         for f, c in fits
     ]
     loop = fit.loop
-    repeats = (
-        repeat_m is not None
-        and float(np.percentile(_distances(points, tree, fit), 90)) > _REPEATS * repeat_m
-    )
     centred_costs = [c for c, _, centred in found if centred]
     free_low = min(c for c, _, centred in found if not centred)
     if (

@@ -40,6 +40,8 @@ _EDGE_MEDIANS = 4.0  # A raw end sample farther off the guide than this many med
 _EDGE_P95S = 1.5  # span's middle distances, this many 95th percentiles
 _EDGE_MIN_M = 0.0005  # and this [m] is off (trim_raw_ends),
 _EDGE_MAX_SHARE = 0.25  # at most this share of the span at each end,
+_REPEATS = 2.0  # A departure from the fit this many times the path's distance to itself a loop
+# on repeats per loop (repeats_per_loop).
 _EDGE_CLOSE_M = 0.001  # and in a single loop only if its middle's 95th percentile is this [m].
 
 
@@ -308,21 +310,24 @@ def runs_of(flags: np.ndarray, min_length: int) -> list[tuple[int, int]]:
     return [(int(s), int(e)) for s, e in zip(starts, ends, strict=True) if e - s + 1 >= min_length]
 
 
-def repeat_distance(path: FloatArray, phase: FloatArray) -> float:
-    """How far the path lies from itself one loop later: the median distance between each point
-    and the point one loop on [m] (inf without a whole loop).
+def repeats_per_loop(path: FloatArray, phase: FloatArray, distance: FloatArray) -> bool:
+    """Whether a span's departure from its fit repeats every loop, as a bulged side does and a
+    sway does not: the 90th percentile of its `distance` [m] to the fit is over
+    :data:`_REPEATS` x the path's median distance to itself one loop on (none without a loop).
 
     Args:
         path: The span, drift removed, shape (T, 2), in [m].
         phase: Its tracked phase in loops, shape (T,) (either sign).
+        distance: Each point's distance to the fit, shape (T,), in [m].
     """
     ahead = np.asarray(phase, dtype=np.float64)
     ahead = np.maximum.accumulate(ahead if ahead[-1] >= ahead[0] else -ahead)
     looped = ahead + 1.0 <= ahead[-1]
     if not looped.any():
-        return float("inf")
+        return False
     later = np.stack([np.interp(ahead[looped] + 1.0, ahead, path[:, d]) for d in range(2)], 1)
-    return float(np.median(np.linalg.norm(later - path[looped], axis=1)))
+    itself = float(np.median(np.linalg.norm(later - path[looped], axis=1)))
+    return float(np.percentile(distance, 90)) > _REPEATS * itself
 
 
 __all__ = [
@@ -332,7 +337,7 @@ __all__ = [
     "nearest_index",
     "periodic_degree",
     "periodic_drift",
-    "repeat_distance",
+    "repeats_per_loop",
     "runs_of",
     "tangential",
     "track_phase",

@@ -75,7 +75,7 @@ from bt_pipeline.clean.guide_track import (
     nearest_index,
     periodic_degree,
     periodic_drift,
-    repeat_distance,
+    repeats_per_loop,
     runs_of,
     tangential,
     track_phase,
@@ -225,11 +225,11 @@ def segment_demo(
     span_phase = track_phase(lspan - drift[fa : fb + 1], guide) / guide.shape[0]
     drifts = periodic_degree(cycles)
     span_drift = periodic_drift(lspan, span_phase, drifts)
-    # With the drift removed (several loops), how far the path lies from itself a loop on.
-    rep = repeat_distance(lspan - span_drift, span_phase) if drifts > 0 else None
+    # With the drift removed (several loops): does the departure from the loop repeat per loop?
+    rep = drifts > 0 and repeats_per_loop(lspan - span_drift, span_phase, distance[fa : fb + 1])
     known = {"allowed": allowed, "theta_deg": theta_deg, "rho": rho}
-    fit = fit_guide(lspan - span_drift, loop, name, hint=hint, repeat_m=rep, **known)
-    fit = fit_guide(lspan - span_drift, loop, name, initial=fit, repeat_m=rep, **known)
+    fit = fit_guide(lspan - span_drift, loop, name, hint=hint, repeats=rep, **known)
+    fit = fit_guide(lspan - span_drift, loop, name, initial=fit, repeats=rep, **known)
     # Refined over the raw samples in the span (not the clock's, which bridge gaps in the
     # samples with chords that cut inside the loop), their drift read off the span's.
     span_clock = clock[first + fa : first + fb + 1]
