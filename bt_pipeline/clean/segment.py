@@ -214,20 +214,21 @@ def segment_demo(
     phase = track_phase(clear[a : b + 1], guide)
     ca, cb = continued(clear, distance, along, guide, a, b, phase)
     if (ca, cb) != (a, b):
-        a, b = ca, cb
-        phase = track_phase(clear[a : b + 1], guide)
+        a, b, phase = ca, cb, track_phase(clear[ca : cb + 1], guide)
     cycles = abs(float(phase[-1] - phase[0])) / guide.shape[0]
     light = gaussian_filter1d(path, _FIT_SMOOTH_S * _CLOCK_HZ, axis=0, mode="nearest")
     lspan = light[first + fa : first + fb + 1]
     followed = (distance[fa : fb + 1] <= 2.0 * tight) & along[fa : fb + 1]
     degree = min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1)
-    # Drift first (what does not repeat loop to loop), then fits from every start and from that.
+    # Drift first (what does not repeat loop to loop), then whether the departure from a plain fit
+    # repeats per loop (guide_fit, step 5), then fits from every start and from that.
     span_phase = track_phase(lspan - drift[fa : fb + 1], guide) / guide.shape[0]
     drifts = periodic_degree(cycles)
     span_drift = periodic_drift(lspan, span_phase, drifts)
-    # With the drift removed (several loops): does the departure from the loop repeat per loop?
-    rep = drifts > 0 and repeats_per_loop(lspan - span_drift, span_phase, distance[fa : fb + 1])
     known = {"allowed": allowed, "theta_deg": theta_deg, "rho": rho}
+    fit = fit_guide(lspan - span_drift, loop, name, hint=hint, consensus=False, **known)
+    off = nearest_distance(fit.guide(_TRACK_POINTS), lspan - span_drift)
+    rep = drifts > 0 and repeats_per_loop(lspan - span_drift, span_phase, off)
     fit = fit_guide(lspan - span_drift, loop, name, hint=hint, repeats=rep, **known)
     fit = fit_guide(lspan - span_drift, loop, name, initial=fit, repeats=rep, **known)
     # Refined over the raw samples in the span (not the clock's, which bridge gaps in the
@@ -244,7 +245,6 @@ def segment_demo(
     if first + b == clock.size - 1:
         i1 = t.size - 1  # The span runs to the recording's end (the clock stops short of it).
     guide = fit.guide(_TRACK_POINTS)
-    j0, j1 = i0, i1
     # The end trim reads distances of a millimetre or less: to a dense guide (512 vertices are
     # 2-3 mm apart), with the drift against the final fit (docs/refinement.md, step 8).
     end_drift = drift_along(lspan, guide, followed, degree)
