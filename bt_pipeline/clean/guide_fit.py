@@ -217,11 +217,30 @@ def fit_guide(
         _, th, r, t, residual = fits[0]
         best = GuideFit(th, r, t, residual, r * float(np.max(np.ptp(guide, axis=0))), loop)
     assert best is not None  # starts is never empty
-    if consensus and (rho is None or theta_deg is None):
-        best = _consensus(
-            points, guide, tree, best, theta_deg, rho, allowed, max_iterations, repeats
-        )
+    if consensus:  # Resamples the points and rebuilds the tree: cheap next to its fits.
+        fixed = {"allowed": allowed, "theta_deg": theta_deg, "rho": rho}
+        best = consensus_fit(x, best, repeats=repeats, max_iterations=max_iterations, **fixed)
     return best
+
+
+def consensus_fit(
+    positions: ArrayLike,
+    fit: GuideFit,
+    *,
+    allowed: PreferenceRange | None = None,
+    theta_deg: float | None = None,
+    rho: float | None = None,
+    repeats: bool = False,
+    max_iterations: int = 25,
+) -> GuideFit:
+    """What :func:`fit_guide` returns from its plain fit `fit` (``consensus=False``) of the
+    same `positions`: the consensus of step 4 when θ or ρ is free, without fitting again."""
+    if theta_deg is not None and rho is not None:
+        return fit
+    points = arc_length_resample(np.asarray(positions, dtype=np.float64), _FIT_POINTS)
+    guide = fit.loop.points(_GUIDE_POINTS)
+    free = (theta_deg, rho, allowed or PreferenceRange(), max_iterations, repeats)
+    return _consensus(points, guide, KDTree(guide), fit, *free)
 
 
 def _trimmed_cost(points: FloatArray, tree: KDTree, fit: GuideFit, keep: int) -> float:

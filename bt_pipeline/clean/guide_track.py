@@ -40,9 +40,9 @@ _EDGE_MEDIANS = 4.0  # A raw end sample farther off the guide than this many med
 _EDGE_P95S = 1.5  # span's middle distances, this many 95th percentiles
 _EDGE_MIN_M = 0.0005  # and this [m] is off (trim_raw_ends),
 _EDGE_MAX_SHARE = 0.25  # at most this share of the span at each end,
+_EDGE_CLOSE_M = 0.001  # and in a single loop only if its middle's 95th percentile is this [m].
 _REPEATS = 2.0  # A departure from the fit this many times the path's distance to itself a loop
 # on repeats per loop (repeats_per_loop).
-_EDGE_CLOSE_M = 0.001  # and in a single loop only if its middle's 95th percentile is this [m].
 
 
 def track_phase(

@@ -66,7 +66,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.ndimage import gaussian_filter1d
 
-from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, fit_guide
+from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, consensus_fit, fit_guide
 from bt_pipeline.clean.guide_refine import refine_fit
 from bt_pipeline.clean.guide_track import (
     along_guide,
@@ -220,8 +220,8 @@ def segment_demo(
     lspan = light[first + fa : first + fb + 1]
     followed = (distance[fa : fb + 1] <= 2.0 * tight) & along[fa : fb + 1]
     degree = min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1)
-    # Drift first (what does not repeat loop to loop), then whether the departure from a plain fit
-    # repeats per loop (guide_fit, step 5), then fits from every start and from that.
+    # Drift first (what does not repeat loop to loop), a plain fit from every start, whether the
+    # departure from it repeats per loop (guide_fit, step 5), its consensus, a refit from that.
     span_phase = track_phase(lspan - drift[fa : fb + 1], guide) / guide.shape[0]
     drifts = periodic_degree(cycles)
     span_drift = periodic_drift(lspan, span_phase, drifts)
@@ -229,7 +229,7 @@ def segment_demo(
     fit = fit_guide(lspan - span_drift, loop, name, hint=hint, consensus=False, **known)
     off = nearest_distance(fit.guide(_TRACK_POINTS), lspan - span_drift)
     rep = drifts > 0 and repeats_per_loop(lspan - span_drift, span_phase, off)
-    fit = fit_guide(lspan - span_drift, loop, name, hint=hint, repeats=rep, **known)
+    fit = consensus_fit(lspan - span_drift, fit, repeats=rep, **known)
     fit = fit_guide(lspan - span_drift, loop, name, initial=fit, repeats=rep, **known)
     # Refined over the raw samples in the span (not the clock's, which bridge gaps in the
     # samples with chords that cut inside the loop), their drift read off the span's.
