@@ -5,7 +5,7 @@ of 5, both with θ/ρ hidden (:func:`bt_pipeline.clean.segment.segment_demo`, wh
 to the demo's kept span), and counts the fits within 5° and 0.05 of the demonstrator's true θ/ρ,
 apart for the human-style lopsided demos and the others, and for the steady and the wobbly
 operators. Truth comes from the generators, not from the cleaner. The flags set the consensus
-constants of :mod:`bt_pipeline.clean.guide_fit`, so the rules compared in docs/quality.md
+constants of :mod:`bt_pipeline.clean.guide_consensus`, so the rules compared in docs/quality.md
 ("Centred fits alone") can be run again:
 
     python benchmarks/quality/bench_guide_fits.py --seeds 12
@@ -36,7 +36,7 @@ from typing import cast
 
 import numpy as np
 
-from bt_pipeline.clean import guide_fit, segment
+from bt_pipeline.clean import guide_consensus, span_fit
 from bt_pipeline.clean.guide_fit import GuideFit
 from bt_pipeline.clean.segment import segment_demo
 from bt_pipeline.data.demo import demos_from_recording
@@ -113,13 +113,13 @@ def main() -> None:
     parser.add_argument("--refine-both", action="store_true", help="rows without and with it")
     parser.add_argument("--oracle", action="store_true", help="add the oracle similarity's row")
     parser.add_argument("--tasks", default=",".join(TASKS))
-    parser.add_argument("--centred-reach", type=float, default=guide_fit.CENTRED_REACH)
-    parser.add_argument("--centred-slack", type=float, default=guide_fit._CENTRED_SLACK)
-    parser.add_argument("--centred-bulge", type=float, default=guide_fit._CENTRED_BULGE)
+    parser.add_argument("--centred-reach", type=float, default=guide_consensus.CENTRED_REACH)
+    parser.add_argument("--centred-slack", type=float, default=guide_consensus._CENTRED_SLACK)
+    parser.add_argument("--centred-bulge", type=float, default=guide_consensus._CENTRED_BULGE)
     args = parser.parse_args()
-    guide_fit.CENTRED_REACH = args.centred_reach
-    guide_fit._CENTRED_SLACK = args.centred_slack
-    guide_fit._CENTRED_BULGE = args.centred_bulge
+    guide_consensus.CENTRED_REACH = args.centred_reach
+    guide_consensus._CENTRED_SLACK = args.centred_slack
+    guide_consensus._CENTRED_BULGE = args.centred_bulge
     print(
         f"centred reach {args.centred_reach}, slack {args.centred_slack}, "
         f"bulge {args.centred_bulge}; θ within 5° and ρ within 0.05, per-demo fits"
@@ -129,10 +129,10 @@ def main() -> None:
         "operators: wobbly | time |"
     )
     print("|---|---|---|---|---|---|---|")
-    refined = segment.refine_fit
+    refined = span_fit.refine_fit
     for task in args.tasks.split(","):
         for refine in (False, True) if args.refine_both else (True,):
-            segment.refine_fit = refined if refine else _unrefined  # type: ignore[assignment]
+            span_fit.refine_fit = refined if refine else _unrefined  # type: ignore[assignment]
             start = time.perf_counter()
             kinds = measure(cast(Task, task), args.seeds, args.first_seed)
             cells = " | ".join(_cell(np.array(v), args.refine_both) for v in kinds.values())
@@ -144,7 +144,7 @@ def main() -> None:
             kinds = measure(cast(Task, task), args.seeds, args.first_seed, oracle=True)
             cells = " | ".join(_cell(np.array(v), True) for v in kinds.values())
             print(f"| {task} | oracle similarity | {cells} | — |", flush=True)
-    segment.refine_fit = refined
+    span_fit.refine_fit = refined
 
 
 def _cell(errors: np.ndarray, medians: bool) -> str:

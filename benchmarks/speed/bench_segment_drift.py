@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 import bt_pipeline.clean.segment as segment
+import bt_pipeline.clean.span_fit as span_fit
 from bt_pipeline.data.demo import demos_from_recording
 from bt_pipeline.data.synth_human import make_human_set
 
@@ -27,7 +28,7 @@ def main() -> None:
     args = parser.parse_args()
     synth = make_human_set("wiping", 8, args.seed, hidden=True)
     samples = [d.raw_samples() for d in demos_from_recording(synth.recording)]
-    original = segment.periodic_drift
+    original = span_fit.periodic_drift
     inside = [0.0]
 
     def timed(path, phase, degree):
@@ -46,12 +47,12 @@ def main() -> None:
     totals, drifts, zeros = [], [], []
     for _ in range(args.repeats):
         inside[0] = 0.0
-        segment.periodic_drift = timed
+        span_fit.periodic_drift = timed
         totals.append(run())
         drifts.append(inside[0])
-        segment.periodic_drift = lambda path, phase, degree: np.zeros_like(path)
+        span_fit.periodic_drift = lambda path, phase, degree: np.zeros_like(path)
         zeros.append(run())
-    segment.periodic_drift = original
+    span_fit.periodic_drift = original
     total, drift, zero = (float(np.median(v)) for v in (totals, drifts, zeros))
     print(
         "| demos | segment total [s] | inside periodic_drift [s] | per demo [ms] "

@@ -19,7 +19,7 @@ samples, not the analysis clock's: the clock bridges a gap in the samples with a
 inside the loop, and the path the ICP fits is lightly smoothed (σ = 0.03 s), which shrinks it.
 
 A lopsided loop's bulge is within that scale too, so an untrimmed fit would be pulled back to the
-compromise that the fit's consensus step (:func:`bt_pipeline.clean.guide_fit._consensus`)
+compromise that the fit's consensus step (:func:`bt_pipeline.clean.guide_consensus._consensus`)
 avoided: a refinement that moves θ by more than 3° or ρ by more than 3 % has left the fit's basin
 and is not taken. Measured on held-apart seeds (8-23; ``benchmarks/quality/bench_guide_fits.py
 --first-seed 8 --seeds 16 --refine-both``), median |Δρ| without → with (wiping, weaving,

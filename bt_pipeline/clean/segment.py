@@ -36,14 +36,9 @@ only (docs/refinement.md, "Demos as people record them"). For one demo, with raw
    part before (after) the span is kept when it travels on around the loop (80 % of it along
    the guide, in the span's direction, at ≥ 30 % of its phase rate): a bulged side or a drifted
    end of a loop drawn from the first sample to the last.
-6. **Preference.** The span's drift is read first, as what does not repeat from loop to loop
-   (:func:`periodic_drift`: a Fourier loop in the phase plus a slow polynomial, degree one per
-   loop beyond the first, at most 2, none under 1.5 loops; zero at the span's start when it
-   keeps its direction, zero on average when it turns back). The guide is then fitted to the
-   span with that drift removed, from every start, and once more from that fit (on the path
-   smoothed with σ = 0.03 s only: the analysis path's smoothing shrinks loops), and refined over
-   every raw sample of the span with robust weights (:func:`refine_fit`); that fit's θ/ρ are
-   the demo's estimate. A lopsided loop is fitted by consensus (:func:`fit_guide`).
+6. **Preference.** θ/ρ are read over the span on a path smoothed with σ = 0.03 s only (the
+   analysis path's smoothing shrinks loops): its drift removed first, the loop fitted (a
+   lopsided loop by consensus), refined over every raw sample (:mod:`~bt_pipeline.clean.span_fit`).
 7. **Cycles.** A span of under 0.95 loops is first continued while the hand goes on around the
    loop off the fit (:func:`~bt_pipeline.clean.partial_span.continued`: a drifting single loop),
    after θ/ρ are read. The phase along the guide is tracked sample by sample
@@ -66,16 +61,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.ndimage import gaussian_filter1d
 
-from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, consensus_fit, fit_guide
-from bt_pipeline.clean.guide_refine import refine_fit
+from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, fit_guide
 from bt_pipeline.clean.guide_track import (
     along_guide,
     drift_along,
     nearest_distance,
     nearest_index,
-    periodic_degree,
-    periodic_drift,
-    repeats_per_loop,
     runs_of,
     tangential,
     track_phase,
@@ -83,6 +74,7 @@ from bt_pipeline.clean.guide_track import (
     trim_raw_ends,
 )
 from bt_pipeline.clean.partial_span import continued
+from bt_pipeline.clean.span_fit import fit_span
 from bt_pipeline.data.loop_shape import LoopShape, as_loop
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.exceptions import DemoError
@@ -220,23 +212,22 @@ def segment_demo(
     lspan = light[first + fa : first + fb + 1]
     followed = (distance[fa : fb + 1] <= 2.0 * tight) & along[fa : fb + 1]
     degree = min(_DRIFT_MAX_DEGREE, int(cycles + 0.5) - 1)
-    # Drift first (what does not repeat loop to loop), a plain fit from every start, whether the
-    # departure from it repeats per loop (guide_fit, step 5), its consensus, a refit from that.
-    span_phase = track_phase(lspan - drift[fa : fb + 1], guide) / guide.shape[0]
-    drifts = periodic_degree(cycles)
-    span_drift = periodic_drift(lspan, span_phase, drifts)
-    known = {"allowed": allowed, "theta_deg": theta_deg, "rho": rho}
-    fit = fit_guide(lspan - span_drift, loop, name, hint=hint, consensus=False, **known)
-    off = nearest_distance(fit.guide(_TRACK_POINTS), lspan - span_drift)
-    rep = drifts > 0 and repeats_per_loop(lspan - span_drift, span_phase, off)
-    fit = consensus_fit(lspan - span_drift, fit, repeats=rep, **known)
-    fit = fit_guide(lspan - span_drift, loop, name, initial=fit, repeats=rep, **known)
-    # Refined over the raw samples in the span (not the clock's, which bridge gaps in the
-    # samples with chords that cut inside the loop), their drift read off the span's.
+    # Drift first, then the fit, refined over the span's raw samples (step 6, span_fit.py).
     span_clock = clock[first + fa : first + fb + 1]
-    inside = (t >= span_clock[0]) & (t <= span_clock[-1])
-    raw_drift = np.stack([np.interp(t[inside], span_clock, span_drift[:, d]) for d in range(2)], 1)
-    fit = refine_fit(x[inside] - raw_drift, fit, allowed, theta_deg, rho)
+    fit, span_drift = fit_span(
+        lspan,
+        span_clock,
+        drift[fa : fb + 1],
+        (x, t),
+        loop,
+        guide,
+        name,
+        cycles=cycles,
+        allowed=allowed,
+        theta_deg=theta_deg,
+        rho=rho,
+        hint=hint,
+    )
     fitted = lspan - span_drift  # The misfit is read on this path, not the analysis path (its
     # smoothing, σ = 0.08 s, shrinks a fast loop, so a right ρ read as a misfit of several mm).
     # Snap the span to raw sample times: the first and last raw sample inside it.

@@ -1,23 +1,69 @@
-"""The closed-form step of the guide fit: θ, ρ, t of p ≈ ρ R(θ) q + t, point-to-tangent.
+"""The similarity fit's pieces: its result, its allowed range and its ICP steps.
 
-:func:`~bt_pipeline.clean.guide_fit.fit_guide` pairs each demo point p with its nearest loop
-point q and solves this weighted least squares for the similarity (its ICP step), clipped to
-the allowed θ/ρ range or with θ and/or ρ held fixed.
+A fit maps the task's loop q onto a demo's points p by p ≈ ρ R(θ) q + t (:class:`GuideFit`,
+within a :class:`PreferenceRange`). :func:`icp` pairs each point with its nearest loop point and
+solves :func:`solve_similarity`, a weighted least squares, clipped to the allowed θ/ρ range or
+with θ and/or ρ held fixed; :func:`~bt_pipeline.clean.guide_fit.fit_guide` runs it from several
+starts, and :mod:`~bt_pipeline.clean.guide_consensus` from each half of a lopsided loop.
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import KDTree
 
+from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.records import FloatArray
-
-if TYPE_CHECKING:
-    from bt_pipeline.clean.guide_fit import PreferenceRange
+from bt_pipeline.exceptions import ConfigError
 
 _POINT_WEIGHT = 0.05  # Weight of the point-to-point term beside the point-to-tangent one.
+GUIDE_POINTS = 1024  # Dense guide for nearest-point pairing (< 0.4 mm spacing).
+FIT_POINTS = 240  # Arc-length resampled demo points used by the fit.
+
+
+@dataclass(frozen=True)
+class PreferenceRange:
+    """Allowed demonstrator preferences for estimation (``bt clean`` flags)."""
+
+    theta_max_deg: float = 45.0
+    """|θ| ≤ this [deg]."""
+    rho_min: float = 0.5
+    """Smallest ρ."""
+    rho_max: float = 2.0
+    """Largest ρ."""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.theta_max_deg) and 0.0 <= self.theta_max_deg <= 180.0):
+            raise ConfigError(f"theta range must be in [0, 180] deg; got {self.theta_max_deg}")
+        if not (0.0 < self.rho_min <= self.rho_max < math.inf):
+            raise ConfigError(
+                f"rho range must satisfy 0 < min <= max; got {self.rho_min}..{self.rho_max}"
+            )
+
+
+@dataclass(frozen=True)
+class GuideFit:
+    """A similarity fit of the guide to a demo."""
+
+    theta_deg: float
+    """θ [deg], counter-clockwise, within the allowed range."""
+    rho: float
+    """ρ, within the allowed range."""
+    translation: FloatArray
+    """t, shape (2,), in [m]: where the guide's centre sits."""
+    residual_m: float
+    """Mean distance of the kept (trimmed) points to the fitted guide [m]."""
+    size_m: float
+    """The fitted guide's size, the larger side of its bounding box [m]."""
+    loop: LoopShape
+    """The loop fitted: the task's guide or the loop learned from the task's demos."""
+
+    def guide(self, n: int = GUIDE_POINTS) -> FloatArray:
+        """The fitted loop, `n` points of one loop, shape (n, 2), in [m]."""
+        return transform(self.loop.points(n), self.theta_deg, self.rho, self.translation)
 
 
 def transform(points: FloatArray, theta_deg: float, rho: float, t: FloatArray) -> FloatArray:
@@ -90,4 +136,51 @@ def solve_similarity(
     return th, r, np.linalg.solve(nn, rhs_t)
 
 
-__all__ = ["solve_similarity", "transform"]
+def icp(
+    points: FloatArray,
+    guide: FloatArray,
+    tree: KDTree,
+    th: float,
+    r: float,
+    t: FloatArray,
+    keep: int,
+    iterations: int,
+    theta_fixed: float | None,
+    rho_fixed: float | None,
+    allowed: PreferenceRange,
+    centred: bool = False,
+) -> tuple[float, float, FloatArray, float]:
+    """At most `iterations` trimmed ICP steps from (θ, ρ, t); returns the fit and its residual.
+
+    With `centred`, t is held at 0 (the guide's centre on the task plane's origin).
+    """
+    residual = math.inf
+    for _ in range(iterations):
+        local = transform(points - t, -th, 1.0, np.zeros(2)) / r  # R(−θ)(p − t)/ρ
+        dist, found = tree.query(local)
+        dist, index = np.asarray(dist, dtype=np.float64), np.asarray(found, dtype=np.intp)
+        order = np.argpartition(dist, keep - 1)[:keep]
+        residual = float(np.mean(dist[order]) * r)
+        g = index[order]
+        tangent = guide[(g + 1) % guide.shape[0]] - guide[(g - 1) % guide.shape[0]]
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-15
+        th_new, r_new, t_new = solve_similarity(
+            points[order], guide[g], normal, th, r, theta_fixed, rho_fixed, allowed, centred
+        )
+        moved = abs(th_new - th) / 90.0 + abs(r_new - r) + float(np.linalg.norm(t_new - t))
+        th, r, t = th_new, r_new, t_new
+        if moved < 1e-6 or not math.isfinite(residual):
+            break
+    return th, r, t, residual
+
+
+__all__ = [
+    "FIT_POINTS",
+    "GUIDE_POINTS",
+    "GuideFit",
+    "PreferenceRange",
+    "icp",
+    "solve_similarity",
+    "transform",
+]

@@ -43,7 +43,7 @@ class LoopShape:
     near_guide: bool = False
     """Whether this placed loop replaced the task's guide because the best demo draws a loop
     near it (within 4 %) steadily: the demos follow it as they follow a guide, and fits may be
-    held at the origin as against one (:mod:`bt_pipeline.clean.guide_fit`, step 5)."""
+    held at the origin as against one (:mod:`bt_pipeline.clean.guide_consensus`, step 5)."""
 
     def __post_init__(self) -> None:
         c = np.asarray(self.coefficients)

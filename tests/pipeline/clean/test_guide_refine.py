@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bt_pipeline.clean import segment
+from bt_pipeline.clean import span_fit
 from bt_pipeline.clean.guide_fit import GuideFit, fit_guide
 from bt_pipeline.clean.guide_refine import refine_fit
 from bt_pipeline.clean.periodic import pool_preferences
@@ -42,10 +42,10 @@ def test_wobbly_operators_are_read_closer_to_their_true_scale() -> None:
     per-demo estimates is smaller with the refinement than with the trimmed fit alone, and
     |Δθ| is no worse (16 demos; without it 0.0147 / 0.88°, with it 0.0094 / 0.62°)."""
     errors: dict[bool, list[tuple[float, float]]] = {False: [], True: []}
-    refined = segment.refine_fit
+    refined = span_fit.refine_fit
     try:
         for refine in (False, True):
-            segment.refine_fit = refined if refine else (lambda y, fit, *a, **k: fit)  # type: ignore[assignment]
+            span_fit.refine_fit = refined if refine else (lambda y, fit, *a, **k: fit)  # type: ignore[assignment]
             for seed in range(4):
                 ops = operator_set("wiping", seed, hidden=True)
                 for i, op in enumerate(ops.demos):
@@ -57,7 +57,7 @@ def test_wobbly_operators_are_read_closer_to_their_true_scale() -> None:
                         (abs(fit.theta_deg - op.theta_deg), abs(fit.rho - op.rho))
                     )
     finally:
-        segment.refine_fit = refined
+        span_fit.refine_fit = refined
     before, after = np.array(errors[False]), np.array(errors[True])
     assert np.median(after[:, 1]) < 0.8 * np.median(before[:, 1])
     assert np.median(after[:, 0]) <= np.median(before[:, 0])

@@ -1,4 +1,5 @@
-"""Lopsided and wobbly hands against a learned loop kept where its demo drew it (guide_fit, 5).
+"""Lopsided and wobbly hands against a learned loop kept where its demo drew it (guide_consensus,
+step 5).
 
 The demos are drawn here, not by bt's generators: an egg-shaped loop with no symmetry, a little
 off the origin; one side bulged 20-35 % outward towards a random direction (not the loop's box

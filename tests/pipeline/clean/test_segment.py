@@ -431,7 +431,7 @@ def test_a_steady_fast_figure_eight_keeps_its_scale(seed) -> None:
     """The operator sets' steady weaving demo, θ/ρ hidden: ρ within 2 %. Refitted from the fit
     of the whole moving part (approach and retreat included, ρ 6-9 % low), with that part's
     drift, the span's fit stayed 5-6 % low (the code at the start of 2026-12-02 evening: both
-    the span refit of step 6 and the consensus rule of guide_fit each fix it on their own)."""
+    the span refit of step 6 and the consensus rule of guide_consensus each fix it on their own)."""
     ops = operator_set("weaving", seed, hidden=True)
     steady = ops.demos[ops.steady_index]
     x, t = steady.demo.raw_samples()
