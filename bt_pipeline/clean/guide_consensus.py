@@ -24,8 +24,12 @@ are the plain fit's (guide_fit module doc).
    and the 3 x holds (a lopsided loop fits 1.5-2.6 x worse held at the origin, and fitted free
    of it was read 10-17 % too big); a wobble does not repeat. A best demo's loop that replaced
    a guide it lies near (``LoopShape.near_guide``) takes the guide's 3 x: its demos follow it
-   as they follow a guide. What each rule gained and cost on three kinds of data:
-   docs/quality.md.
+   as they follow a guide. A single loop that closes on itself (``single``,
+   :mod:`~bt_pipeline.clean.span_fit`) is held at the origin within 3 x too, and its fits are
+   compared over their best 30 % instead of 40 %: a side bulged 20-35 % with a smooth edge
+   leaves only a quarter to a third of the samples on the loop meant, the bulged side, drawn
+   bigger, holds more, and over 40 % its fit won. What each rule gained and cost on three kinds
+   of data: docs/quality.md.
 """
 
 from __future__ import annotations
@@ -48,7 +52,8 @@ from bt_pipeline.data.loop_shape import arc_length_resample
 from bt_pipeline.data.records import FloatArray
 
 _LOPSIDED = 0.005  # Consensus only when 90 % of the points lie this share of the size off.
-_CONSENSUS_KEEP = 0.4  # Fits are compared by the mean of their 40 % smallest distances.
+_CONSENSUS_KEEP = 0.4  # Fits are compared by the mean of their 40 % smallest distances,
+_SINGLE_KEEP = 0.3  # or 30 % in a single loop that closes (``single``; module doc, step 5).
 _HALF_TRIM = 0.9  # Share of a half's points kept by its refit.
 _CONSENSUS_TIE = 2.0  # Fits within this factor of the lowest cost are modes (see _BULGE),
 _CONSENSUS_FLOOR_M = 0.0005  # or within this of it [m] (a clean loop's costs are near 0).
@@ -69,6 +74,7 @@ def consensus_fit(
     theta_deg: float | None = None,
     rho: float | None = None,
     repeats: bool = False,
+    single: bool = False,
     max_iterations: int = 25,
 ) -> GuideFit:
     """What :func:`~bt_pipeline.clean.guide_fit.fit_guide` returns from its plain fit `fit`
@@ -78,7 +84,7 @@ def consensus_fit(
         return fit
     points = arc_length_resample(np.asarray(positions, dtype=np.float64), FIT_POINTS)
     guide = fit.loop.points(GUIDE_POINTS)
-    free = (theta_deg, rho, allowed or PreferenceRange(), max_iterations, repeats)
+    free = (theta_deg, rho, allowed or PreferenceRange(), max_iterations, repeats, single)
     return _consensus(points, guide, KDTree(guide), fit, *free)
 
 
@@ -99,6 +105,7 @@ def _consensus(
     allowed: PreferenceRange,
     max_iterations: int,
     repeats: bool = False,
+    single: bool = False,
 ) -> GuideFit:
     """The fit that one half of the loop follows closely, when the other half is misshapen.
 
@@ -133,7 +140,7 @@ def _consensus(
         return fit
     size = float(np.max(np.ptp(guide, axis=0)))
     n = points.shape[0]
-    keep = max(3, int(_CONSENSUS_KEEP * n))
+    keep = max(3, int((_SINGLE_KEEP if single else _CONSENSUS_KEEP) * n))
     off = float(np.linalg.norm(fit.translation))
     # Centred fits only for a loop the demos turn about the plane's origin: a guide, drawn
     # there, or the best demo's loop kept where that demo drew it.

@@ -62,6 +62,7 @@ def fit_guide(
     consensus: bool = True,
     hint: GuideFit | None = None,
     repeats: bool = False,
+    single: bool = False,
 ) -> GuideFit:
     """Fit the task's guide to a demo by a trimmed similarity ICP (module doc).
 
@@ -78,7 +79,10 @@ def fit_guide(
         hint: Also start from this fit (the demo's own loop aligned to the task's loop).
         consensus: Resolve a lopsided loop by consensus over half-loop refits (step 4).
         repeats: The points are several loops, drift removed, whose departure from the loop
-            repeats every loop (:func:`~bt_pipeline.clean.guide_track.repeats_per_loop`).
+            repeats every loop (:func:`~bt_pipeline.clean.guide_track.repeats_per_loop`), or
+            a single loop that closes on itself (with `single`).
+        single: The points are a single loop that closes on itself
+            (:mod:`~bt_pipeline.clean.span_fit`, step 3).
 
     Raises:
         DemoError: Non-finite positions or no motion.
@@ -148,7 +152,8 @@ def fit_guide(
     assert best is not None  # starts is never empty
     if consensus:  # Resamples the points and rebuilds the tree: cheap next to its fits.
         fixed = {"allowed": allowed, "theta_deg": theta_deg, "rho": rho}
-        best = consensus_fit(x, best, repeats=repeats, max_iterations=max_iterations, **fixed)
+        held = {"repeats": repeats, "single": single}
+        best = consensus_fit(x, best, **held, max_iterations=max_iterations, **fixed)
     return best
 
 

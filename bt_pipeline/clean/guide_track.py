@@ -310,29 +310,42 @@ def runs_of(flags: np.ndarray, min_length: int) -> list[tuple[int, int]]:
     return [(int(s), int(e)) for s, e in zip(starts, ends, strict=True) if e - s + 1 >= min_length]
 
 
+def loop_gap(path: FloatArray, phase: FloatArray) -> float | None:
+    """The path's median distance to itself one loop on [m]: its drift over a loop plus noise
+    (None when it does not go round once).
+
+    Args:
+        path: The span, shape (T, 2), in [m].
+        phase: Its tracked phase in loops, shape (T,) (either sign).
+    """
+    ahead = np.asarray(phase, dtype=np.float64)
+    ahead = np.maximum.accumulate(ahead if ahead[-1] >= ahead[0] else -ahead)
+    looped = ahead + 1.0 <= ahead[-1]
+    if not looped.any():
+        return None
+    later = np.stack([np.interp(ahead[looped] + 1.0, ahead, path[:, d]) for d in range(2)], 1)
+    return float(np.median(np.linalg.norm(later - path[looped], axis=1)))
+
+
 def repeats_per_loop(path: FloatArray, phase: FloatArray, distance: FloatArray) -> bool:
     """Whether a span's departure from its fit repeats every loop, as a bulged side does and a
     sway does not: the 90th percentile of its `distance` [m] to the fit is over
-    :data:`_REPEATS` x the path's median distance to itself one loop on (none without a loop).
+    :data:`_REPEATS` x the path's median distance to itself one loop on (:func:`loop_gap`;
+    none without a loop).
 
     Args:
         path: The span, drift removed, shape (T, 2), in [m].
         phase: Its tracked phase in loops, shape (T,) (either sign).
         distance: Each point's distance to the fit, shape (T,), in [m].
     """
-    ahead = np.asarray(phase, dtype=np.float64)
-    ahead = np.maximum.accumulate(ahead if ahead[-1] >= ahead[0] else -ahead)
-    looped = ahead + 1.0 <= ahead[-1]
-    if not looped.any():
-        return False
-    later = np.stack([np.interp(ahead[looped] + 1.0, ahead, path[:, d]) for d in range(2)], 1)
-    itself = float(np.median(np.linalg.norm(later - path[looped], axis=1)))
-    return float(np.percentile(distance, 90)) > _REPEATS * itself
+    itself = loop_gap(path, phase)
+    return itself is not None and float(np.percentile(distance, 90)) > _REPEATS * itself
 
 
 __all__ = [
     "along_guide",
     "drift_along",
+    "loop_gap",
     "nearest_distance",
     "nearest_index",
     "periodic_degree",

@@ -11,7 +11,11 @@
    consensus (:func:`fit_guide` with ``consensus=False``).
 3. **Repeats.** Over several loops, whether the span's departure from that fit repeats every
    loop (:func:`repeats_per_loop`: a bulged side does, a sway does not), read once on the plain
-   fit (guide_consensus, step 5).
+   fit (guide_consensus, step 5). A single loop (no drift removed) that **closes** on itself,
+   its path one loop on within 1.5 % of its size of where it was (:func:`loop_gap`), has not
+   drifted: its departure is a shape the hand meant too, and its fits are compared over the
+   30 % of it they follow best (guide_consensus, step 5). A drifting or incomplete single
+   loop keeps the rules of before: a gap says nothing about it.
 4. **Consensus.** The lopsided-loop consensus (:func:`consensus_fit`, guide_consensus steps 4-5)
    from the plain fit, then a refit from its result.
 5. **Refined** over the raw samples of the span, their drift read off the span's, with robust
@@ -25,6 +29,7 @@ import numpy as np
 from bt_pipeline.clean.guide_fit import GuideFit, PreferenceRange, consensus_fit, fit_guide
 from bt_pipeline.clean.guide_refine import refine_fit
 from bt_pipeline.clean.guide_track import (
+    loop_gap,
     nearest_distance,
     periodic_degree,
     periodic_drift,
@@ -35,6 +40,7 @@ from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.records import FloatArray
 
 _TRACK_POINTS = 512  # Loop points for the distances of the repeat test.
+_CLOSES = 0.015  # A single loop closes when one loop on it is this share of its size off.
 
 
 def fit_span(
@@ -78,10 +84,15 @@ def fit_span(
     clear = span - span_drift
     known = {"allowed": allowed, "theta_deg": theta_deg, "rho": rho}
     fit = fit_guide(clear, loop, name, hint=hint, consensus=False, **known)
-    off = nearest_distance(fit.guide(_TRACK_POINTS), clear)
-    rep = drifts > 0 and repeats_per_loop(clear, span_phase, off)
-    fit = consensus_fit(clear, fit, repeats=rep, **known)
-    fit = fit_guide(clear, loop, name, initial=fit, repeats=rep, **known)
+    if drifts > 0:
+        off = nearest_distance(fit.guide(_TRACK_POINTS), clear)
+        held = {"repeats": repeats_per_loop(clear, span_phase, off), "single": False}
+    else:  # A single loop that closes on itself has not drifted (step 3).
+        gap = loop_gap(clear, span_phase)
+        closes = gap is not None and gap <= _CLOSES * fit.size_m
+        held = {"repeats": closes, "single": closes}
+    fit = consensus_fit(clear, fit, **held, **known)
+    fit = fit_guide(clear, loop, name, initial=fit, **held, **known)
     # Refined over the raw samples in the span (not the clock's, which bridge gaps in the
     # samples with chords that cut inside the loop), their drift read off the span's.
     x, t = samples
