@@ -310,18 +310,19 @@ def runs_of(flags: np.ndarray, min_length: int) -> list[tuple[int, int]]:
     return [(int(s), int(e)) for s, e in zip(starts, ends, strict=True) if e - s + 1 >= min_length]
 
 
-def loop_gap(path: FloatArray, phase: FloatArray) -> float | None:
+def loop_gap(path: FloatArray, phase: FloatArray, overlap: float = 0.0) -> float | None:
     """The path's median distance to itself one loop on [m]: its drift over a loop plus noise
-    (None when it does not go round once).
+    (None when it goes round less than once plus `overlap` loops).
 
     Args:
         path: The span, shape (T, 2), in [m].
         phase: Its tracked phase in loops, shape (T,) (either sign).
+        overlap: Least phase [loops] the gap is read over.
     """
     ahead = np.asarray(phase, dtype=np.float64)
     ahead = np.maximum.accumulate(ahead if ahead[-1] >= ahead[0] else -ahead)
     looped = ahead + 1.0 <= ahead[-1]
-    if not looped.any():
+    if not looped.any() or ahead[-1] - ahead[0] < 1.0 + overlap:
         return None
     later = np.stack([np.interp(ahead[looped] + 1.0, ahead, path[:, d]) for d in range(2)], 1)
     return float(np.median(np.linalg.norm(later - path[looped], axis=1)))

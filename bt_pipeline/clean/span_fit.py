@@ -12,10 +12,12 @@
 3. **Repeats.** Over several loops, whether the span's departure from that fit repeats every
    loop (:func:`repeats_per_loop`: a bulged side does, a sway does not), read once on the plain
    fit (guide_consensus, step 5). A single loop (no drift removed) that **closes** on itself,
-   its path one loop on within 1.5 % of its size of where it was (:func:`loop_gap`), has not
-   drifted: its departure is a shape the hand meant too, and its fits are compared over the
-   30 % of it they follow best (guide_consensus, step 5). A drifting or incomplete single
-   loop keeps the rules of before: a gap says nothing about it.
+   its path one loop on within 1.5 % of its size of where it was over at least 5 % of a loop
+   (:func:`loop_gap`), has not drifted: its departure is a shape the hand meant too, and its
+   fits are compared over the 30 % of it they follow best (guide_consensus, step 5). A gap
+   read over less than that is a few samples where the span's ends were cut: on the app's
+   wobbly takes of one loop (1.01 loops) it let a sway be read 6-7 % small. A drifting or
+   incomplete single loop keeps the rules of before.
 4. **Consensus.** The lopsided-loop consensus (:func:`consensus_fit`, guide_consensus steps 4-5)
    from the plain fit, then a refit from its result.
 5. **Refined** over the raw samples of the span, their drift read off the span's, with robust
@@ -40,7 +42,8 @@ from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.records import FloatArray
 
 _TRACK_POINTS = 512  # Loop points for the distances of the repeat test.
-_CLOSES = 0.015  # A single loop closes when one loop on it is this share of its size off.
+_CLOSES = 0.015  # A single loop closes when one loop on it is this share of its size off,
+_OVERLAP = 0.05  # read over at least this share of a loop.
 
 
 def fit_span(
@@ -88,7 +91,7 @@ def fit_span(
         off = nearest_distance(fit.guide(_TRACK_POINTS), clear)
         held = {"repeats": repeats_per_loop(clear, span_phase, off), "single": False}
     else:  # A single loop that closes on itself has not drifted (step 3).
-        gap = loop_gap(clear, span_phase)
+        gap = loop_gap(clear, span_phase, _OVERLAP)
         closes = gap is not None and gap <= _CLOSES * fit.size_m
         held = {"repeats": closes, "single": closes}
     fit = consensus_fit(clear, fit, **held, **known)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bt_pipeline.clean.guide_track import periodic_drift, track_phase
+from bt_pipeline.clean.guide_track import loop_gap, periodic_drift, track_phase
 from bt_pipeline.clean.segment import segment_demo
 from bt_pipeline.data.shapes import canonical_loop, canonical_shape, similarity_transform
 
@@ -118,3 +118,17 @@ def test_a_drifting_hand_s_four_loops_keep_their_rotation() -> None:
     guide = segment_demo(uv, t, "wiping").guide
     assert abs(guide.theta_deg - attrs["truth_theta_deg"]) < 1.0, guide
     assert abs(guide.rho - attrs["truth_rho"]) < 0.01, guide
+
+
+def test_loop_gap_reads_the_drift_over_one_loop_and_needs_its_overlap() -> None:
+    """A loop drawn 1.2 times while drifting 10 mm per loop: the path one loop on lies 10 mm
+    from where it was; without drift, under 1 mm; under one loop plus the asked overlap, no gap."""
+    _, phase = _loops(1.2, 4.0, 0)
+    loops = (phase - phase[0]) / (2 * np.pi)
+    drift = 0.010 * loops[:, None] * np.array([[0.6, 0.8]])
+    path = canonical_shape("wiping", phase)
+    assert loop_gap(path + drift, loops) == pytest.approx(0.010, rel=0.05)
+    steady = loop_gap(path, loops)
+    assert steady is not None and steady < 0.001
+    assert loop_gap(path, loops, overlap=0.25) is None
+    assert loop_gap(path[loops <= 0.99], loops[loops <= 0.99]) is None
