@@ -206,7 +206,11 @@ def _consensus(
         off <= CENTRED_REACH * fit.size_m
         and centred_costs
         and min(centred_costs)
-        <= (_CENTRED_SLACK if loop.is_guide or loop.near_guide or repeats else _PLACED_SLACK)
+        <= (
+            _CENTRED_SLACK
+            if loop.is_guide or loop.near_guide or repeats or single
+            else _PLACED_SLACK
+        )
         * free_low
     ):
         # The loop is centred where the app draws the guide: only centred fits count.

@@ -79,10 +79,10 @@ def fit_guide(
         hint: Also start from this fit (the demo's own loop aligned to the task's loop).
         consensus: Resolve a lopsided loop by consensus over half-loop refits (step 4).
         repeats: The points are several loops, drift removed, whose departure from the loop
-            repeats every loop (:func:`~bt_pipeline.clean.guide_track.repeats_per_loop`), or
-            a single loop that closes on itself (with `single`).
+            repeats every loop (:func:`~bt_pipeline.clean.guide_track.repeats_per_loop`).
         single: The points are a single loop that closes on itself
-            (:mod:`~bt_pipeline.clean.span_fit`, step 3).
+            (:mod:`~bt_pipeline.clean.span_fit`, step 3): held as `repeats` is, and judged
+            over the fits' best 30 %.
 
     Raises:
         DemoError: Non-finite positions or no motion.

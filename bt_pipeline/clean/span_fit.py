@@ -93,7 +93,7 @@ def fit_span(
     else:  # A single loop that closes on itself has not drifted (step 3).
         gap = loop_gap(clear, span_phase, _OVERLAP)
         closes = gap is not None and gap <= _CLOSES * fit.size_m
-        held = {"repeats": closes, "single": closes}
+        held = {"repeats": False, "single": closes}
     fit = consensus_fit(clear, fit, **held, **known)
     fit = fit_guide(clear, loop, name, initial=fit, **held, **known)
     # Refined over the raw samples in the span (not the clock's, which bridge gaps in the
