@@ -32,6 +32,7 @@ holds its arch at ρ = 1 only for |θ| <= 4° (its places are where the block st
 are mostly smaller, less turned loops and take more draws.
 
     python benchmarks/quality/bench_app_takes.py --seeds 3
+    python benchmarks/quality/bench_app_takes.py --tasks pick_and_place --closing-overlap 0
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bt_pipeline.clean import span_fit
 from bt_pipeline.clean.pipeline import CleanOptions, clean_demos
 from bt_pipeline.data.demo import Demo, load_demos
 from bt_pipeline.data.recording import read_recording
@@ -203,7 +205,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--tasks", default=",".join(TASKS))
+    parser.add_argument(
+        "--closing-overlap",
+        type=float,
+        default=span_fit._OVERLAP,
+        help="least overlap [loops] a single loop's closing gap is read over (span_fit, step 3)",
+    )
     args = parser.parse_args()
+    span_fit._OVERLAP = args.closing_overlap
     print(
         "| task | sets | θ/ρ | naive shape (mean / worst) | naive timing (mean / worst) | "
         "expert shape / timing (worst) | best = steady | hidden θ within 5° and ρ within 0.05 |"
