@@ -38,10 +38,12 @@ from bt_pipeline.clean.periodic import (
 )
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.shape_gate import (
+    WHOLE_LOOP,
     eligible,
     gate_best,
     gate_reason,
     guide_misfit,
+    repeat_misfit,
 )
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.records import FloatArray
@@ -83,6 +85,11 @@ class Selection:
     """The loop the demos were measured against: the task's guide or learned from them."""
     misfits: tuple[float, ...] = ()
     """The shape gate's misfit of each demo (:func:`~bt_pipeline.clean.shape_gate.guide_misfit`)."""
+    whole: tuple[bool, ...] = ()
+    """Whether each demo covers a whole loop (the gate's :data:`~.shape_gate.WHOLE_LOOP`)."""
+    repeat_misfits: tuple[float, ...] = ()
+    """Each demo's distance to its own loop (:func:`~.shape_gate.repeat_misfit`; NaN: under
+    two loops)."""
     best_reason: str = ""
     """Why the best demo is the best when it is not the highest Ũ
     (:func:`~bt_pipeline.clean.shape_gate.gate_reason`); empty when it is."""
@@ -138,7 +145,7 @@ def select_demos(
     if best_loop is not None:  # Once more against the best demo's own loop (loop_learn step 6).
         # The gate keeps the first pass's misfits: against the best demo's own loop, that demo
         # would always follow it most closely.
-        again = _select(demos, best_loop, config, allowed, executor, chunk_size, selection.misfits)
+        again = _select(demos, best_loop, config, allowed, executor, chunk_size, selection)
         spent = {k: v + again.seconds.get(k, 0.0) for k, v in selection.seconds.items()}
         selection = dataclasses.replace(again, seconds=spent)
     best = selection.scores.best_index
@@ -180,10 +187,10 @@ def _select(
     allowed: PreferenceRange,
     executor: ExecutorConfig | None,
     chunk_size: int,
-    gate: Sequence[float] = (),
+    gate: Selection | None = None,
 ) -> Selection:
-    """:func:`select_demos` against one loop (the shape gate reads `gate`, when given, as the
-    demos' misfits)."""
+    """:func:`select_demos` against one loop (the shape gate reads `gate`'s misfits, whole
+    loops and repeat misfits, when given, as the demos')."""
     seconds: dict[str, float] = {}
     start = time.perf_counter()
     segments = tuple(
@@ -225,8 +232,21 @@ def _select(
     by_utility = score_demos(spans, config, metrics=[t.ranked for _, t in parts])
     # The best demo is taken among those that follow the guide about as closely as any: Ũ is
     # blind to a slow wobble (bt_pipeline/clean/shape_gate.py).
-    misfits = list(gate) if gate else [t.misfit for _, t in parts]
-    scores = gate_best(by_utility, misfits)
+    if gate is not None:
+        misfits, whole, repeat = list(gate.misfits), list(gate.whole), list(gate.repeat_misfits)
+    else:
+        misfits = [t.misfit for _, t in parts]
+        whole = [
+            s.cycles >= WHOLE_LOOP or d.label in task_loop.own
+            for d, s in zip(demos, segments, strict=True)
+        ]
+        repeat = [
+            repeat_misfit(span, task_loop.own.get(d.label), task_loop.repeats.get(d.label, 0.0))
+            for d, span in zip(demos, spans, strict=True)
+        ]
+    scores = gate_best(
+        by_utility, eligible(np.array(misfits), whole=np.array(whole), repeat=np.array(repeat))
+    )
     reason = ""
     if scores.best_index != by_utility.best_index:
         first, best = by_utility.best_index, scores.best_index
@@ -236,6 +256,7 @@ def _select(
             misfits[first],
             misfits[best],
             task_loop.source,
+            whole[first] or not any(whole),
         )
         notes.append(reason)
     seconds["score"] = time.perf_counter() - start
@@ -249,6 +270,8 @@ def _select(
         seconds,
         task_loop,
         tuple(misfits),
+        tuple(whole),
+        tuple(repeat),
         reason,
     )
 
