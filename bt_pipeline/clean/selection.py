@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from bt_pipeline.clean.best_loop import best_demo_loop, closed_span
+from bt_pipeline.clean.best_loop import best_demo_loop
 from bt_pipeline.clean.fan_out import per_demo, segment_step
 from bt_pipeline.clean.guide_fit import PreferenceRange
 from bt_pipeline.clean.loop_learn import TaskLoop, learn_task_loop
@@ -38,13 +38,13 @@ from bt_pipeline.clean.periodic import (
 )
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.shape_gate import (
-    WHOLE_LOOP,
     eligible,
     gate_best,
     gate_reason,
     guide_misfit,
     repeat_misfit,
 )
+from bt_pipeline.clean.span_close import WHOLE, closed_span
 from bt_pipeline.data.demo import Demo
 from bt_pipeline.data.records import FloatArray
 from bt_pipeline.execute import ExecutorConfig
@@ -86,7 +86,7 @@ class Selection:
     misfits: tuple[float, ...] = ()
     """The shape gate's misfit of each demo (:func:`~bt_pipeline.clean.shape_gate.guide_misfit`)."""
     whole: tuple[bool, ...] = ()
-    """Whether each demo covers a whole loop (the gate's :data:`~.shape_gate.WHOLE_LOOP`)."""
+    """Whether each demo covers a whole loop (:data:`~.span_close.WHOLE`: the shape gate)."""
     repeat_misfits: tuple[float, ...] = ()
     """Each demo's distance to its own loop (:func:`~.shape_gate.repeat_misfit`; NaN: under
     two loops)."""
@@ -237,7 +237,7 @@ def _select(
     else:
         misfits = [t.misfit for _, t in parts]
         whole = [
-            s.cycles >= WHOLE_LOOP or d.label in task_loop.own
+            s.cycles >= WHOLE or d.label in task_loop.own
             for d, s in zip(demos, segments, strict=True)
         ]
         repeat = [

@@ -70,8 +70,6 @@ MISFIT_FACTOR = 1.5
 """A demo is eligible as the best when its misfit is at most this times the set's smallest"""
 MISFIT_FLOOR = 0.001
 """plus this share of the guide's size."""
-WHOLE_LOOP = 0.95
-"""A demo whose kept span holds this much of a loop (or whose path closes one) covers one."""
 _GUIDE_POINTS = 2048  # Dense guide for the distances (< 0.3 mm spacing at ρ = 1).
 _ANY_PREFERENCE = PreferenceRange(180.0, 0.05, 20.0)  # A learned loop's fit is not bounded.
 
@@ -132,7 +130,7 @@ def eligible(
     Args:
         misfits: Each demo's misfit (:func:`guide_misfit`).
         factor: Eligible within this times the smallest misfit (plus :data:`MISFIT_FLOOR`).
-        whole: Whether each demo covers a whole loop (:data:`WHOLE_LOOP`); all when None.
+        whole: Whether each demo covers a whole loop (:data:`WHOLE`); all when None.
         repeat: Each demo's :func:`repeat_misfit` (NaN: under two loops); none when None.
     """
     misfits = np.asarray(misfits, dtype=np.float64)

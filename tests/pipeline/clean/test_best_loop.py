@@ -11,11 +11,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bt_pipeline.clean.best_loop import closed_span
 from bt_pipeline.clean.guide_fit import GuideFit
 from bt_pipeline.clean.pipeline import CleanOptions, TaskCleanResult, clean_demos
 from bt_pipeline.clean.segment import Segment
 from bt_pipeline.clean.selection import select_demos
+from bt_pipeline.clean.span_close import closed_span
 from bt_pipeline.data.demo import Demo, demos_from_recording
 from bt_pipeline.data.loop_shape import LoopShape
 from bt_pipeline.data.random_loops import LoopKind, draw_set_loop
