@@ -128,6 +128,19 @@ def test_a_span_that_runs_on_along_an_approach_and_a_retreat_is_trimmed_to_its_l
     assert abs(closed.start_s - start) < 0.15 and abs(closed.end_s - end) < 0.15
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_a_span_of_one_loop_slid_along_its_retreat_is_moved_back_to_its_loop(seed: int) -> None:
+    """One loop's worth of path that does not close (it starts 0.8 s late and runs as long into
+    the retreat beside the loop's first arc) is moved to where the loop closes."""
+    demo, start, end, loop = _take(seed=seed, along=0.12)
+    slid = _segment(start + 0.8, end + 0.8, 1.0, loop)
+    closed = closed_span(demo, slid)
+    assert abs(closed.start_s - start) < 0.15 and abs(closed.end_s - end) < 0.15
+    early = _segment(start - 0.8, end - 0.8, 1.0, loop)  # Slid back along the approach.
+    closed = closed_span(demo, early)
+    assert abs(closed.start_s - start) < 0.15 and abs(closed.end_s - end) < 0.15
+
+
 def test_a_part_of_a_loop_or_a_whole_one_is_left_as_it_is() -> None:
     demo, start, end, loop = _take(fraction=0.8)
     part = _segment(start, end, 0.8, loop)  # Its path never returns: nothing to close.
@@ -135,6 +148,8 @@ def test_a_part_of_a_loop_or_a_whole_one_is_left_as_it_is() -> None:
     whole_demo, start, end, loop = _take()
     whole = _segment(start, end, 0.96, loop)
     assert closed_span(whole_demo, whole) is whole
+    one = dataclasses.replace(whole, cycles=1.0)  # Its ends meet: nothing to move.
+    assert closed_span(whole_demo, one) is one
     assert closed_span(whole_demo, dataclasses.replace(whole, cycles=0.4)).cycles == 0.4
 
 
