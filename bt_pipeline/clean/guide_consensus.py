@@ -145,8 +145,10 @@ def _consensus(
     # Centred fits only for a loop the demos turn about the plane's origin: a guide, drawn
     # there, or the best demo's loop kept where that demo drew it.
     anchored = fit.loop.anchored
-    if _trimmed_cost(points, tree, fit, int(0.9 * n)) < _LOPSIDED * fit.size_m and not (
-        anchored and _CENTRED_OFF * fit.size_m < off <= CENTRED_REACH * fit.size_m
+    if (
+        not repeats
+        and _trimmed_cost(points, tree, fit, int(0.9 * n)) < _LOPSIDED * fit.size_m
+        and not (anchored and _CENTRED_OFF * fit.size_m < off <= CENTRED_REACH * fit.size_m)
     ):
         return fit  # 90 % of the loop lies close to a fit where it is drawn: nothing misshapen.
     local = transform(points - fit.translation, -fit.theta_deg, 1.0, np.zeros(2))
