@@ -189,7 +189,7 @@ def _shifted(
     tail = (i1 - reach, min(path.shape[0], i1 + reach + 1))
     if reach < 2 or tail[0] <= head[1]:
         return segment
-    k0, k1, gap = _closing_pair(path, head, tail, step)
+    k0, k1, gap = _closing_pair(path, head, tail, step, shortest=True)
     if float(np.linalg.norm(path[i1] - path[i0])) <= gap + _SLID * tolerance:
         return segment  # Its ends meet about as closely as any pair's.
     if gap > tolerance or not _same_way(_arriving(path, k1, step), _leaving(path, k0, step)):
@@ -202,7 +202,11 @@ def _shifted(
 
 
 def _closing_pair(
-    path: np.ndarray, head: tuple[int, int], tail: tuple[int, int], step: int
+    path: np.ndarray,
+    head: tuple[int, int],
+    tail: tuple[int, int],
+    step: int,
+    shortest: bool = False,
 ) -> tuple[int, int, float]:
     """The start (in samples `head`, a range) and end (in `tail`) that close one loop
     (:func:`closed_span`), and the distance between them [m].
@@ -229,6 +233,10 @@ def _closing_pair(
     chosen = [g for g, c in zip(groups, turn, strict=True) if c >= max(turn) - _TANGENT_TIE][-1]
     s = int(chosen[-1])
     e = int(np.argmin(gaps[s]))
+    if shortest:  # The pair holding the least path: a crawl at either end is not the loop.
+        near = gaps <= gaps.min() + 0.001
+        s = min((int(np.flatnonzero(near[a])[0]) - int(a), int(a)) for a in chosen)[1]
+        e = int(np.flatnonzero(near[s])[0])
     return h0 + s, t0 + e, float(gaps[s, e])
 
 
