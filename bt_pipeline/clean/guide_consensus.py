@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import KDTree
 
+from bt_pipeline.clean.phase_track import THIN, loop_aspect
 from bt_pipeline.clean.similarity import (
     FIT_POINTS,
     GUIDE_POINTS,
@@ -63,7 +64,6 @@ _CENTRED_SLACK = 3.0  # size from the origin or nearer and they fit within this 
 _PLACED_SLACK = 1.5  # Against a best demo's placed loop, this factor (module doc, step 5).
 _CENTRED_BULGE = 0.03  # then the smallest mode wins when its ρ is this share below the median's.
 _CENTRED_OFF = 0.05  # A close fit this share of its size off the origin is checked (see reach).
-_THIN = 0.2  # A loop thinner than this (principal spreads' ratio) keeps its plain fit.
 
 
 def consensus_fit(
@@ -133,7 +133,7 @@ def _consensus(
     that closely by a fit shifted that much). On a loop without a defect every fit lands on the
     same mode and nothing changes.
     """
-    if _aspect(guide) < _THIN:
+    if loop_aspect(guide) < THIN:  # A thin loop keeps its plain fit.
         # A stretch of a near-line is a shorter near-line: each half of a thin stroke is fitted
         # closely by a shorter stroke, and the smallest mode took half its length (the second
         # generator's strokes, θ/ρ hidden: 1.59 x their raw error; 0.91 with the plain fit).
@@ -225,12 +225,6 @@ def _consensus(
     modes = sorted((f for c, f, _ in found if c <= tie), key=lambda f: f.rho)
     middle = modes[(len(modes) - 1) // 2]
     return modes[0] if modes[0].rho < (1.0 - bulge) * middle.rho else middle
-
-
-def _aspect(points: FloatArray) -> float:
-    """The loop's thickness: the ratio of its principal spreads (1 round, 0 a line)."""
-    spread = np.linalg.eigvalsh(np.cov((points - points.mean(axis=0)).T))
-    return float(np.sqrt(max(spread[0], 0.0) / max(spread[1], 1e-300)))
 
 
 __all__ = ["CENTRED_REACH", "consensus_fit"]

@@ -3,7 +3,8 @@
 The primitives :mod:`bt_pipeline.clean.segment` builds the kept span from, each relative to a
 closed guide loop sampled once round (P points, endpoint excluded) in task coordinates [m]:
 
-* :func:`track_phase`: the continuous phase of each sample along the loop;
+* :func:`track_phase`: the continuous phase of each sample along the loop (its own module,
+  :mod:`~bt_pipeline.clean.phase_track`, re-exported here);
 * :func:`nearest_index` / :func:`nearest_distance`: each sample's nearest guide point;
 * :func:`drift_along`: a slow translation of the guide over time that fits the samples;
 * :func:`periodic_drift` (degree from :func:`periodic_degree`): a slow translation over time
@@ -17,10 +18,10 @@ closed guide loop sampled once round (P points, endpoint excluded) in task coord
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial import KDTree
 
+from bt_pipeline.clean.phase_track import track_phase
 from bt_pipeline.data.records import FloatArray
 
 _DRIFT_SCALE_M = 0.003  # Cauchy scale of the drift fit's reweighting [m].
@@ -35,7 +36,6 @@ _SPEED_SMOOTH_S = 0.05  # Gaussian σ of the phase before its speed is read [s].
 _TRAVEL_SHARE = 0.45  # The span travels faster than this share of its typical phase speed,
 _TRAVEL_MIN_SHARE = 0.2  # or than this share where the slower edge travels more than
 _TRAVEL_MAX_TRIM = 0.15  # this many loops (a hesitant loop, not an approach).
-_MAX_PHASE_STEP = 0.05  # Most phase change per tracked sample, in loops.
 _EDGE_MEDIANS = 4.0  # A raw end sample farther off the guide than this many medians of the
 _EDGE_P95S = 1.5  # span's middle distances, this many 95th percentiles
 _EDGE_MIN_M = 0.0005  # and this [m] is off (trim_raw_ends),
@@ -43,68 +43,6 @@ _EDGE_MAX_SHARE = 0.25  # at most this share of the span at each end,
 _EDGE_CLOSE_M = 0.001  # and in a single loop only if its middle's 95th percentile is this [m].
 _REPEATS = 2.0  # A departure from the fit this many times the path's distance to itself a loop
 # on repeats per loop (repeats_per_loop).
-
-
-def track_phase(
-    points: ArrayLike,
-    loop: ArrayLike,
-    max_step: float = _MAX_PHASE_STEP,
-    steps: ArrayLike | None = None,
-) -> FloatArray:
-    """Continuous phase of each point along a closed loop, by nearest point near the last one.
-
-    The first point takes its nearest loop point; each next point the nearest within
-    ±`max_step` loops of the previous phase, so where a loop crosses itself (a figure-eight)
-    the track stays on its branch. A first point about as near to several branches (up to 3
-    local minima of its distance within max(its nearest distance, 5 % of the loop's extent) of
-    it: a figure-eight's crossing) starts a track on each, and the track that runs nearest to
-    the points wins: from the crossing the nearest point picked a branch at random, and a
-    weaving demo's reference ran 12 cm off its path for 1.6 s. Bounded by 3 passes.
-
-    Args:
-        points: Path, shape (T, 2), in [m].
-        loop: Closed loop sampled once round (endpoint excluded), shape (P, 2), in [m].
-        max_step: Most phase change between consecutive points, in loops.
-        steps: How many typical sample intervals lie before each point, shape (T,) (≥ 1; the
-            first is unused): the reach grows with them, so a track resumes after a gap in the
-            samples. None: one each.
-
-    Returns:
-        Unwrapped phase, shape (T,), in loop samples (P per loop; the sign follows the
-        direction of travel).
-    """
-    x = np.asarray(points, dtype=np.float64)
-    ring = np.asarray(loop, dtype=np.float64)
-    p = ring.shape[0]
-    reach = max(1, int(max_step * p))
-    scale = np.ones(x.shape[0]) if steps is None else np.maximum(np.asarray(steps, float), 1.0)
-    half = np.minimum((reach * scale).astype(np.int64), p // 2)
-    half = np.where(half <= reach, reach, half)  # the window's half-width at each point
-    # The loop laid out twice (and one more point), so each window, even round the loop's
-    # seam, is one slice; the first minimum in the window's order wins, as np.argmin over the
-    # candidates ``current + arange(-w, w + 1)`` (mod P) did: the same phase, bit for bit.
-    twice = np.concatenate([ring, ring, ring[:1]])
-    ring_u, ring_v = twice[:, 0].copy(), twice[:, 1].copy()
-    widths, us, vs = half.tolist(), x[:, 0].tolist(), x[:, 1].tolist()
-
-    def follow(current: int) -> FloatArray:
-        phase = np.empty(x.shape[0])
-        phase[0] = current
-        for k in range(1, x.shape[0]):
-            w = widths[k]
-            start = (current - w) % p
-            du = ring_u[start : start + 2 * w + 1] - us[k]
-            dv = ring_v[start : start + 2 * w + 1] - vs[k]
-            current += int((du * du + dv * dv).argmin()) - w
-            phase[k] = current
-        return phase
-
-    tracks = [follow(start) for start in _branch_starts(ring, x[0])]
-    if len(tracks) == 1:
-        return tracks[0]
-    return min(
-        tracks, key=lambda ph: float(np.mean(np.sum((ring[ph.astype(int) % p] - x) ** 2, 1)))
-    )
 
 
 def travel(phase: FloatArray, p: int, clock_hz: float = 50.0) -> tuple[int, int]:
@@ -134,17 +72,6 @@ def travel(phase: FloatArray, p: int, clock_hz: float = 50.0) -> tuple[int, int]
     if travelled[moving[-1]] - travelled[tail] > _TRAVEL_MAX_TRIM:
         tail = int(moving[-1])
     return head, tail
-
-
-def _branch_starts(ring: FloatArray, first: FloatArray) -> list[int]:
-    """Loop points where a track from `first` may start: its nearest, then up to two more local
-    minima of the distance about as near (track_phase)."""
-    d = np.sqrt(np.sum((ring - first) ** 2, axis=1))
-    nearest = int(np.argmin(d))
-    near = d <= d[nearest] + max(float(d[nearest]), 0.05 * float(np.max(np.ptp(ring, axis=0))))
-    minima = np.flatnonzero(near & (d <= np.roll(d, 1)) & (d < np.roll(d, -1)))
-    others = [int(i) for i in minima[np.argsort(d[minima])] if i != nearest]
-    return [nearest, *others[:2]]
 
 
 def drift_along(path: FloatArray, guide: FloatArray, on: np.ndarray, degree: int) -> FloatArray:
