@@ -166,7 +166,7 @@ def _trimmed(
     tail_0 = i1 + 1 - tail_n  # The tail part is path[tail_0 : i1 + 1].
     if min(head_n, tail_n) < 2 or tail_0 <= i0 + head_n:
         return segment
-    k0, k1, gap = _closing_pair(path, (i0, i0 + head_n), (tail_0, i1 + 1), step)
+    k0, k1, gap = _closing_pair(path, (i0, i0 + head_n), (tail_0, i1 + 1), step, shortest=True)
     if gap > tolerance or not _same_way(_arriving(path, k1, step), _leaving(path, k0, step)):
         return segment
     return _snapped(segment, t, float(clock[k0]), float(clock[k1]))
