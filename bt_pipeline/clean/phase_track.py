@@ -29,9 +29,15 @@ _MOVING = 0.2  # A sample moves when its speed is over this share of the path's 
 
 def loop_aspect(points: ArrayLike) -> float:
     """A loop's thickness: the ratio of its principal spreads (1 round, 0 a line)."""
+    minor, major = _spreads(points)
+    return minor / max(major, 1e-150)
+
+
+def _spreads(points: ArrayLike) -> tuple[float, float]:
+    """A loop's principal spreads (standard deviations, minor then major) [m]."""
     p = np.asarray(points, dtype=np.float64)
-    spread = np.linalg.eigvalsh(np.cov((p - p.mean(axis=0)).T))
-    return float(np.sqrt(max(spread[0], 0.0) / max(spread[1], 1e-300)))
+    variance = np.linalg.eigvalsh(np.cov((p - p.mean(axis=0)).T))
+    return float(np.sqrt(max(variance[0], 0.0))), float(np.sqrt(max(variance[1], 0.0)))
 
 
 def track_phase(
@@ -76,8 +82,10 @@ def track_phase(
     twice = np.concatenate([ring, ring, ring[:1]])
     ring_u, ring_v = twice[:, 0].copy(), twice[:, 1].copy()
     widths, us, vs = half.tolist(), x[:, 0].tolist(), x[:, 1].tolist()
-    thin = x.shape[0] > 2 and loop_aspect(ring) < THIN
-    along, heading, moving, width = np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(1, bool), 0.0
+    minor, major = _spreads(ring)
+    thin = x.shape[0] > 2 and minor < THIN * major
+    along, heading, moving = np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(1, bool)
+    width = 4.0 * minor
     if thin:
         along = np.roll(ring, -1, axis=0) - np.roll(ring, 1, axis=0)
         along /= np.maximum(np.linalg.norm(along, axis=1, keepdims=True), 1e-12)
@@ -86,7 +94,6 @@ def track_phase(
         speed = np.linalg.norm(velocity, axis=1)
         moving = speed > _MOVING * float(np.median(speed))
         heading = velocity / np.maximum(speed, 1e-12)[:, None]
-        width = 4.0 * np.sqrt(np.linalg.eigvalsh(np.cov((ring - ring.mean(axis=0)).T))[0])
 
     def follow(current: int, sense: float = 0.0) -> FloatArray:
         phase = np.empty(x.shape[0])
